@@ -1,0 +1,67 @@
+"""Scalar metrics of a run, computed only from a :class:`~vtol_impedance.sim.result.Result`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..sim.result import Result
+
+#: Length of the tail of the task window over which the steady-state error is averaged, s.
+STEADY_TAIL_S = 5.0
+
+METRIC_COLUMNS: dict[str, str] = {
+    "rms_ep_cm": "RMS |e_p| [cm]",
+    "max_ep_cm": "max |e_p| [cm]",
+    "ss_ep_cm": "steady |e_p| [cm]",
+    "rms_ev_cms": "RMS |e_v| [cm/s]",
+    "rms_f_err_N": "RMS |f_hat - f| [N]",
+    "rms_tau_err_mNm": "RMS |tau_hat - tau| [mN m]",
+    "sat_pct": "saturated [%]",
+}
+
+
+def window_mask(result: Result, window: tuple[float, float] | None = None) -> np.ndarray:
+    """Samples inside the task window (default: the one stored in the result's config)."""
+    w = window if window is not None else result.config.get("window", (result.t[0], result.t[-1]))
+    return (result.t >= w[0]) & (result.t <= w[1])
+
+
+def _rms(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+
+def compute_metrics(result: Result, window: tuple[float, float] | None = None) -> list[dict[str, Any]]:
+    """One row per vehicle: position/velocity error statistics, estimation error, saturation.
+
+    ``ss_ep_cm`` is the mean ``|e_p|`` over the last :data:`STEADY_TAIL_S` seconds of the window;
+    the estimation error compares the estimate with the lumped wrench the nominal model misses
+    (``f_lumped_W``, ``tau_lumped_eta``).
+    """
+    m = window_mask(result, window)
+    t = result.t[m]
+    tail = t >= (t[-1] - STEADY_TAIL_S) if t.size else m[m]
+    ep = np.linalg.norm(result.e_p[:, m], axis=-1)
+    ev = np.linalg.norm(result.e_v[:, m], axis=-1)
+    f_err = np.linalg.norm(result["f_hat_W"][:, m] - result["f_lumped_W"][:, m], axis=-1)
+    tau_err = np.linalg.norm(result["tau_hat_eta"][:, m] - result["tau_lumped_eta"][:, m], axis=-1)
+    sat = result["saturated"][:, m]
+    rows = []
+    for b, label in enumerate(result.labels):
+        fail = result.failures[b] if b < len(result.failures) else None
+        rows.append(
+            {
+                "controller": label,
+                "rms_ep_cm": 100 * _rms(ep[b]),
+                "max_ep_cm": 100 * float(np.nanmax(ep[b])) if np.any(np.isfinite(ep[b])) else float("nan"),
+                "ss_ep_cm": 100 * float(np.nanmean(ep[b][tail])) if np.any(tail) else float("nan"),
+                "rms_ev_cms": 100 * _rms(ev[b]),
+                "rms_f_err_N": _rms(f_err[b]),
+                "rms_tau_err_mNm": 1000 * _rms(tau_err[b]),
+                "sat_pct": 100 * float(np.nanmean(sat[b])),
+                "failure": None if fail is None else f"{fail['reason']} at {fail['time']:.2f} s",
+            }
+        )
+    return rows

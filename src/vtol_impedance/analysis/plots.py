@@ -1,0 +1,121 @@
+"""Figures mirroring the paper's Figs. 4-9, drawn only from results. Uses the non-interactive Agg backend."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..io import atomic_path  # noqa: E402
+from ..sim.result import Result  # noqa: E402
+from .metrics import window_mask  # noqa: E402
+
+COLORS = {"pdc": "tab:blue", "pid": "tab:red", "pd": "black"}
+NAMES = {"pdc": "PD+C", "pid": "PID", "pd": "PD"}
+AXES = ("x", "y", "z")
+AXIS_COLORS = ("tab:blue", "tab:red", "black")
+
+
+def _save(fig: plt.Figure, path: Path) -> Path:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix[1:], dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _label(label: str) -> str:
+    return NAMES.get(label, label)
+
+
+def plot_errors(result: Result, path: Path, title: str = "") -> Path:
+    """(a) position error norm, (b) velocity error norm for every controller (Figs. 4, 6, 8b)."""
+    m = window_mask(result)
+    t = result.t[m]
+    fig, ax = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+    for b, lab in enumerate(result.labels):
+        c = COLORS.get(lab)
+        ax[0].plot(t, 100 * np.linalg.norm(result.e_p[b, m], axis=-1), color=c, lw=1, label=_label(lab))
+        ax[1].plot(t, 100 * np.linalg.norm(result.e_v[b, m], axis=-1), color=c, lw=0.8, label=_label(lab))
+    ax[0].set_ylabel("|e_p| [cm]")
+    ax[1].set_ylabel("|e_p_dot| [cm/s]")
+    ax[1].set_xlabel("time [s]")
+    ax[0].set_title(title or "Position and velocity error norms (task window)")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=8)
+    return _save(fig, path)
+
+
+def plot_inputs(result: Result, path: Path, title: str = "") -> Path:
+    """Thrust and body torques actually commanded (after allocation), every controller (Fig. 4d)."""
+    fig, ax = plt.subplots(4, 1, figsize=(8, 8), sharex=True)
+    for b, lab in enumerate(result.labels):
+        c = COLORS.get(lab)
+        ax[0].plot(result.t, result["thrust"][b], color=c, lw=0.8, label=_label(lab))
+        for i in range(3):
+            ax[i + 1].plot(result.t, 1000 * result["tau_B"][b, :, i], color=c, lw=0.6, label=_label(lab))
+    ax[0].set_ylabel("u [N]")
+    for i, n in enumerate(("roll", "pitch", "yaw")):
+        ax[i + 1].set_ylabel(f"tau_{n} [mN m]")
+    ax[-1].set_xlabel("time [s]")
+    ax[0].set_title(title or "Control inputs (allocated)")
+    for a in ax:
+        a.grid(alpha=0.3)
+    ax[0].legend(loc="lower right", fontsize=8)
+    return _save(fig, path)
+
+
+def plot_wrench(result: Result, path: Path, label: str = "pdc", title: str = "") -> Path:
+    """Estimated forces and moments (solid) against what the nominal model misses (thin), Figs. 5, 7, 9."""
+    b = result.index(label) if label in result.labels else 0
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    t = result.t
+    for i in range(3):
+        ax[0].plot(t, result["f_lumped_W"][b, :, i], color=AXIS_COLORS[i], lw=0.4, alpha=0.45)
+        ax[0].plot(t, result["f_hat_W"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"f_hat_{AXES[i]}")
+        ax[1].plot(t, 1000 * result["tau_lumped_eta"][b, :, i], color=AXIS_COLORS[i], lw=0.4, alpha=0.45)
+        ax[1].plot(
+            t, 1000 * result["tau_hat_eta"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"tau_hat_{AXES[i]}"
+        )
+    ax[0].set_ylabel("force, world NED [N]")
+    ax[1].set_ylabel("moment, Euler coords [mN m]")
+    ax[1].set_xlabel("time [s]")
+    ax[0].set_title(title or f"Estimated external wrench ({_label(result.labels[b])}); thin: true lumped")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=8, ncol=3)
+    return _save(fig, path)
+
+
+def plot_xy(result: Result, path: Path, title: str = "") -> Path:
+    """Horizontal path: reference and each controller over the task window (Fig. 8a). y east, x north."""
+    m = window_mask(result)
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(result["p_ref_W"][0, m, 1], result["p_ref_W"][0, m, 0], "--", color="gray", lw=1.5, label="reference")
+    for b, lab in enumerate(result.labels):
+        ax.plot(result["p_W"][b, m, 1], result["p_W"][b, m, 0], color=COLORS.get(lab), lw=1, label=_label(lab))
+    ax.set_xlabel("y (east) [m]")
+    ax.set_ylabel("x (north) [m]")
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title or "Horizontal path")
+    return _save(fig, path)
+
+
+def plot_case(result: Result, folder: Path, stem: str) -> list[Path]:
+    """All figures of one case into ``folder`` as ``{stem}_*.png``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    name = result.config.get("scenario", {}).get("name", stem)
+    paths = [
+        plot_errors(result, folder / f"{stem}_errors.png", f"{name}: error norms"),
+        plot_inputs(result, folder / f"{stem}_inputs.png", f"{name}: inputs"),
+        plot_wrench(result, folder / f"{stem}_wrench.png", title=f"{name}: estimated wrench (PD+C)"),
+    ]
+    if result.config.get("scenario", {}).get("trajectory", {}).get("kind") == "circle":
+        paths.append(plot_xy(result, folder / f"{stem}_xy.png", f"{name}: x-y path"))
+    return paths

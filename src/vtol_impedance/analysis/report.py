@@ -1,0 +1,97 @@
+"""Tables (CSV, Markdown, terminal) and an HTML report, written atomically."""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from ..io import write_text
+from .metrics import METRIC_COLUMNS
+
+NAMES = {"pdc": "PD+C", "pid": "PID", "pd": "PD"}
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.3g}" if abs(v) < 0.01 and v != 0 else f"{v:.2f}"
+    return "" if v is None else str(v)
+
+
+def table_rows(metrics: dict[str, list[dict[str, Any]]]) -> tuple[list[str], list[list[str]]]:
+    head = ["case", "controller", *METRIC_COLUMNS.values(), "failure"]
+    rows = []
+    for case, rs in metrics.items():
+        for r in rs:
+            rows.append(
+                [case, NAMES.get(r["controller"], r["controller"])]
+                + [_fmt(r[k]) for k in METRIC_COLUMNS]
+                + [_fmt(r.get("failure"))]
+            )
+    return head, rows
+
+
+def markdown_table(metrics: dict[str, list[dict[str, Any]]]) -> str:
+    head, rows = table_rows(metrics)
+    drop_fail = all(not r[-1] for r in rows)
+    if drop_fail:
+        head, rows = head[:-1], [r[:-1] for r in rows]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+def text_table(metrics: dict[str, list[dict[str, Any]]]) -> str:
+    head, rows = table_rows(metrics)
+    if all(not r[-1] for r in rows):
+        head, rows = head[:-1], [r[:-1] for r in rows]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+    line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True))  # noqa: E731
+    return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows]) + "\n"
+
+
+def write_tables(metrics: dict[str, list[dict[str, Any]]], folder: Path, stem: str = "metrics") -> list[Path]:
+    head, rows = table_rows(metrics)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["case", "controller", *METRIC_COLUMNS.keys(), "failure"])
+    for case, rs in metrics.items():
+        for r in rs:
+            w.writerow([case, r["controller"], *(r[k] for k in METRIC_COLUMNS), r.get("failure") or ""])
+    return [
+        write_text(folder / f"{stem}.csv", buf.getvalue()),
+        write_text(folder / f"{stem}.md", markdown_table(metrics)),
+    ]
+
+
+def write_html(
+    folder: Path,
+    title: str,
+    metrics: dict[str, list[dict[str, Any]]],
+    figures: dict[str, Sequence[Path]],
+    notes: Sequence[str] = (),
+    config: dict[str, Any] | None = None,
+) -> Path:
+    head, rows = table_rows(metrics)
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+    ]
+    parts += [f"<p>{html.escape(n)}</p>" for n in notes]
+    parts.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>")
+    parts += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows]
+    parts.append("</table>")
+    for case, figs in figures.items():
+        parts.append(f"<h2>{html.escape(case)}</h2>")
+        parts += [f"<p><img src='{html.escape(p.name)}' alt='{html.escape(p.stem)}'></p>" for p in figs]
+    if config is not None:
+        parts.append("<h2>Configuration</h2><pre>" + html.escape(json.dumps(config, indent=1)[:200000]) + "</pre>")
+    parts.append("</body></html>")
+    return write_text(folder / "report.html", "\n".join(parts))

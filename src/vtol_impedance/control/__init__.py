@@ -1,0 +1,34 @@
+"""Hierarchical impedance controller, eqs. (14)-(20)."""
+
+from .gains import ImpedanceGains
+from .impedance import (
+    PAPER_KI,
+    VARIANTS,
+    Controller,
+    ControllerArrays,
+    ControllerParams,
+    ControllerState,
+    compile_controllers,
+    controller_step,
+    initial_controller_state,
+)
+from .signals import ControlOutput, Measurement, Reference
+from .thrust import acceleration_from_thrust, thrust_and_attitude
+
+__all__ = [
+    "PAPER_KI",
+    "VARIANTS",
+    "ControlOutput",
+    "Controller",
+    "ControllerArrays",
+    "ControllerParams",
+    "ControllerState",
+    "ImpedanceGains",
+    "Measurement",
+    "Reference",
+    "acceleration_from_thrust",
+    "compile_controllers",
+    "controller_step",
+    "initial_controller_state",
+    "thrust_and_attitude",
+]

@@ -1,0 +1,238 @@
+"""Momentum-based estimator of external generalized forces, eqs. (6)-(13) of Ruggiero et al. (2014).
+
+Continuous-time idea (eq. (12)): the estimate ``r = [f_hat_ext_W; tau_hat_ext_eta]`` obeys
+``r = G(s) [f_ext_W; tau_ext_eta]`` with ``G_i(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2)`` (eq. (10)).
+It needs only ``eta``, ``eta_dot``, ``p_dot`` (never the position), the commanded thrust and body
+torque, and the nominal ``m`` and ``I_B``; ``M(eta)`` is never inverted.
+
+Discrete-time realisation (what runs at the control rate ``Ts``)
+-----------------------------------------------------------------
+Eq. (8) gives ``q_dot = beta + w`` with ``w = [f_ext_W; tau_ext_eta]`` and ``beta`` the known part
+(:func:`~vtol_impedance.model.dynamics.momentum_rate_known`). Over one period the *average* wrench is
+therefore measured without differentiating anything but the momentum itself:
+
+    w_bar_k = (q_k - q_{k-1}) / Ts - (beta(eta_{k-1}, u_{k-1}) + beta(eta_k, u_{k-1})) / 2
+
+(trapezoidal integral of ``beta`` with the command ``u_{k-1}, tau_{k-1}`` that was held over the period).
+``w_bar_k`` then drives a state-space realisation of ``G(s)`` discretised exactly with a zero-order
+hold on ``w_bar``. This is the paper's eq. (11) with the two integrals evaluated exactly for a wrench
+that is constant over each period: a constant wrench is recovered with zero error, a step
+is followed exactly at the sample instants by the step response of ``G(s)``, and the discretisation
+is stable for every ``wn * Ts`` (the eigenvalues are ``exp(p_i Ts)``). What ``Ts`` does limit is
+resolution: a bandwidth near the Nyquist rate passes the differenced measurement noise straight
+through, so ``|p| Ts > 0.5`` warns and ``|p| Ts >= pi`` is refused.
+
+Order n (the paper: "with small modifications to (11), any order"): ``G(s)`` is any all-pole filter of
+unit DC gain, ``G(s) = prod(-p_i) / prod(s - p_i)``; ``order=1`` is the classic first-order momentum
+observer of De Luca et al., ``order=2`` with ``(wn, zeta)`` is eq. (10), and higher orders use a
+binomial or Butterworth prototype or user poles.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import scipy.linalg
+
+from ..errors import InputError, as_finite, positive
+from ..model.dynamics import generalized_momentum, momentum_rate_known
+
+_PROTOTYPES = ("zeta", "binomial", "butterworth")
+
+
+class EstimatorBandwidthWarning(UserWarning):
+    """The estimator bandwidth is not well below the sampling rate."""
+
+
+def _six(name: str, value: float | np.ndarray) -> np.ndarray:
+    arr = np.broadcast_to(positive(name, value), (6,)).astype(float)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class EstimatorParams:
+    """Design of the estimator filters ``G_i(s)``, one per wrench component (fx, fy, fz, tx, ty, tz).
+
+    Parameters
+    ----------
+    wn : natural frequency (order 2 with ``prototype="zeta"``) or bandwidth of the prototype, rad/s;
+        a scalar or six values. Paper: 10 rad/s for all six.
+    zeta : damping of eq. (10) (used by ``prototype="zeta"``, order 2). Paper: 1.
+    order : filter order n >= 1.
+    prototype : ``"zeta"`` (order 2, eq. (10)), ``"binomial"`` (n poles at ``-wn``) or ``"butterworth"``.
+    poles : optional explicit poles, shape ``(n,)`` or ``(6, n)``, all with negative real part;
+        complex poles must come in conjugate pairs. Overrides ``wn``/``prototype``.
+    """
+
+    wn: np.ndarray | float = 10.0
+    zeta: np.ndarray | float = 1.0
+    order: int = 2
+    prototype: str = "zeta"
+    poles: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "wn", _six("estimator wn", self.wn))
+        object.__setattr__(self, "zeta", _six("estimator zeta", self.zeta))
+        if not isinstance(self.order, int | np.integer) or self.order < 1:
+            raise InputError(f"estimator order must be an integer >= 1, got {self.order!r}")
+        if self.prototype not in _PROTOTYPES:
+            raise InputError(f"estimator prototype must be one of {_PROTOTYPES}, got {self.prototype!r}")
+        if self.prototype == "zeta" and self.order != 2 and self.poles is None:
+            raise InputError("prototype 'zeta' is the second-order filter of eq. (10); use order=2 or "
+                             "prototype='binomial'/'butterworth' for other orders")
+        if self.poles is not None:
+            p = np.asarray(self.poles, dtype=complex)
+            p = np.broadcast_to(p, (6, p.shape[-1])).copy()
+            if p.shape[-1] != self.order:
+                raise InputError(f"{p.shape[-1]} poles given for an order-{self.order} estimator")
+            if not np.all(np.isfinite(p)) or np.any(p.real >= 0):
+                raise InputError(f"estimator poles must be finite with negative real part, got {p[0]}")
+            object.__setattr__(self, "poles", p)
+
+    @classmethod
+    def from_gains(cls, K1: np.ndarray | float, K2: np.ndarray | float) -> EstimatorParams:
+        """From the gains of eq. (11) via eq. (13): ``k1 k2 = wn^2``, ``k1 = 2 zeta wn``."""
+        k1 = _six("K1", K1)
+        k2 = _six("K2", K2)
+        wn = np.sqrt(k1 * k2)
+        return cls(wn=wn, zeta=k1 / (2.0 * wn), order=2, prototype="zeta")
+
+    @property
+    def K1(self) -> np.ndarray:
+        """Diagonal of ``K1`` in eq. (11) (order 2): ``2 zeta wn``."""
+        return 2.0 * self.zeta * self.wn
+
+    @property
+    def K2(self) -> np.ndarray:
+        """Diagonal of ``K2`` in eq. (11) (order 2): ``wn / (2 zeta)``."""
+        return self.wn / (2.0 * self.zeta)
+
+    def channel_poles(self) -> np.ndarray:
+        """Continuous-time poles, shape ``(6, order)``."""
+        if self.poles is not None:
+            return np.asarray(self.poles)
+        n = self.order
+        wn = self.wn[:, None]
+        if self.prototype == "zeta":
+            z = self.zeta[:, None].astype(complex)
+            root = np.sqrt(z * z - 1.0)
+            return np.concatenate([wn * (-z + root), wn * (-z - root)], -1)
+        if self.prototype == "binomial":
+            return -wn * np.ones((6, n))
+        k = np.arange(1, n + 1)
+        unit = np.exp(1j * np.pi * (2 * k + n - 1) / (2 * n))
+        return wn * unit[None, :]
+
+    def to_dict(self) -> dict:
+        return {
+            "wn": self.wn.tolist(),
+            "zeta": self.zeta.tolist(),
+            "order": int(self.order),
+            "prototype": self.prototype,
+            "poles": None if self.poles is None else [[str(c) for c in row] for row in self.poles],
+        }
+
+
+class EstimatorDesign(NamedTuple):
+    """Discrete matrices of the estimator filters: ``x_k = Ad x_{k-1} + Bd w_bar_k``, ``r_k = C x_k``."""
+
+    Ad: np.ndarray  # (6, n, n)
+    Bd: np.ndarray  # (6, n)
+    C: np.ndarray  # (6, n)
+    Ts: float
+
+
+def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
+    """Exact zero-order-hold discretisation of ``G_i(s)`` for the sampling period ``Ts`` (s)."""
+    Ts = float(positive("Ts", Ts))
+    poles = params.channel_poles()
+    worst = float(np.max(np.abs(poles)) * Ts)
+    if worst >= np.pi:
+        raise InputError(
+            f"estimator bandwidth too high for the control period: |p| * Ts = {worst:.3f} >= pi "
+            f"(Ts = {Ts} s, max |p| = {np.max(np.abs(poles)):.1f} rad/s); lower wn or raise the rate"
+        )
+    if worst > 0.5:
+        warnings.warn(
+            f"estimator |p| * Ts = {worst:.3f} > 0.5: the bandwidth is close to the sampling rate, "
+            "so measurement noise is barely filtered; consider a lower wn or a faster control rate",
+            EstimatorBandwidthWarning,
+            stacklevel=2,
+        )
+    n = params.order
+    Ad = np.empty((6, n, n))
+    Bd = np.empty((6, n))
+    C = np.zeros((6, n))
+    for i in range(6):
+        coeffs = np.real(np.poly(poles[i]))  # s^n + a1 s^(n-1) + ... + an
+        A = np.zeros((n, n))
+        A[:-1, 1:] = np.eye(n - 1)
+        A[-1, :] = -coeffs[1:][::-1]
+        aug = np.zeros((n + 1, n + 1))
+        aug[:n, :n] = A * Ts
+        aug[n - 1, n] = Ts
+        E = scipy.linalg.expm(aug)
+        Ad[i] = E[:n, :n]
+        Bd[i] = E[:n, n]
+        C[i, 0] = coeffs[-1]
+    return EstimatorDesign(Ad, Bd, C, Ts)
+
+
+class EstimatorState(NamedTuple):
+    """Filter state ``x (..., 6, n)`` and the previous sample's momentum, attitude and rates."""
+
+    x: np.ndarray
+    q_prev: np.ndarray
+    eta_prev: np.ndarray
+    eta_dot_prev: np.ndarray
+    started: bool
+
+
+def initial_state(des: EstimatorDesign, batch_shape: tuple[int, ...] = ()) -> EstimatorState:
+    n = des.Ad.shape[-1]
+    z3 = np.zeros(batch_shape + (3,))
+    return EstimatorState(np.zeros(batch_shape + (6, n)), np.zeros(batch_shape + (6,)), z3, z3, False)
+
+
+def estimator_step(
+    des: EstimatorDesign,
+    state: EstimatorState,
+    eta: np.ndarray,
+    eta_dot: np.ndarray,
+    v_W: np.ndarray,
+    thrust_prev: np.ndarray,
+    tau_B_prev: np.ndarray,
+    mass: np.ndarray,
+    I_B: np.ndarray,
+) -> tuple[EstimatorState, np.ndarray]:
+    """One update at the control rate.
+
+    Parameters
+    ----------
+    eta, eta_dot, v_W : measured attitude, Euler rates and world-frame velocity at this sample.
+    thrust_prev, tau_B_prev : the command held over the period that just ended.
+    mass, I_B : nominal parameters.
+
+    Returns
+    -------
+    state, wrench_hat : ``wrench_hat (..., 6) = [f_hat_ext_W; tau_hat_ext_eta]``; zero at the first call.
+    """
+    q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)
+    if not state.started:
+        return EstimatorState(state.x, q, eta, eta_dot, True), np.zeros(q.shape)
+    beta_a = momentum_rate_known(state.eta_prev, state.eta_dot_prev, thrust_prev, tau_B_prev, mass, I_B)
+    beta_b = momentum_rate_known(eta, eta_dot, thrust_prev, tau_B_prev, mass, I_B)
+    w_bar = (q - state.q_prev) / des.Ts - 0.5 * (beta_a + beta_b)
+    x = np.einsum("cij,...cj->...ci", des.Ad, state.x) + des.Bd * w_bar[..., None]
+    r = np.einsum("ci,...ci->...c", des.C, x)
+    return EstimatorState(x, q, eta, eta_dot, True), r
+
+
+def check_inputs(eta: np.ndarray, eta_dot: np.ndarray, v_W: np.ndarray) -> None:
+    """Raise a clear error on non-finite or mis-shaped measurements."""
+    as_finite("eta", eta, (3,))
+    as_finite("eta_dot", eta_dot, (3,))
+    as_finite("v_W", v_W, (3,))

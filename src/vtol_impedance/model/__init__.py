@@ -1,0 +1,39 @@
+"""Vehicle model: kinematics (1), dynamics (3)-(8) and the rotor mixer (4)."""
+
+from .dynamics import (
+    body_moment_from_euler,
+    coriolis_matrix_C,
+    euler_moment_from_body,
+    generalized_momentum,
+    inertia_matrix_M,
+    momentum_rate_known,
+)
+from .kinematics import (
+    euler_rate_matrix_Q,
+    euler_rate_matrix_Q_dot,
+    euler_rate_matrix_T,
+    rotation_zyx,
+    skew,
+)
+from .mixer import Allocation, allocate, mix, unmix
+from .vehicle import VehicleParams, load_preset
+
+__all__ = [
+    "Allocation",
+    "VehicleParams",
+    "allocate",
+    "body_moment_from_euler",
+    "coriolis_matrix_C",
+    "euler_moment_from_body",
+    "euler_rate_matrix_Q",
+    "euler_rate_matrix_Q_dot",
+    "euler_rate_matrix_T",
+    "generalized_momentum",
+    "inertia_matrix_M",
+    "load_preset",
+    "mix",
+    "momentum_rate_known",
+    "rotation_zyx",
+    "skew",
+    "unmix",
+]

@@ -1,0 +1,93 @@
+"""Rigid-body dynamics in Euler coordinates, eqs. (3), (5)-(8) of Ruggiero et al. (2014).
+
+Shapes: ``eta``, ``eta_dot``, ``v_W``: ``(..., 3)``; ``I_B``: ``(..., 3, 3)``; ``mass``, ``thrust``: ``(...)``.
+
+Frames: ``tau_B`` is a moment in the body frame; a *generalized* moment in Euler-angle
+coordinates, such as ``tau_ext`` of eq. (5b), is named ``*_eta``. They are related by
+``tau_eta = Q(eta)^T tau_B`` and ``tau_B = Q(eta)^{-T} tau_eta``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..conventions import E3, GRAVITY_W
+from .kinematics import (
+    euler_rate_matrix_Q,
+    euler_rate_matrix_Q_dot,
+    rotation_zyx,
+    skew,
+)
+
+
+def matvec(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Batched ``A @ x`` for ``A (..., n, m)`` and ``x (..., m)``."""
+    return np.einsum("...ij,...j->...i", A, x)
+
+
+def transpose(A: np.ndarray) -> np.ndarray:
+    """Swap the last two axes."""
+    return np.swapaxes(A, -1, -2)
+
+
+def inertia_matrix_M(eta: np.ndarray, I_B: np.ndarray) -> np.ndarray:
+    """``M(eta) = Q^T I_B Q``, eq. (3b); symmetric positive definite away from theta = +-pi/2."""
+    Q = euler_rate_matrix_Q(eta)
+    return transpose(Q) @ np.asarray(I_B, dtype=float) @ Q
+
+
+def coriolis_matrix_C(eta: np.ndarray, eta_dot: np.ndarray, I_B: np.ndarray) -> np.ndarray:
+    """``C(eta, eta_dot) = Q^T S(Q eta_dot) I_B Q + Q^T I_B Q_dot``, eq. (3b).
+
+    It satisfies ``M_dot = C + C^T``, eq. (7).
+    """
+    Q = euler_rate_matrix_Q(eta)
+    Qd = euler_rate_matrix_Q_dot(eta, eta_dot)
+    I_B = np.asarray(I_B, dtype=float)
+    QT = transpose(Q)
+    return QT @ skew(matvec(Q, eta_dot)) @ I_B @ Q + QT @ I_B @ Qd
+
+
+def generalized_momentum(
+    v_W: np.ndarray, eta: np.ndarray, eta_dot: np.ndarray, mass: np.ndarray, I_B: np.ndarray
+) -> np.ndarray:
+    """``q = [m p_dot; M(eta) eta_dot]``, eq. (6); returns ``(..., 6)``."""
+    lin = np.asarray(mass, dtype=float)[..., None] * np.asarray(v_W, dtype=float)
+    ang = matvec(inertia_matrix_M(eta, I_B), eta_dot)
+    return np.concatenate([lin, ang], -1)
+
+
+def momentum_rate_known(
+    eta: np.ndarray,
+    eta_dot: np.ndarray,
+    thrust: np.ndarray,
+    tau_B: np.ndarray,
+    mass: np.ndarray,
+    I_B: np.ndarray,
+) -> np.ndarray:
+    """The known part ``beta`` of the momentum rate, eq. (8) without the external wrench.
+
+    ``beta = [-u R(eta) e3 + m g_W;  Q^T tau_B + C^T eta_dot]``, so that ``q_dot = beta + [f_ext_W; tau_ext_eta]``.
+    """
+    R = rotation_zyx(eta)
+    lin = -np.asarray(thrust, dtype=float)[..., None] * R[..., :, 2] + np.asarray(mass)[..., None] * GRAVITY_W
+    Q = euler_rate_matrix_Q(eta)
+    C = coriolis_matrix_C(eta, eta_dot, I_B)
+    ang = matvec(transpose(Q), tau_B) + matvec(transpose(C), eta_dot)
+    return np.concatenate([lin, ang], -1)
+
+
+def euler_moment_from_body(tau_B: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """Generalized moment in Euler coordinates ``tau_eta = Q(eta)^T tau_B``."""
+    return matvec(transpose(euler_rate_matrix_Q(eta)), tau_B)
+
+
+def body_moment_from_euler(tau_eta: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """Body-frame moment ``tau_B = Q(eta)^{-T} tau_eta`` (needs theta != +-pi/2)."""
+    QT = transpose(euler_rate_matrix_Q(eta))
+    return np.linalg.solve(QT, np.asarray(tau_eta, dtype=float)[..., None])[..., 0]
+
+
+def thrust_direction_W(eta: np.ndarray) -> np.ndarray:
+    """``R(eta) e3``: the body z axis in the world frame; thrust pushes along its negative."""
+    return matvec(rotation_zyx(eta), np.broadcast_to(E3, np.shape(eta)))

@@ -1,0 +1,373 @@
+"""Scenario specification: plain, typed, frozen sections that map one-to-one onto TOML tables.
+
+A scenario says what is flown (trajectory), what the true vehicle is (payload, plant effects, sensors),
+what pushes on it (disturbances) and how it is controlled (gains, rates). ``ideal = true`` removes every
+effect the controller does not model except the payload *mass* and the listed disturbances, for checks
+against analytic numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..control.gains import ImpedanceGains
+from ..control.impedance import PAPER_KI, ControllerParams
+from ..control.reference import Circle, Hold, MinJerk, Trajectory
+from ..errors import InputError, ScenarioError
+from ..estimator.momentum import EstimatorParams
+from ..model.vehicle import load_preset
+from ..sim.disturbances import Disturbance, from_dict
+from ..sim.plant import PlantParams
+from ..sim.sensors import SensorParams
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class TrajectorySpec:
+    """Take-off, the task (hover or circle), optional landing. Times in s, distances in m.
+
+    The run starts on the ground (z = 0) or, with ``start_on_ground = false``, hovering at the altitude.
+    ``yaw_step_time < 0`` disables the yaw step.
+    """
+
+    kind: str = "hover"
+    altitude: float = 1.0
+    start_on_ground: bool = True
+    takeoff_at: float = 1.0
+    takeoff_duration: float = 4.0
+    hover_duration: float = 25.0
+    circle_radius: float = 1.0
+    circle_speed: float = 0.5
+    circle_laps: float = 2.0
+    circle_ramp: float = 2.0
+    settle_duration: float = 3.0
+    land: bool = False
+    land_duration: float = 4.0
+    land_hold: float = 2.0
+    yaw: float = 0.0
+    yaw_step_time: float = -1.0
+    yaw_step_angle: float = 0.5
+
+
+@dataclass(frozen=True)
+class PayloadSpec:
+    """An unmodelled payload: true mass (kg) at ``offset_B`` (m, FRD) from the body origin."""
+
+    mass: float = 0.110
+    offset_B: Vec3 = (0.01, 0.0, 0.03)
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """True-plant effects the controller does not know (see :class:`~vtol_impedance.sim.plant.PlantParams`)."""
+
+    inertia_scale: Vec3 = (1.15, 1.15, 0.9)
+    arm_length_scale: float = 1.0
+    drag_factor_scale: float = 1.1
+    rotor_tau_up: float = 0.0125
+    rotor_tau_down: float = 0.025
+    rotor_drag: float = 0.18
+    rotor_limits: bool = True
+    ground: bool = True
+
+
+@dataclass(frozen=True)
+class ControlSpec:
+    """Controller and estimator settings. Defaults are the paper's (Sec. VI.A-B)."""
+
+    rate: float = 100.0
+    Kp: float | Vec3 = 16.0
+    Dp: float | Vec3 = 12.0
+    Ki: float | Vec3 = PAPER_KI
+    wn_o: float = 8.0
+    zeta_o: float = 1.0
+    estimator_wn: float = 10.0
+    estimator_zeta: float = 1.0
+    estimator_order: int = 2
+    estimator_prototype: str = "zeta"
+    attitude_filter_wn: float = 20.0
+    tilt_max_deg: float = 35.0
+    integral_limit: float = 3.0
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    name: str
+    description: str = ""
+    vehicle: str = "pelican"
+    ideal: bool = False
+    seed: int = 0
+    plant_rate: float = 1000.0
+    duration: float = 0.0  # 0: the trajectory's own length
+    trajectory: TrajectorySpec = field(default_factory=TrajectorySpec)
+    payload: PayloadSpec = field(default_factory=PayloadSpec)
+    plant: PlantSpec = field(default_factory=PlantSpec)
+    sensors: SensorParams = field(default_factory=SensorParams)
+    control: ControlSpec = field(default_factory=ControlSpec)
+    disturbances: tuple[dict[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "disturbances", tuple(dict(d) for d in self.disturbances))
+        for d in self.disturbances:
+            from_dict(d)  # validates kinds and keys now, not mid-run
+
+    def to_dict(self) -> dict[str, Any]:
+        return _to_plain(dataclasses.asdict(self))
+
+
+def _to_plain(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _to_plain(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_to_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+# --------------------------------------------------------------------------- building
+
+
+@dataclass(frozen=True)
+class Built:
+    """Everything :func:`~vtol_impedance.sim.loop.run_closed_loop` needs, derived from a spec."""
+
+    plant: PlantParams
+    trajectory: Trajectory
+    disturbances: tuple[Disturbance, ...]
+    sensors: SensorParams
+    duration: float
+    window: tuple[float, float]
+    phases: dict[str, float]
+    start_W: np.ndarray
+
+
+def build_trajectory(ts: TrajectorySpec) -> tuple[Trajectory, tuple[float, float], dict[str, float]]:
+    """The reference of a scenario, its task window (for metrics) and named phase times."""
+    if ts.kind not in ("hover", "circle"):
+        raise InputError(f"trajectory.kind must be 'hover' or 'circle', got {ts.kind!r}")
+    hover = (0.0, 0.0, -float(ts.altitude))
+    ground = (0.0, 0.0, 0.0)
+    segs: list[Any] = []
+    phases: dict[str, float] = {}
+    t = 0.0
+    if ts.start_on_ground:
+        segs += [Hold(ground, ts.takeoff_at), MinJerk(ground, hover, ts.takeoff_duration)]
+        t += ts.takeoff_at + ts.takeoff_duration
+        phases["takeoff"] = ts.takeoff_at
+    phases["hover"] = t
+    segs.append(Hold(hover, ts.hover_duration))
+    t += ts.hover_duration
+    if ts.kind == "hover":
+        window = (phases["hover"], t)
+    else:
+        c = Circle(hover, ts.circle_radius, ts.circle_speed, ts.circle_laps, ts.circle_ramp)
+        segs.append(c)
+        phases["circle"] = t
+        window = (t, t + c.duration)
+        t += c.duration
+        segs.append(Hold(hover, ts.settle_duration))
+        t += ts.settle_duration
+    if ts.land:
+        segs += [MinJerk(hover, ground, ts.land_duration), Hold(ground, ts.land_hold)]
+        phases["land"] = t
+        t += ts.land_duration + ts.land_hold
+    steps = ((ts.yaw_step_time, ts.yaw + ts.yaw_step_angle),) if ts.yaw_step_time >= 0 else ()
+    return Trajectory(tuple(segs), yaw0=ts.yaw, yaw_steps=steps), window, phases
+
+
+def build(spec: ScenarioSpec) -> Built:
+    """Turn a spec into plant, trajectory, disturbances and sensors (the controller is built separately)."""
+    vehicle = load_preset(spec.vehicle)
+    traj, window, phases = build_trajectory(spec.trajectory)
+    duration = spec.duration if spec.duration > 0 else traj.duration
+    window = (min(window[0], duration), min(window[1], duration))
+    ps, pl = spec.plant, spec.payload
+    f_max = vehicle.f_max if ps.rotor_limits else 1e6
+    true_vehicle = replace(vehicle, f_max=f_max, name=f"{vehicle.name} (true)")
+    if spec.ideal:
+        plant = PlantParams(
+            true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground
+        )
+        sensors = SensorParams.ideal()
+    else:
+        plant = PlantParams(
+            true_vehicle,
+            payload_mass=pl.mass,
+            payload_offset_B=pl.offset_B,
+            inertia_scale=ps.inertia_scale,
+            arm_length_scale=ps.arm_length_scale,
+            drag_factor_scale=ps.drag_factor_scale,
+            rotor_tau_up=ps.rotor_tau_up,
+            rotor_tau_down=ps.rotor_tau_down,
+            rotor_drag=ps.rotor_drag,
+            ground=ps.ground,
+        )
+        sensors = spec.sensors
+    start = np.array([0.0, 0.0, 0.0 if spec.trajectory.start_on_ground else -spec.trajectory.altitude])
+    dists = tuple(from_dict(d) for d in spec.disturbances)
+    return Built(plant, traj, dists, sensors, float(duration), window, phases, start)
+
+
+def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
+    """The nominal controller of a scenario: the preset vehicle, never the true plant."""
+    c = spec.control
+    vehicle = load_preset(spec.vehicle)
+    att = ImpedanceGains.from_natural(vehicle.mass, vehicle.inertia, 1.0, 1.0, c.wn_o, c.zeta_o)
+    gains = ImpedanceGains(Kp=c.Kp, Dp=c.Dp, Ko=att.Ko, Do=att.Do, Ki=c.Ki if variant == "pid" else 0.0)
+    est = EstimatorParams(
+        wn=c.estimator_wn, zeta=c.estimator_zeta, order=int(c.estimator_order), prototype=c.estimator_prototype
+    )
+    return ControllerParams(
+        vehicle=vehicle,
+        gains=gains,
+        variant=variant,
+        estimator=est,
+        Ts=1.0 / c.rate,
+        tilt_max=float(np.radians(c.tilt_max_deg)),
+        attitude_filter_wn=c.attitude_filter_wn,
+        integral_limit=c.integral_limit,
+    )
+
+
+# --------------------------------------------------------------------------- overrides and TOML
+
+
+def _coerce(path: str, current: Any, value: Any) -> Any:
+    """Convert ``value`` to the type of ``current`` or raise a clear error."""
+    if isinstance(current, bool):
+        if isinstance(value, bool):
+            return value
+        raise ScenarioError(f"{path} expects true/false, got {value!r}")
+    if isinstance(current, int) and not isinstance(current, bool):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        raise ScenarioError(f"{path} expects an integer, got {value!r}")
+    if isinstance(current, float):
+        if isinstance(value, list | tuple) and len(value) == 3:
+            return tuple(float(_coerce(path, 0.0, v)) for v in value)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if not np.isfinite(value):
+                raise ScenarioError(f"{path} must be finite, got {value!r}")
+            return float(value)
+        raise ScenarioError(f"{path} expects a number, got {value!r}")
+    if isinstance(current, str):
+        if isinstance(value, str):
+            return value
+        raise ScenarioError(f"{path} expects a string, got {value!r}")
+    if isinstance(current, tuple) and current and not isinstance(current[0], dict):
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            value = [value] * len(current)
+        if not isinstance(value, list | tuple) or len(value) != len(current):
+            raise ScenarioError(f"{path} expects {len(current)} values, got {value!r}")
+        return tuple(_coerce(f"{path}[{i}]", c, v) for i, (c, v) in enumerate(zip(current, value, strict=True)))
+    return value
+
+
+def _section_keys(obj: Any) -> list[str]:
+    return [f.name for f in fields(obj)]
+
+
+def set_value(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
+    """Return a copy of ``spec`` with the dotted ``key`` (``payload.mass``, ``disturbances.0.mean_force``) set."""
+    parts = key.split(".")
+    return _set(spec, parts, value, key)
+
+
+def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
+    head, rest = parts[0], parts[1:]
+    if isinstance(obj, tuple):  # the disturbances list
+        try:
+            i = int(head)
+            item = obj[i]
+        except (ValueError, IndexError):
+            raise ScenarioError(f"{full}: there are {len(obj)} disturbances; use an index 0..{len(obj) - 1}") from None
+        if not rest:
+            raise ScenarioError(f"{full}: name a field of disturbance {i}, e.g. disturbances.{i}.kind")
+        new = dict(item)
+        if len(rest) != 1:
+            raise ScenarioError(f"{full}: disturbance fields are not nested")
+        new[rest[0]] = value
+        from_dict(new)  # validates the key
+        return obj[:i] + (new,) + obj[i + 1 :]
+    if not dataclasses.is_dataclass(obj):
+        raise ScenarioError(f"{full}: {head!r} cannot be set inside a value")
+    valid = _section_keys(obj)
+    if head not in valid:
+        raise ScenarioError(f"unknown key {full!r}: {head!r} is not one of {', '.join(valid)}")
+    current = getattr(obj, head)
+    if rest:
+        return replace(obj, **{head: _set(current, rest, value, full)})
+    if dataclasses.is_dataclass(current):
+        raise ScenarioError(f"{full} is a section; set one of its keys: {', '.join(_section_keys(current))}")
+    if head == "disturbances":
+        if not isinstance(value, list | tuple) or not all(isinstance(d, dict) for d in value):
+            raise ScenarioError("disturbances must be a list of tables with a 'kind'")
+        return replace(obj, disturbances=tuple(value))
+    try:
+        return replace(obj, **{head: _coerce(full, current, value)})
+    except InputError as exc:
+        raise ScenarioError(f"{full}: {exc}") from exc
+
+
+def parse_value(text: str) -> Any:
+    """Parse a command-line value as TOML (``0.2``, ``true``, ``[1, 2, 3]``), else keep it as a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(spec: ScenarioSpec, assignments: list[str] | tuple[str, ...]) -> ScenarioSpec:
+    """Apply ``key=value`` strings, as given to ``--set``."""
+    for a in assignments:
+        if "=" not in a:
+            raise ScenarioError(f"--set expects key=value, got {a!r}")
+        k, v = a.split("=", 1)
+        spec = set_value(spec, k.strip(), parse_value(v.strip()))
+    return spec
+
+
+def apply_mapping(spec: ScenarioSpec, data: dict[str, Any], prefix: str = "") -> ScenarioSpec:
+    """Apply a nested mapping (a parsed TOML document) onto ``spec``."""
+    for k, v in data.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            spec = apply_mapping(spec, v, key + ".")
+        else:
+            spec = set_value(spec, key, v)
+    return spec
+
+
+def load_toml(path: str | Path, base: ScenarioSpec | None = None) -> ScenarioSpec:
+    """Read a scenario file. ``base = "case-a-payload"`` at the top starts from a registered scenario."""
+    from .registry import get
+
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"cannot read scenario file {path}: {exc}") from exc
+    base_name = data.pop("base", None)
+    if base_name is not None:
+        spec = get(base_name)
+    elif base is not None:
+        spec = base
+    else:
+        if "name" not in data:
+            raise ScenarioError(f"{path}: give either 'base = \"<registered scenario>\"' or a 'name'")
+        spec = ScenarioSpec(name=data["name"])
+    dists = data.pop("disturbances", None)
+    spec = apply_mapping(spec, data)
+    if dists is not None:
+        spec = set_value(spec, "disturbances", dists)
+    return spec

@@ -1,0 +1,114 @@
+"""Simulation results: named arrays, labels, failures and the exact configuration that produced them."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import write_with
+
+SCHEMA_VERSION = 1
+
+#: Logged signals: name -> (trailing shape, unit, meaning). All are sampled at the control rate.
+SIGNALS: dict[str, tuple[tuple[int, ...], str, str]] = {
+    "p_W": ((3,), "m", "true position of the body origin, world NED"),
+    "v_W": ((3,), "m/s", "true velocity of the body origin, world NED"),
+    "eta": ((3,), "rad", "true ZYX Euler angles"),
+    "omega_B": ((3,), "rad/s", "true body rate"),
+    "p_ref_W": ((3,), "m", "reference position"),
+    "v_ref_W": ((3,), "m/s", "reference velocity"),
+    "psi_ref": ((), "rad", "reference yaw"),
+    "p_meas_W": ((3,), "m", "measured position"),
+    "v_meas_W": ((3,), "m/s", "measured velocity"),
+    "eta_meas": ((3,), "rad", "measured Euler angles"),
+    "eta_d": ((3,), "rad", "desired (filtered) attitude"),
+    "thrust_request": ((), "N", "thrust asked by eq. (16)"),
+    "tau_B_request": ((3,), "N m", "body torque asked by eq. (14)"),
+    "thrust": ((), "N", "thrust of the allocated rotor forces"),
+    "tau_B": ((3,), "N m", "body torque of the allocated rotor forces"),
+    "f_rotor_cmd": ((4,), "N", "allocated rotor force commands"),
+    "f_rotor": ((4,), "N", "true rotor forces (after lag)"),
+    "saturated": ((), "bool", "allocation gave something up"),
+    "f_ext_W": ((3,), "N", "applied external force at the origin (disturbances, ground, drag), world"),
+    "tau_ext_B": ((3,), "N m", "applied external moment about the origin, body frame"),
+    "tau_ext_eta": ((3,), "N m", "applied external moment in Euler coordinates, Q^T tau_ext_B"),
+    "f_lumped_W": ((3,), "N", "everything the nominal model misses, as a force: the estimator's target"),
+    "tau_lumped_eta": ((3,), "N m", "everything the nominal model misses, Euler coordinates"),
+    "f_hat_W": ((3,), "N", "estimated external force, world"),
+    "tau_hat_eta": ((3,), "N m", "estimated external moment, Euler coordinates"),
+    "tau_hat_B": ((3,), "N m", "estimated external moment, body frame"),
+}
+
+
+@dataclass
+class Result:
+    """Time series of ``B`` simulated vehicles: ``data[name]`` is ``(B, N, *shape)``, ``t`` is ``(N,)``.
+
+    ``labels`` name each vehicle (for example the controller variant); ``failures[b]`` is ``None`` or a
+    dict with the ``time`` and ``reason`` at which vehicle ``b`` was stopped; ``config`` is the exact
+    configuration (scenario, controllers, plant, sensors, seed) that produced the run.
+    """
+
+    t: np.ndarray
+    labels: list[str]
+    data: dict[str, np.ndarray]
+    config: dict[str, Any] = field(default_factory=dict)
+    failures: list[dict[str, Any] | None] = field(default_factory=list)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[name]
+
+    def index(self, label: str) -> int:
+        if label not in self.labels:
+            raise InputError(f"no vehicle labelled {label!r}; labels: {self.labels}")
+        return self.labels.index(label)
+
+    @property
+    def e_p(self) -> np.ndarray:
+        """Position error ``p - p_d`` of the true body origin, ``(B, N, 3)``."""
+        return self.data["p_W"] - self.data["p_ref_W"]
+
+    @property
+    def e_v(self) -> np.ndarray:
+        return self.data["v_W"] - self.data["v_ref_W"]
+
+    def save(self, path: str | Path) -> Path:
+        """Write an ``.npz`` (arrays plus a JSON header), atomically."""
+        header = {
+            "schema": SCHEMA_VERSION,
+            "labels": self.labels,
+            "config": self.config,
+            "failures": self.failures,
+            "signals": {k: {"unit": SIGNALS[k][1], "meaning": SIGNALS[k][2]} for k in self.data if k in SIGNALS},
+        }
+        arrays = {f"data__{k}": v for k, v in self.data.items()}
+
+        def writer(fh) -> None:  # noqa: ANN001
+            np.savez_compressed(fh, t=self.t, header=np.array(json.dumps(header)), **arrays)
+
+        return write_with(path, writer)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Result:
+        """Read a file written by :meth:`save`; a corrupt or foreign file raises :class:`InputError`."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(str(z["header"]))
+                t = z["t"]
+                data = {k[6:]: z[k] for k in z.files if k.startswith("data__")}
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, EOFError) as exc:
+            raise InputError(f"{path} is not a readable vtol-impedance result file: {exc}") from exc
+        if header.get("schema") != SCHEMA_VERSION:
+            raise InputError(f"{path} has result schema {header.get('schema')}, expected {SCHEMA_VERSION}")
+        B = len(header["labels"])
+        for k, v in data.items():
+            if v.shape[:2] != (B, len(t)):
+                raise InputError(f"{path}: signal {k} has shape {v.shape}, expected ({B}, {len(t)}, ...)")
+        return cls(t, header["labels"], data, header["config"], header["failures"])

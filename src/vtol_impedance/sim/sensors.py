@@ -1,0 +1,76 @@
+"""Sensor models: motion capture (position, velocity) and IMU (attitude, body rates).
+
+Each sensor reads the true state some time ago (latency, an integer number of plant steps) and adds
+seeded Gaussian noise. The controller receives Euler rates computed from the measured gyro rate,
+``eta_dot = Q(eta)^{-1} omega_B``, as on the real vehicle.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..control.signals import Measurement
+from ..errors import positive
+from ..model.kinematics import euler_from_rotation, euler_rate_matrix_Q, quat_to_rotation
+from .plant import OMEGA, QUAT, PlantArrays, origin_kinematics
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Noise standard deviations and latencies. Defaults: OptiTrack over WiFi and a MEMS IMU.
+
+    ``pos_noise`` [m], ``vel_noise`` [m/s], ``mocap_delay`` [s]; ``att_noise`` [rad] per Euler angle,
+    ``gyro_noise`` [rad/s] per axis, ``imu_delay`` [s].
+    """
+
+    pos_noise: float = 3e-4
+    vel_noise: float = 0.003
+    mocap_delay: float = 0.02
+    att_noise: float = 3e-3
+    gyro_noise: float = 0.01
+    imu_delay: float = 0.002
+
+    def __post_init__(self) -> None:
+        for name in ("pos_noise", "vel_noise", "mocap_delay", "att_noise", "gyro_noise", "imu_delay"):
+            positive(name, getattr(self, name), allow_zero=True)
+
+    @classmethod
+    def ideal(cls) -> SensorParams:
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class SensorSuite:
+    """Keeps a short history of plant states to serve delayed, noisy measurements."""
+
+    def __init__(self, params: SensorParams, plant: PlantArrays, dt_plant: float, rng: np.random.Generator) -> None:
+        self.params = params
+        self.plant = plant
+        self.rng = rng
+        self.k_mocap = int(round(params.mocap_delay / dt_plant))
+        self.k_imu = int(round(params.imu_delay / dt_plant))
+        self.history: deque[np.ndarray] = deque(maxlen=max(self.k_mocap, self.k_imu) + 1)
+
+    def push(self, x: np.ndarray) -> None:
+        """Record the plant state after each plant step (and once at the start)."""
+        self.history.append(x)
+
+    def _ago(self, k: int) -> np.ndarray:
+        return self.history[max(len(self.history) - 1 - k, 0)]
+
+    def _noise(self, sigma: float, shape: tuple[int, ...]) -> np.ndarray | float:
+        return sigma * self.rng.standard_normal(shape) if sigma > 0 else 0.0
+
+    def measure(self) -> Measurement:
+        xm = self._ago(self.k_mocap)
+        p_o, v_o = origin_kinematics(self.plant, xm)
+        xi = self._ago(self.k_imu)
+        eta_true = euler_from_rotation(quat_to_rotation(xi[..., QUAT]))
+        s = p_o.shape
+        p = self.params
+        eta = eta_true + self._noise(p.att_noise, s)
+        omega = xi[..., OMEGA] + self._noise(p.gyro_noise, s)
+        eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega[..., None])[..., 0]
+        return Measurement(p_o + self._noise(p.pos_noise, s), v_o + self._noise(p.vel_noise, s), eta, eta_dot)
