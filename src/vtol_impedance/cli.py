@@ -121,7 +121,13 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     result = _run_case(spec, variants, args.seed, args.quiet)
     stem = spec.name
     figs = _write_case(result, out, stem, not args.no_plots)
-    _finish(out, f"vtol-impedance: {spec.name}", {spec.name: result}, {spec.name: [p for p in figs if p.suffix == ".png"]}, args.quiet)
+    _finish(
+        out,
+        f"vtol-impedance: {spec.name}",
+        {spec.name: result},
+        {spec.name: [p for p in figs if p.suffix == ".png"]},
+        args.quiet,
+    )
     if not args.quiet:
         print(f"wall time {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
@@ -166,12 +172,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--out", default=DEFAULT_OUT, help=f"results folder (default: {DEFAULT_OUT})")
-        sp.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a scenario value, e.g. --set payload.mass=0.2 (repeatable)")
+        sp.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="override a scenario value, e.g. --set payload.mass=0.2 (repeatable)",
+        )
         sp.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
         sp.add_argument("--duration", type=float, default=None, help="cut the run to this many seconds")
-        sp.add_argument("--ideal", action="store_true",
-                        help="turn off every unmodelled effect except the payload mass and listed disturbances")
+        sp.add_argument(
+            "--ideal",
+            action="store_true",
+            help="turn off every unmodelled effect except the payload mass and listed disturbances",
+        )
         sp.add_argument("--no-plots", action="store_true", help="skip figures")
         sp.add_argument("--quiet", action="store_true", help="no progress output")
 

@@ -19,7 +19,7 @@ class SingularityError(VtolImpedanceError, ValueError):
     """The ZYX Euler parametrisation is singular (pitch theta at +-90 deg)."""
 
 
-class ScenarioError(VtolImpedanceError, KeyError):
+class ScenarioError(InputError, KeyError):
     """An unknown scenario, key or malformed scenario file."""
 
     def __str__(self) -> str:  # KeyError quotes its message; keep it readable

@@ -12,12 +12,12 @@ from ..sim.result import Result
 STEADY_TAIL_S = 5.0
 
 METRIC_COLUMNS: dict[str, str] = {
-    "rms_ep_cm": "RMS |e_p| [cm]",
-    "max_ep_cm": "max |e_p| [cm]",
-    "ss_ep_cm": "steady |e_p| [cm]",
-    "rms_ev_cms": "RMS |e_v| [cm/s]",
-    "rms_f_err_N": "RMS |f_hat - f| [N]",
-    "rms_tau_err_mNm": "RMS |tau_hat - tau| [mN m]",
+    "rms_ep_cm": "RMS ‖e_p‖ [cm]",
+    "max_ep_cm": "max ‖e_p‖ [cm]",
+    "ss_ep_cm": "steady ‖e_p‖ [cm]",
+    "rms_ev_cms": "RMS ‖ė_p‖ [cm/s]",
+    "rms_f_err_N": "RMS ‖f_hat − f‖ [N]",
+    "rms_tau_err_mNm": "RMS ‖tau_hat − tau‖ [mN m]",
     "sat_pct": "saturated [%]",
 }
 

@@ -78,9 +78,7 @@ def plot_wrench(result: Result, path: Path, label: str = "pdc", title: str = "")
         ax[0].plot(t, result["f_lumped_W"][b, :, i], color=AXIS_COLORS[i], lw=0.4, alpha=0.45)
         ax[0].plot(t, result["f_hat_W"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"f_hat_{AXES[i]}")
         ax[1].plot(t, 1000 * result["tau_lumped_eta"][b, :, i], color=AXIS_COLORS[i], lw=0.4, alpha=0.45)
-        ax[1].plot(
-            t, 1000 * result["tau_hat_eta"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"tau_hat_{AXES[i]}"
-        )
+        ax[1].plot(t, 1000 * result["tau_hat_eta"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"tau_hat_{AXES[i]}")
     ax[0].set_ylabel("force, world NED [N]")
     ax[1].set_ylabel("moment, Euler coords [mN m]")
     ax[1].set_xlabel("time [s]")

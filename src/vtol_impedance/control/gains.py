@@ -10,7 +10,10 @@ from ..errors import InputError, as_finite, positive
 
 
 def _vec3(name: str, value: float | np.ndarray, allow_zero: bool = False) -> np.ndarray:
-    arr = np.broadcast_to(positive(name, value, allow_zero=allow_zero), (3,)).astype(float)
+    arr = positive(name, value, allow_zero=allow_zero)
+    if arr.shape not in ((), (1,), (3,)):
+        raise InputError(f"{name} must be a scalar or 3 values (one per axis), got shape {arr.shape}")
+    arr = np.broadcast_to(arr, (3,)).astype(float)
     arr.setflags(write=False)
     return arr
 

@@ -202,9 +202,7 @@ def controller_step(
     m3 = m[..., None]
     comp = P.compensate[..., None]
 
-    est, w_hat = estimator_step(
-        P.est, S.est, meas.eta, meas.eta_dot, meas.v_W, S.thrust_prev, S.tau_B_prev, m, P.I_B
-    )
+    est, w_hat = estimator_step(P.est, S.est, meas.eta, meas.eta_dot, meas.v_W, S.thrust_prev, S.tau_B_prev, m, P.I_B)
     f_hat_W = w_hat[..., :3]
     tau_hat_eta = w_hat[..., 3:]
 
@@ -213,9 +211,7 @@ def controller_step(
     e_v = meas.v_W - ref.v_W
     mu = ref.a_W - (P.Dp * e_v + P.Kp * e_p + P.Ki * S.integral) / m3
     mu_bar = mu - comp * f_hat_W / m3
-    thrust_req, phi_d, theta_d, tilt_limited = thrust_and_attitude(
-        mu_bar, ref.psi, m, P.tilt_max, P.min_lift_accel
-    )
+    thrust_req, phi_d, theta_d, tilt_limited = thrust_and_attitude(mu_bar, ref.psi, m, P.tilt_max, P.min_lift_accel)
 
     # Desired attitude: filtered roll/pitch, planned yaw.
     filt, rp_d, rp_d_dot, rp_d_ddot = filter_step(P.filt, S.filt, np.stack([phi_d, theta_d], -1))
@@ -234,9 +230,9 @@ def controller_step(
     damp = P.Do * e_eta_dot + matvec(C, e_eta_dot) + P.Ko * e_eta
     tau_bar = eta_d_ddot - np.linalg.solve(M, damp[..., None])[..., 0]
     QT = transpose(Q)
-    tau_B_req = matvec(P.I_B @ Q, tau_bar) + np.linalg.solve(
-        QT, (matvec(C, eta_dot) - comp * tau_hat_eta)[..., None]
-    )[..., 0]
+    tau_B_req = (
+        matvec(P.I_B @ Q, tau_bar) + np.linalg.solve(QT, (matvec(C, eta_dot) - comp * tau_hat_eta)[..., None])[..., 0]
+    )
     tau_hat_B = np.linalg.solve(QT, tau_hat_eta[..., None])[..., 0]
 
     alloc = allocate(thrust_req, tau_B_req, P.arm_length, P.drag_factor, P.f_max, P.f_min)

@@ -18,12 +18,15 @@ import numpy as np
 from ..conventions import G
 from ..model.dynamics import thrust_direction_W
 
+#: Default bound on the tilt of the thrust vector, rad (35 deg).
+TILT_MAX_DEFAULT = float(np.radians(35.0))
+
 
 def thrust_and_attitude(
     mu_bar: np.ndarray,
     psi_d: np.ndarray,
     mass: np.ndarray,
-    tilt_max: float | np.ndarray = np.radians(35.0),
+    tilt_max: float | np.ndarray = TILT_MAX_DEFAULT,
     min_lift_accel: float | np.ndarray = 0.2 * G,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Solve eq. (16) for ``u``, ``phi_d``, ``theta_d``.

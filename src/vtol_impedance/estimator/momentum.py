@@ -81,8 +81,10 @@ class EstimatorParams:
         if self.prototype not in _PROTOTYPES:
             raise InputError(f"estimator prototype must be one of {_PROTOTYPES}, got {self.prototype!r}")
         if self.prototype == "zeta" and self.order != 2 and self.poles is None:
-            raise InputError("prototype 'zeta' is the second-order filter of eq. (10); use order=2 or "
-                             "prototype='binomial'/'butterworth' for other orders")
+            raise InputError(
+                "prototype 'zeta' is the second-order filter of eq. (10); use order=2 or "
+                "prototype='binomial'/'butterworth' for other orders"
+            )
         if self.poles is not None:
             p = np.asarray(self.poles, dtype=complex)
             p = np.broadcast_to(p, (6, p.shape[-1])).copy()

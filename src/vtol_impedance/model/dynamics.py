@@ -37,15 +37,23 @@ def inertia_matrix_M(eta: np.ndarray, I_B: np.ndarray) -> np.ndarray:
 
 
 def coriolis_matrix_C(eta: np.ndarray, eta_dot: np.ndarray, I_B: np.ndarray) -> np.ndarray:
-    """``C(eta, eta_dot) = Q^T S(Q eta_dot) I_B Q + Q^T I_B Q_dot``, eq. (3b).
+    """Coriolis matrix of eq. (3b) chosen so that property (7), ``M_dot = C + C^T``, holds.
 
-    It satisfies ``M_dot = C + C^T``, eq. (7).
+    ``C(eta, eta_dot) = Q^T S(I_B Q eta_dot)^T Q + Q^T I_B Q_dot``.
+
+    The paper prints ``C = Q^T S(Q eta_dot) I_B Q + Q^T I_B Q_dot``. Both give the same vector
+    ``C eta_dot`` (since ``w x I w = -(I w) x w``), so the model (3b) and the torque (14) are unchanged,
+    but the printed factorisation violates (7) for a non-spherical inertia (``C + C^T - M_dot =
+    Q^T (S(w) I - I S(w)) Q``). The estimator (8), (11) uses ``C^T eta_dot`` and (18b) uses
+    ``C e_eta_dot``, both of which need (7); with the printed ``C`` the estimator would report a
+    spurious moment whenever the vehicle rotates. ``tests/test_model.py`` checks (7) numerically.
     """
     Q = euler_rate_matrix_Q(eta)
     Qd = euler_rate_matrix_Q_dot(eta, eta_dot)
     I_B = np.asarray(I_B, dtype=float)
     QT = transpose(Q)
-    return QT @ skew(matvec(Q, eta_dot)) @ I_B @ Q + QT @ I_B @ Qd
+    h_B = matvec(I_B, matvec(Q, eta_dot))  # body angular momentum
+    return QT @ transpose(skew(h_B)) @ Q + QT @ I_B @ Qd
 
 
 def generalized_momentum(

@@ -61,6 +61,18 @@ class Allocation(NamedTuple):
     rp_scale: np.ndarray
 
 
+def _yaw_interval(base: np.ndarray, yaw: np.ndarray, fmin_r: np.ndarray, fmax_r: np.ndarray):
+    """Interval of yaw scales ``a`` in [0, 1] with ``fmin <= base + a yaw <= fmax`` on every rotor."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = np.where(yaw > 0, (fmax_r - base) / yaw, np.where(yaw < 0, (fmin_r - base) / yaw, np.inf))
+        lo = np.where(yaw > 0, (fmin_r - base) / yaw, np.where(yaw < 0, (fmax_r - base) / yaw, -np.inf))
+    # a rotor without yaw share must already be within limits
+    flat_bad = (yaw == 0) & ((base < fmin_r) | (base > fmax_r))
+    a_lo = np.maximum(lo.max(-1), 0.0)
+    a_hi = np.minimum(up.min(-1), 1.0)
+    return a_lo, a_hi, (a_lo <= a_hi) & ~flat_bad.any(-1)
+
+
 def allocate(
     thrust: np.ndarray,
     tau_B: np.ndarray,
@@ -75,9 +87,10 @@ def allocate(
 
     1. If the roll/pitch request alone spans more than ``f_max - f_min`` across rotors, it is scaled
        down to fit (``rp_scale < 1``).
-    2. The collective ``u/4`` is clipped so that collective + roll/pitch fits the limits (thrust is
-       given up only when it must).
-    3. The yaw part is scaled by the largest ``yaw_scale`` in ``[0, 1]`` that keeps every rotor in range.
+    2. With the requested collective ``u/4``, the yaw part is scaled by the largest ``yaw_scale`` in
+       ``[0, 1]`` that keeps every rotor in range.
+    3. Only if no yaw scale makes collective + roll/pitch fit, the collective is moved to the nearest
+       feasible value (thrust given up) and step 2 is repeated.
 
     Within limits this equals :func:`unmix`. ``saturated`` is True where anything was given up.
     """
@@ -87,26 +100,30 @@ def allocate(
     c = np.asarray(drag_factor, dtype=float)
     fmax = np.asarray(f_max, dtype=float)
     fmin = np.asarray(f_min, dtype=float)
+    # Round-off slack so that an exact solution on a limit counts as feasible.
+    tol = 1e-12 * np.maximum(np.abs(fmax), 1.0)
+    fmax_r = np.expand_dims(fmax + tol, -1)
+    fmin_r = np.expand_dims(fmin - tol, -1)
     span = fmax - fmin
 
     rp = _roll_pitch_part(tau_B, l)
     rp_spread = rp.max(-1) - rp.min(-1)
     rp_scale = np.where(rp_spread > span, span / np.maximum(rp_spread, 1e-300), 1.0)
     rp = rp * rp_scale[..., None]
-
-    lo = fmin - rp.min(-1)
-    hi = fmax - rp.max(-1)
-    collective = np.clip(u / 4.0, lo, hi)
-    base = collective[..., None] + rp
-
     yaw = (tau_B[..., 2] / (4.0 * c))[..., None] * _YAW_SIGNS
-    fmax_r = np.expand_dims(fmax, -1)
-    fmin_r = np.expand_dims(fmin, -1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        room = np.where(yaw > 0, (fmax_r - base) / yaw, np.where(yaw < 0, (fmin_r - base) / yaw, np.inf))
-    yaw_scale = np.clip(room.min(-1), 0.0, 1.0)
-    f = np.clip(base + yaw_scale[..., None] * yaw, fmin_r, fmax_r)
+
+    # Thrust kept: the best yaw scale, if any makes the rotors fit.
+    base_keep = u[..., None] / 4.0 + rp
+    _, hi_keep, ok_keep = _yaw_interval(base_keep, yaw, fmin_r, fmax_r)
+    # Thrust given up: nearest collective at which roll/pitch fit, then the best yaw scale.
+    collective = np.clip(u / 4.0, fmin - rp.min(-1), fmax - rp.max(-1))
+    base_move = collective[..., None] + rp
+    _, hi_move, _ = _yaw_interval(base_move, yaw, fmin_r, fmax_r)
+
+    base = np.where(ok_keep[..., None], base_keep, base_move)
+    yaw_scale = np.clip(np.where(ok_keep, hi_keep, hi_move), 0.0, 1.0)
+    f = np.clip(base + yaw_scale[..., None] * yaw, np.expand_dims(fmin, -1), np.expand_dims(fmax, -1))
 
     u_out, tau_out = mix(f, l, c)
-    saturated = (rp_scale < 1.0) | (np.abs(collective - u / 4.0) > 1e-12) | (yaw_scale < 1.0 - 1e-12)
+    saturated = (rp_scale < 1.0) | ~ok_keep | (yaw_scale < 1.0 - 1e-9)
     return Allocation(f, u_out, tau_out, saturated, yaw_scale, rp_scale)

@@ -193,9 +193,7 @@ def build(spec: ScenarioSpec) -> Built:
     f_max = vehicle.f_max if ps.rotor_limits else 1e6
     true_vehicle = replace(vehicle, f_max=f_max, name=f"{vehicle.name} (true)")
     if spec.ideal:
-        plant = PlantParams(
-            true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground
-        )
+        plant = PlantParams(true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground)
         sensors = SensorParams.ideal()
     else:
         plant = PlantParams(
@@ -223,7 +221,10 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
     att = ImpedanceGains.from_natural(vehicle.mass, vehicle.inertia, 1.0, 1.0, c.wn_o, c.zeta_o)
     gains = ImpedanceGains(Kp=c.Kp, Dp=c.Dp, Ko=att.Ko, Do=att.Do, Ki=c.Ki if variant == "pid" else 0.0)
     est = EstimatorParams(
-        wn=c.estimator_wn, zeta=c.estimator_zeta, order=int(c.estimator_order), prototype=c.estimator_prototype
+        wn=c.estimator_wn,
+        zeta=c.estimator_zeta,
+        order=int(c.estimator_order),
+        prototype=c.estimator_prototype,
     )
     return ControllerParams(
         vehicle=vehicle,

@@ -23,12 +23,12 @@ from ..conventions import E3, GRAVITY_W
 from ..errors import InputError, positive
 from ..model.dynamics import coriolis_matrix_C, inertia_matrix_M, matvec, transpose
 from ..model.kinematics import (
+    cross,
     euler_from_rotation,
     euler_rate_matrix_Q,
     euler_rate_matrix_Q_dot,
     quat_to_rotation,
 )
-from ..model.kinematics import cross
 from .disturbances import Disturbance, DisturbanceSet
 from .plant import (
     OMEGA,

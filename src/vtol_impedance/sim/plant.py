@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..conventions import G, GRAVITY_W
+from ..conventions import GRAVITY_W, G
 from ..errors import InputError, as_finite, positive
 from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
@@ -172,8 +172,9 @@ def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
     return PlantArrays(**out)
 
 
-def initial_state(P: PlantArrays, p_origin_W: np.ndarray, eta: np.ndarray | None = None,
-                  hover_rotors: bool = True) -> np.ndarray:
+def initial_state(
+    P: PlantArrays, p_origin_W: np.ndarray, eta: np.ndarray | None = None, hover_rotors: bool = True
+) -> np.ndarray:
     """State at rest with the body origin at ``p_origin_W`` and attitude ``eta`` (default level).
 
     Rotor forces start at the thrust that holds the true weight (``hover_rotors``) or at zero.

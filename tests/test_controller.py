@@ -1,0 +1,166 @@
+"""Controller pieces (eqs. 14-20) and their API, against independent references."""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from vtol_impedance.control import (
+    Controller,
+    ControllerParams,
+    ImpedanceGains,
+    Measurement,
+    Reference,
+    thrust_and_attitude,
+)
+from vtol_impedance.conventions import G
+from vtol_impedance.errors import InputError, SingularityError
+from vtol_impedance.model import load_preset, mix
+
+VEH = load_preset("pelican")
+
+
+@given(
+    st.floats(2.0, 30.0),
+    st.floats(-0.55, 0.55),
+    st.floats(-0.55, 0.55),
+    st.floats(-np.pi, np.pi),
+)
+def test_eq16_inversion_round_trip_against_scipy_rotation(u, phi, theta, psi):
+    # Build mu_bar = g - (u/m) R e3 with an independent rotation, then invert it (eq. 20 in NED).
+    m = 1.2
+    R = Rotation.from_euler("ZYX", [psi, theta, phi]).as_matrix()
+    mu_bar = np.array([0, 0, G]) - (u / m) * R[:, 2]
+    u2, phi2, theta2, limited = thrust_and_attitude(mu_bar, psi, m, tilt_max=np.radians(80), min_lift_accel=0.1)
+    assert not limited
+    assert u2 == pytest.approx(u, rel=1e-10)
+    assert phi2 == pytest.approx(phi, abs=1e-9)
+    assert theta2 == pytest.approx(theta, abs=1e-9)
+
+
+def test_ned_signs_accelerate_the_right_way():
+    # To accelerate north (+x) in NED/FRD the nose pitches down: theta < 0; east (+y): roll right, phi > 0.
+    _, phi, theta, _ = thrust_and_attitude(np.array([1.0, 0, 0]), 0.0, 1.2)
+    assert theta < 0 and phi == pytest.approx(0)
+    _, phi, theta, _ = thrust_and_attitude(np.array([0, 1.0, 0]), 0.0, 1.2)
+    assert phi > 0 and theta == pytest.approx(0)
+    # climbing (up is -z) needs more than the weight
+    u, *_ = thrust_and_attitude(np.array([0, 0, -1.0]), 0.0, 1.2)
+    assert u == pytest.approx(1.2 * (G + 1.0))
+
+
+def test_tilt_and_lift_limits_are_applied_and_reported():
+    u, phi, theta, lim = thrust_and_attitude(np.array([30.0, 0, 0]), 0.0, 1.2, tilt_max=np.radians(30))
+    assert lim and -theta == pytest.approx(np.radians(30))
+    u, phi, theta, lim = thrust_and_attitude(np.array([0, 0, 2 * G]), 0.0, 1.2, min_lift_accel=0.2 * G)
+    assert lim and u == pytest.approx(1.2 * 0.2 * G)
+
+
+def _hover_meas(p=(0, 0, -1.0), v=(0, 0, 0), eta=(0, 0, 0), eta_dot=(0, 0, 0)):
+    return Measurement(*(np.array(x, dtype=float) for x in (p, v, eta, eta_dot)))
+
+
+REF = Reference(np.array([0, 0, -1.0]), np.zeros(3), np.zeros(3), np.array(0.0), np.array(0.0), np.array(0.0))
+
+
+@pytest.mark.parametrize("variant", ["pd", "pid", "pdc"])
+def test_equilibrium_gives_weight_and_no_torque(variant):
+    ctrl = Controller(ControllerParams.paper(variant))
+    for _ in range(5):
+        out = ctrl.step(_hover_meas(), REF)
+    assert out.thrust == pytest.approx(VEH.mass * G, rel=1e-12)
+    np.testing.assert_allclose(out.tau_B, 0, atol=1e-12)
+    np.testing.assert_allclose(out.f_rotor, VEH.mass * G / 4, rtol=1e-12)
+    u, tau = mix(out.f_rotor, VEH.arm_length, VEH.drag_factor)
+    assert u == pytest.approx(out.thrust)
+
+
+def test_position_error_gives_the_pd_force():
+    # 1 cm low (z + 0.01 in NED): the extra thrust is Kp * 0.01 (eq. 18a), level attitude
+    ctrl = Controller(ControllerParams.paper("pd"))
+    out = ctrl.step(_hover_meas(p=(0, 0, -0.99)), REF)
+    assert out.thrust == pytest.approx(VEH.mass * G + 16 * 0.01, rel=1e-9)
+
+
+def test_attitude_error_gives_the_impedance_torque():
+    # roll error e at rest, eta_d = 0 after filtering: tau_B ~ -Ko e about x (eq. 18b + 14, M(0)=I_B, C=0)
+    p = ControllerParams.paper("pd")
+    ctrl = Controller(p)
+    e = 0.05
+    out = ctrl.step(_hover_meas(eta=(e, 0, 0)), REF)
+    Ko = p.gains.Ko[0]
+    # eta_d is level here; (14) with Q(phi): tau_x = -Ko e exactly at phi only
+    assert out.tau_B[0] == pytest.approx(-Ko * e, rel=1e-9)
+
+
+def test_batch_of_variants_equals_single_controllers(rng):
+    ps = [ControllerParams.paper(v) for v in ("pd", "pid", "pdc")]
+    batch = Controller(ps)
+    singles = [Controller(p) for p in ps]
+    for _ in range(20):
+        meas = [
+            _hover_meas(
+                rng.normal(0, 0.05, 3) + [0, 0, -1],
+                rng.normal(0, 0.1, 3),
+                rng.normal(0, 0.05, 3),
+                rng.normal(0, 0.2, 3),
+            )
+            for _ in ps
+        ]
+        mb = Measurement(*(np.stack(x) for x in zip(*meas, strict=True)))
+        ob = batch.step(mb, REF)
+        for b, c in enumerate(singles):
+            o = c.step(meas[b], REF)
+            np.testing.assert_allclose(ob.f_rotor[b], o.f_rotor, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(ob.f_hat_W[b], o.f_hat_W, rtol=1e-12, atol=1e-12)
+
+
+def test_bad_measurements_are_refused():
+    ctrl = Controller(ControllerParams.paper("pdc"))
+    with pytest.raises(InputError, match="non-finite"):
+        ctrl.step(_hover_meas(p=(0, np.nan, -1)), REF)
+    with pytest.raises(InputError, match="shape"):
+        ctrl.step(Measurement(np.zeros(2), np.zeros(3), np.zeros(3), np.zeros(3)), REF)
+    with pytest.raises(SingularityError):
+        ctrl.step(_hover_meas(eta=(0, np.pi / 2, 0)), REF)
+    with pytest.raises(InputError, match="batch shape"):
+        ctrl.step(Measurement(*(np.zeros((2, 3)),) * 4), REF)
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {"variant": "lqr"},
+        {"Ts": 0.0},
+        {"tilt_max": 2.0},
+        {"integral_limit": -1.0},
+    ],
+)
+def test_bad_controller_parameters(kw):
+    with pytest.raises(InputError):
+        ControllerParams(vehicle=VEH, gains=ImpedanceGains.paper(VEH.inertia), **kw)
+
+
+def test_pid_without_integral_gain_is_refused():
+    with pytest.raises(InputError, match="Ki"):
+        ControllerParams(vehicle=VEH, gains=ImpedanceGains.paper(VEH.inertia), variant="pid")
+
+
+@pytest.mark.parametrize("bad", [{"Kp": -16.0}, {"Dp": 0.0}, {"Ko": np.nan}, {"Do": [1.0, 2.0]}])
+def test_bad_gains(bad):
+    kw = {"Kp": 16.0, "Dp": 12.0, "Ko": 0.2, "Do": 0.05} | bad
+    with pytest.raises(InputError):
+        ImpedanceGains(**kw)
+
+
+def test_gains_from_natural_frequency_and_the_paper_mismatch():
+    g = ImpedanceGains.from_natural(1.2, VEH.inertia, 4.0, 1.0, 8.0, 1.0)
+    np.testing.assert_allclose(g.Kp, 19.2)
+    np.testing.assert_allclose(g.Dp, 9.6)
+    paper = ImpedanceGains.paper(VEH.inertia)
+    np.testing.assert_allclose(paper.Kp, 16.0)
+    np.testing.assert_allclose(paper.Dp, 12.0)
+    np.testing.assert_allclose(paper.Ko, 64 * np.diag(VEH.inertia))
+    nat = paper.natural(1.2)
+    assert nat["wn_p"][0] == pytest.approx(np.sqrt(16 / 1.2))

@@ -1,0 +1,164 @@
+"""The momentum-based estimator, eqs. (6)-(13), against analytic responses and the literal eq. (11)."""
+
+import warnings
+
+import numpy as np
+import pytest
+from scipy import signal
+from scipy.integrate import solve_ivp
+
+from vtol_impedance.conventions import G
+from vtol_impedance.errors import InputError
+from vtol_impedance.estimator import (
+    EstimatorBandwidthWarning,
+    EstimatorParams,
+    design,
+    estimator_step,
+    initial_state,
+)
+
+M = 1.2
+I_B = np.diag([3.4e-3, 3.4e-3, 4.7e-3])
+TS = 0.01
+
+
+def run_level_vehicle(params, wrench_fn, T, Ts=TS):
+    """A level vehicle with hover thrust pushed by an external *force* (the moment channels stay at rest).
+
+    With eta = 0, eta_dot = 0 and thrust m g, eq. (8) gives q_dot = [f_ext; 0], so q(t) is the integral
+    of the force, computed here by fine quadrature (independent of the estimator).
+    """
+    des = design(params, Ts)
+    st = initial_state(des)
+    zeros = np.zeros(3)
+    n = int(round(T / Ts))
+    out = np.zeros((n + 1, 6))
+    q = np.zeros(6)
+    fine = 200
+    for k in range(n + 1):
+        if k > 0:
+            ts = np.linspace((k - 1) * Ts, k * Ts, fine + 1)
+            vals = np.array([wrench_fn(t) for t in ts])
+            q = q + np.trapezoid(vals, ts, axis=0)
+        v_W = q[:3] / M
+        st, r = estimator_step(des, st, zeros, zeros, v_W, M * G, zeros, M, I_B)
+        out[k] = r
+    return np.arange(n + 1) * Ts, out
+
+
+def test_step_response_is_that_of_G_at_the_samples():
+    w = np.array([1.0, -2.0, 0.5, 0.0, 0.0, 0.0])
+    t, r = run_level_vehicle(EstimatorParams(wn=10.0, zeta=1.0), lambda t: w, 1.5)
+    # analytic step of wn^2/(s+wn)^2 starting at the first sample
+    tt = t[1:] - t[1] + TS
+    expected = (1 - np.exp(-10 * (tt - 0.0)) * (1 + 10 * tt))[:, None] * w
+    np.testing.assert_allclose(r[1:], expected, atol=1e-9 * np.abs(w).max())
+    # 95 % at the analytic 0.474 s, to the next sample
+    k95 = np.argmax(r[:, 2] >= 0.95 * w[2])
+    assert 0.47 <= t[k95] <= 0.49
+
+
+def test_constant_wrench_recovered_exactly():
+    w = np.array([0.3, -0.7, 1.079, 0.0, 0.0, 0.0])
+    _, r = run_level_vehicle(EstimatorParams(), lambda t: w, 4.0)
+    np.testing.assert_allclose(r[-1], w, rtol=1e-9)
+
+
+def test_matches_literal_eq11_on_a_sinusoid():
+    """Integrate eq. (11) literally in continuous time and compare with the discrete estimator."""
+    A, Om = 1.0, 3.0
+    wfun = lambda t: np.array([A * np.sin(Om * t), 0, 0, 0, 0, 0])  # noqa: E731
+    p = EstimatorParams(wn=10.0, zeta=1.0)
+    k1, k2 = p.K1[0], p.K2[0]
+    t, r = run_level_vehicle(p, wfun, 4.0)
+
+    # (11): r = K1 int(-r + K2 (q - int(beta + r))); here beta_x = 0 and q_x = int w_x.
+    def rhs(tt, s):
+        rr, i1 = s
+        q = A * (1 - np.cos(Om * tt)) / Om
+        return [k1 * (-rr + k2 * (q - i1)), rr]
+
+    sol = solve_ivp(rhs, (0, 4.0), [0.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=1e-3)
+    # The discrete estimator sees the period average of w: a half-period lag, O(A Om Ts / 2).
+    err = np.abs(r[:, 0] - sol.y[0])
+    assert err.max() < 0.6 * A * Om * TS
+    # and the steady amplitude equals |G(j Om)| (independent of both)
+    gain = 100 / np.abs((1j * Om) ** 2 + 20 * 1j * Om + 100)
+    tail = t > 2.5
+    assert np.ptp(r[tail, 0]) / 2 == pytest.approx(gain * A, rel=0.02)
+
+
+@pytest.mark.parametrize("order,proto", [(1, "binomial"), (3, "binomial"), (4, "butterworth"), (5, "butterworth")])
+def test_any_order_matches_scipy_step_and_is_exact_in_steady_state(order, proto):
+    p = EstimatorParams(wn=12.0, order=order, prototype=proto)
+    w = np.array([0.5, 0, -0.2, 0, 0, 0])
+    t, r = run_level_vehicle(p, lambda t: w, 5.0)
+    poles = p.channel_poles()[0]
+    num = [np.real(np.prod(-poles))]
+    den = np.real(np.poly(poles))
+    sysd = signal.cont2discrete((num, den), TS, method="zoh")
+    _, y = signal.dstep(sysd, n=len(t))  # y[0] = 0: the step enters at sample 0, our r[1] is its y[1]
+    np.testing.assert_allclose(r[1:, 0], 0.5 * np.ravel(y[0])[1:], atol=1e-9)
+    np.testing.assert_allclose(r[-1], w, rtol=1e-6, atol=1e-12)
+
+
+def test_first_order_is_the_classic_momentum_observer():
+    # r_dot = K (w - r): a first-order low-pass with time constant 1/K
+    p = EstimatorParams(wn=5.0, order=1, prototype="binomial")
+    t, r = run_level_vehicle(p, lambda t: np.array([1.0, 0, 0, 0, 0, 0]), 1.0)
+    np.testing.assert_allclose(r[1:, 0], 1 - np.exp(-5.0 * t[1:]), atol=1e-12)
+
+
+def test_gains_from_eq13():
+    p = EstimatorParams.from_gains(K1=20.0, K2=5.0)
+    np.testing.assert_allclose(p.wn, 10.0)
+    np.testing.assert_allclose(p.zeta, 1.0)
+    np.testing.assert_allclose(p.K1, 20.0)
+    np.testing.assert_allclose(p.K2, 5.0)
+
+
+def test_bandwidth_checks():
+    with pytest.raises(InputError, match="Ts"):
+        design(EstimatorParams(wn=400.0), 0.01)
+    with pytest.warns(EstimatorBandwidthWarning, match="Ts"):
+        design(EstimatorParams(wn=80.0), 0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        design(EstimatorParams(wn=10.0), 0.01)
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {"wn": -1.0},
+        {"wn": np.nan},
+        {"zeta": 0.0},
+        {"order": 0},
+        {"order": 3},
+        {"prototype": "bessel"},
+        {"order": 2, "poles": [1.0, -2.0]},
+        {"order": 2, "poles": [-1.0]},
+    ],
+)
+def test_bad_parameters_are_refused(kw):
+    with pytest.raises(InputError):
+        EstimatorParams(**kw)
+
+
+def test_batched_equals_single(rng):
+    des = design(EstimatorParams(), TS)
+    B = 4
+    eta = rng.uniform(-0.3, 0.3, (6, B, 3))
+    eta_dot = rng.uniform(-1, 1, (6, B, 3))
+    v = rng.uniform(-1, 1, (6, B, 3))
+    u = rng.uniform(10, 14, (6, B))
+    tau = rng.uniform(-0.1, 0.1, (6, B, 3))
+    sb = initial_state(des, (B,))
+    singles = [initial_state(des) for _ in range(B)]
+    for k in range(6):
+        sb, rb = estimator_step(des, sb, eta[k], eta_dot[k], v[k], u[k], tau[k], M, I_B)
+        for b in range(B):
+            singles[b], r1 = estimator_step(
+                des, singles[b], eta[k, b], eta_dot[k, b], v[k, b], u[k, b], tau[k, b], M, I_B
+            )
+            np.testing.assert_allclose(rb[b], r1, atol=1e-14)

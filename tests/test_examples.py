@@ -1,0 +1,23 @@
+"""Examples run as tests; the CI script runs the README's test command."""
+
+import runpy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_controller_in_your_loop_example():
+    mod = runpy.run_path(str(ROOT / "examples" / "controller_in_your_loop.py"))
+    f_hat = mod["main"](6.0)
+    assert f_hat[2] == pytest.approx(0.110 * 9.81, rel=0.01)
+    np.testing.assert_allclose(f_hat[:2], 0.0, atol=1e-3)
+
+
+def test_ci_runs_the_readme_test_command():
+    readme = (ROOT / "README.md").read_text()
+    ci = (ROOT / ".ci" / "run").read_text()
+    cmd = 'python3 -m pip install ".[test]" && python3 -m pytest'
+    assert cmd in readme and cmd in ci

@@ -1,0 +1,90 @@
+"""Results: save/load round trip, corrupt files, atomic writes, failure flagging."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from vtol_impedance.control import ControllerParams
+from vtol_impedance.control.reference import Hold, Trajectory
+from vtol_impedance.errors import InputError
+from vtol_impedance.io import write_text
+from vtol_impedance.model import load_preset
+from vtol_impedance.scenarios import get, set_value, simulate
+from vtol_impedance.sim import PlantParams, Result, SensorParams, run_closed_loop
+
+
+@pytest.fixture(scope="module")
+def short_result():
+    return simulate(set_value(get("case-b-fan"), "duration", 0.5), ["pd", "pdc"])
+
+
+def test_save_load_round_trip(short_result, tmp_path):
+    p = short_result.save(tmp_path / "r.npz")
+    r = Result.load(p)
+    assert r.labels == short_result.labels
+    assert r.config["scenario"]["name"] == "case-b-fan-v1"
+    for k, v in short_result.data.items():
+        np.testing.assert_array_equal(r[k], v)
+    assert not list(tmp_path.glob(".*tmp"))
+
+
+def test_corrupt_and_foreign_files_are_refused(short_result, tmp_path):
+    p = short_result.save(tmp_path / "r.npz")
+    data = p.read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match="not a readable"):
+        Result.load(tmp_path / "cut.npz")
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(InputError):
+        Result.load(tmp_path / "other.npz")
+
+
+def test_atomic_write_leaves_old_file_on_failure(tmp_path):
+    target = tmp_path / "table.md"
+    write_text(target, "old")
+
+    class Boom(Exception):
+        pass
+
+    from vtol_impedance.io import atomic_path
+
+    with pytest.raises(Boom), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise Boom
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["table.md"]
+
+
+def test_a_diverging_vehicle_is_flagged_and_the_others_go_on():
+    veh = load_preset()
+    good = PlantParams(veh, ground=False)
+    # 50x less inertia than the controller believes and no rotor limit: the attitude loop blows up
+    bad = PlantParams(replace(veh, f_max=1e3), inertia_scale=(0.02, 0.02, 0.02), ground=False)
+    ctrls = [ControllerParams.paper("pdc")] * 2
+    r = run_closed_loop(
+        [good, bad],
+        ctrls,
+        Trajectory((Hold((0, 0, -1.0), 3.0),)),
+        3.0,
+        sensors=SensorParams(),
+        labels=["good", "bad"],
+        seed=1,
+    )
+    assert r.failures[0] is None
+    assert r.failures[1] is not None and r.failures[1]["time"] < 3.0
+    assert "tilt" in r.failures[1]["reason"] or "non-finite" in r.failures[1]["reason"]
+    assert np.all(np.isfinite(r["p_W"][0]))
+    assert np.isnan(r["p_W"][1, -1]).all()
+    assert np.linalg.norm(r.e_p[0, -1]) < 5e-3
+
+
+def test_run_arguments_are_checked():
+    veh = load_preset()
+    traj = Trajectory((Hold((0, 0, -1.0), 1.0),))
+    with pytest.raises(InputError, match="whole number"):
+        run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, 1.0, plant_rate=333.0)
+    with pytest.raises(InputError, match="labels"):
+        run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, 1.0, labels=["a", "b"])
+    with pytest.raises(InputError, match="duration"):
+        run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, -1.0)

@@ -1,0 +1,149 @@
+"""Scenario registry, overrides and TOML files: valid input works, bad input gets a clear error."""
+
+import numpy as np
+import pytest
+
+from vtol_impedance.errors import InputError, ScenarioError
+from vtol_impedance.scenarios import (
+    PAPER_CASES,
+    Registry,
+    ScenarioSpec,
+    apply_overrides,
+    build,
+    get,
+    load_toml,
+    names,
+)
+
+
+def test_paper_cases_are_registered_with_versions():
+    for n in PAPER_CASES:
+        assert get(n).name == f"{n}-v1"
+        assert get(f"{n}-v1") is get(n)
+    assert set(f"{n}-v1" for n in PAPER_CASES) <= set(names(latest_only=False))
+
+
+def test_latest_version_wins():
+    reg = Registry()
+    reg.register(ScenarioSpec(name="x-v1"))
+    reg.register(ScenarioSpec(name="x-v2", description="new"))
+    assert reg.get("x").description == "new"
+    with pytest.raises(ScenarioError, match="version"):
+        reg.register(ScenarioSpec(name="unversioned"))
+    with pytest.raises(ScenarioError, match="already"):
+        reg.register(ScenarioSpec(name="x-v1"))
+
+
+def test_unknown_scenario_lists_valid_names():
+    with pytest.raises(ScenarioError) as e:
+        get("case-z")
+    for n in PAPER_CASES:
+        assert n in str(e.value)
+
+
+def test_overrides_are_typed():
+    s = apply_overrides(
+        get("case-a-payload"),
+        [
+            "payload.mass=0.2",
+            "plant.inertia_scale=[1, 1.2, 1]",
+            "seed=3",
+            "trajectory.land=true",
+            "control.Kp=[10, 10, 20]",
+        ],
+    )
+    assert s.payload.mass == 0.2 and isinstance(s.payload.mass, float)
+    assert s.plant.inertia_scale == (1.0, 1.2, 1.0)
+    assert s.seed == 3 and s.trajectory.land is True
+    assert s.control.Kp == (10.0, 10.0, 20.0)
+    b = build(s)
+    assert b.plant.total_mass == pytest.approx(1.4)
+
+
+@pytest.mark.parametrize(
+    "assignment,match",
+    [
+        ("payload.mas=0.2", "mass"),  # the valid keys are listed
+        ("nosuch=1", "trajectory"),
+        ("payload.mass=abc", "number"),
+        ("trajectory.land=1", "true/false"),
+        ("plant.inertia_scale=[1, 2]", "3 values"),
+        ("payload", "key=value"),
+        ("payload=1", "section"),
+        ("seed=1.5", "integer"),
+        ("disturbances.0.mean_force=1", "0..-1|disturbances"),
+    ],
+)
+def test_bad_overrides(assignment, match):
+    with pytest.raises(ScenarioError, match=match):
+        apply_overrides(get("case-a-payload"), [assignment])
+
+
+def test_disturbance_overrides_and_validation():
+    s = apply_overrides(get("case-b-fan"), ["disturbances.0.mean_force=1.0"])
+    assert s.disturbances[0]["mean_force"] == 1.0
+    with pytest.raises(InputError, match="valid keys"):
+        apply_overrides(get("case-b-fan"), ["disturbances.0.speed=1.0"])
+    with pytest.raises(InputError, match="valid kinds"):
+        ScenarioSpec(name="x-v1", disturbances=({"kind": "tornado"},))
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        "payload.mass=-0.1",
+        "plant.rotor_tau_up=-1",
+        "trajectory.kind='spiral'",
+        "sensors.pos_noise=-1",
+        "control.Kp=0",
+    ],
+)
+def test_bad_values_fail_before_flying(bad):
+    from vtol_impedance.scenarios import controller_params
+
+    with pytest.raises(InputError):
+        s = apply_overrides(get("case-a-payload"), [bad])
+        build(s)
+        controller_params(s, "pdc")
+
+
+def test_toml_file(tmp_path):
+    f = tmp_path / "windy.toml"
+    f.write_text(
+        'base = "case-a-payload"\nname = "windy-v1"\n[payload]\nmass = 0.05\n'
+        '[[disturbances]]\nkind = "wind"\nvelocity_W = [2.0, 0.0, 0.0]\n'
+    )
+    s = load_toml(f)
+    assert s.name == "windy-v1" and s.payload.mass == 0.05
+    assert s.disturbances[0]["kind"] == "wind"
+    b = build(s)
+    f_w, _ = b.disturbances[0](0.0, np.zeros(3), np.zeros(3), np.eye(3))
+    np.testing.assert_allclose(f_w, [0.36, 0, 0])
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('base = "case-a-payload"\n[payload]\nweight = 1\n')
+    with pytest.raises(ScenarioError, match="weight"):
+        load_toml(bad)
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[payload\n")
+    with pytest.raises(ScenarioError, match="cannot read"):
+        load_toml(broken)
+
+
+def test_trajectories_are_smooth_and_join():
+    for n in PAPER_CASES:
+        b = build(get(n))
+        ts = np.arange(0, b.duration, 0.005)
+        p = np.array([b.trajectory.sample(t).p_W for t in ts])
+        v = np.array([b.trajectory.sample(t).v_W for t in ts])
+        # velocity is the derivative of position (checks every segment and the joins)
+        np.testing.assert_allclose(np.gradient(p, ts, axis=0)[1:-1], v[1:-1], atol=2e-3)
+    c = build(get("case-c-circle"))
+    t0, t1 = c.window
+    mid = np.arange(t0 + 3, t1 - 3, 0.1)
+    speed = [np.linalg.norm(c.trajectory.sample(t).v_W) for t in mid]
+    np.testing.assert_allclose(speed, 0.5, rtol=1e-9)
+    # two laps: the path length is twice the circumference
+    ts = np.arange(t0, t1, 0.001)
+    length = np.sum([np.linalg.norm(c.trajectory.sample(t).v_W) for t in ts]) * 0.001
+    assert length == pytest.approx(2 * 2 * np.pi * 1.0, rel=1e-3)
