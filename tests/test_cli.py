@@ -110,6 +110,12 @@ def test_errors_are_clear(argv, msg, capsys, tmp_path):
     assert err.startswith("error:") and msg in err
 
 
+def test_slow_control_rate_warns_about_the_estimator(tmp_path, capsys):
+    argv = ["run", "case-a-payload", "--set", "control.rate=10", "--set", "plant_rate=1000", "--duration", "0.5"]
+    with pytest.warns(UserWarning, match="Ts"):
+        assert main(argv + ["--no-plots", "--quiet", "--out", str(tmp_path)]) == 0
+
+
 def test_console_script_is_installed():
     exe = shutil.which("vtol-impedance")
     cmd = [exe] if exe else [sys.executable, "-m", "vtol_impedance"]

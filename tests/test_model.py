@@ -165,3 +165,37 @@ def test_huge_yaw_request_keeps_thrust_and_roll_pitch():
     assert a.thrust == pytest.approx(12.0)
     np.testing.assert_allclose(a.tau_B[:2], [0.05, -0.03], atol=1e-12)
     assert 0 < a.tau_B[2] < 15.0 and a.yaw_scale < 0.05
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {"mass": 0.0},
+        {"mass": -1.2},
+        {"mass": float("nan")},
+        {"inertia": [1e-3, -1e-3, 1e-3]},
+        {"inertia": np.ones((3, 3))},
+        {"inertia": [1e-3, 1e-3]},
+        {"f_max": 0.0},
+        {"f_min": 8.0},
+        {"arm_length": float("inf")},
+    ],
+)
+def test_bad_vehicle_parameters(kw):
+    from vtol_impedance.errors import InputError
+    from vtol_impedance.model import VehicleParams
+
+    base = {"mass": 1.2, "inertia": [3.4e-3, 3.4e-3, 4.7e-3]} | kw
+    with pytest.raises(InputError):
+        VehicleParams(**base)
+
+
+def test_pelican_preset_matches_the_paper():
+    from vtol_impedance.model import load_preset
+
+    v = load_preset("pelican")
+    assert v.mass == 1.2
+    np.testing.assert_allclose(np.diag(v.inertia), [3.4e-3, 3.4e-3, 4.7e-3])
+    assert 2.3 < v.thrust_to_weight < 2.5
+    with pytest.raises(ValueError, match="available: pelican"):
+        load_preset("mavic")

@@ -23,9 +23,13 @@ METRIC_COLUMNS: dict[str, str] = {
 
 
 def window_mask(result: Result, window: tuple[float, float] | None = None) -> np.ndarray:
-    """Samples inside the task window (default: the one stored in the result's config)."""
+    """Samples inside the task window (default: the one stored in the result's config).
+
+    A run cut shorter than the window's start (``--duration``) falls back to the whole run.
+    """
     w = window if window is not None else result.config.get("window", (result.t[0], result.t[-1]))
-    return (result.t >= w[0]) & (result.t <= w[1])
+    m = (result.t >= w[0]) & (result.t <= w[1])
+    return m if np.count_nonzero(m) > 1 else np.ones_like(result.t, dtype=bool)
 
 
 def _rms(a: np.ndarray) -> float:
