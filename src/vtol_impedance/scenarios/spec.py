@@ -196,18 +196,8 @@ def build(spec: ScenarioSpec) -> Built:
         plant = PlantParams(true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground)
         sensors = SensorParams.ideal()
     else:
-        plant = PlantParams(
-            true_vehicle,
-            payload_mass=pl.mass,
-            payload_offset_B=pl.offset_B,
-            inertia_scale=ps.inertia_scale,
-            arm_length_scale=ps.arm_length_scale,
-            drag_factor_scale=ps.drag_factor_scale,
-            rotor_tau_up=ps.rotor_tau_up,
-            rotor_tau_down=ps.rotor_tau_down,
-            rotor_drag=ps.rotor_drag,
-            ground=ps.ground,
-        )
+        effects = {k: v for k, v in dataclasses.asdict(ps).items() if k != "rotor_limits"}
+        plant = PlantParams(true_vehicle, payload_mass=pl.mass, payload_offset_B=pl.offset_B, **effects)
         sensors = spec.sensors
     start = np.array([0.0, 0.0, 0.0 if spec.trajectory.start_on_ground else -spec.trajectory.altitude])
     dists = tuple(from_dict(d) for d in spec.disturbances)

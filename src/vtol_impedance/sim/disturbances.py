@@ -51,7 +51,7 @@ def _const(shape_like: np.ndarray, f: np.ndarray, tau: np.ndarray) -> tuple[np.n
 
 @dataclass(frozen=True)
 class ConstantWrench(Disturbance):
-    """A constant force (world) and moment (body)."""
+    """A constant force (world) and moment (body); subclasses scale it by a time profile."""
 
     kind: ClassVar[str] = "constant"
     force_W: Vec3 = (0.0, 0.0, 0.0)
@@ -61,8 +61,13 @@ class ConstantWrench(Disturbance):
         object.__setattr__(self, "force_W", _vec("force_W", self.force_W))
         object.__setattr__(self, "torque_B", _vec("torque_B", self.torque_B))
 
+    def profile(self, t: float) -> float:
+        """Scale of the wrench at time ``t``."""
+        return 1.0
+
     def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
-        return _const(p_W, np.asarray(self.force_W), np.asarray(self.torque_B))
+        k = self.profile(t)
+        return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
 
 
 @dataclass(frozen=True)
@@ -73,9 +78,8 @@ class StepWrench(ConstantWrench):
     t_on: float = 0.0
     t_off: float = float("inf")
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
-        k = 1.0 if self.t_on <= t < self.t_off else 0.0
-        return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
+    def profile(self, t: float) -> float:
+        return 1.0 if self.t_on <= t < self.t_off else 0.0
 
 
 @dataclass(frozen=True)
@@ -91,9 +95,8 @@ class RampWrench(ConstantWrench):
         if not self.t_end > self.t_start:
             raise InputError(f"ramp needs t_end > t_start, got {self.t_start} .. {self.t_end}")
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
-        k = float(np.clip((t - self.t_start) / (self.t_end - self.t_start), 0.0, 1.0))
-        return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
+    def profile(self, t: float) -> float:
+        return float(np.clip((t - self.t_start) / (self.t_end - self.t_start), 0.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -109,9 +112,8 @@ class SinusoidWrench(ConstantWrench):
         super().__post_init__()
         positive("freq_hz", self.freq_hz)
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
-        k = np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase) if t >= self.t_on else 0.0
-        return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
+    def profile(self, t: float) -> float:
+        return float(np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase)) if t >= self.t_on else 0.0
 
 
 @dataclass(frozen=True)
@@ -126,10 +128,9 @@ class Push(ConstantWrench):
         super().__post_init__()
         positive("push duration", self.duration)
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
+    def profile(self, t: float) -> float:
         s = (t - self.t_on) / self.duration
-        k = float(np.sin(np.pi * s)) if 0.0 <= s <= 1.0 else 0.0
-        return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
+        return float(np.sin(np.pi * s)) if 0.0 <= s <= 1.0 else 0.0
 
 
 def band_limited_noise(
