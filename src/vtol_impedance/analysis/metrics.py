@@ -6,10 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ..sim.result import Result
-
-#: Length of the tail of the task window over which the steady-state error is averaged, s.
-STEADY_TAIL_S = 5.0
+from ..sim.result import STEADY_TAIL_S, Result, metrics_row
 
 METRIC_COLUMNS: dict[str, str] = {
     "rms_ep_cm": "RMS ‖e_p‖ [cm]",
@@ -42,11 +39,15 @@ def compute_metrics(result: Result, window: tuple[float, float] | None = None) -
 
     ``ss_ep_cm`` is the mean ``|e_p|`` over the last :data:`STEADY_TAIL_S` seconds of the window;
     the estimation error compares the estimate with the lumped wrench the nominal model misses
-    (``f_lumped_W``, ``tau_lumped_eta``).
+    (``f_lumped_W``, ``tau_lumped_eta``). A run logged with ``log="metrics"`` already carries them.
     """
+    if not result.data:
+        if result.metrics is None:
+            raise ValueError("the result has neither traces nor metrics")
+        return [dict(m) for m in result.metrics]
     m = window_mask(result, window)
     t = result.t[m]
-    tail = t >= (t[-1] - STEADY_TAIL_S) if t.size else m[m]
+    tail = t >= (t[-1] - STEADY_TAIL_S)
     ep = np.linalg.norm(result.e_p[:, m], axis=-1)
     ev = np.linalg.norm(result.e_v[:, m], axis=-1)
     f_err = np.linalg.norm(result["f_hat_W"][:, m] - result["f_lumped_W"][:, m], axis=-1)
@@ -54,18 +55,19 @@ def compute_metrics(result: Result, window: tuple[float, float] | None = None) -
     sat = result["saturated"][:, m]
     rows = []
     for b, label in enumerate(result.labels):
-        fail = result.failures[b] if b < len(result.failures) else None
+        alive = np.isfinite(ep[b])
+        has = bool(np.any(alive))
         rows.append(
-            {
-                "controller": label,
-                "rms_ep_cm": 100 * _rms(ep[b]),
-                "max_ep_cm": 100 * float(np.nanmax(ep[b])) if np.any(np.isfinite(ep[b])) else float("nan"),
-                "ss_ep_cm": 100 * float(np.nanmean(ep[b][tail])) if np.any(tail) else float("nan"),
-                "rms_ev_cms": 100 * _rms(ev[b]),
-                "rms_f_err_N": _rms(f_err[b]),
-                "rms_tau_err_mNm": 1000 * _rms(tau_err[b]),
-                "sat_pct": 100 * float(np.nanmean(sat[b])),
-                "failure": None if fail is None else f"{fail['reason']} at {fail['time']:.2f} s",
-            }
+            metrics_row(
+                label,
+                rms_ep=_rms(ep[b]),
+                max_ep=float(np.max(ep[b][alive])) if has else float("nan"),
+                ss_ep=float(np.mean(ep[b][tail & alive])) if np.any(tail & alive) else float("nan"),
+                rms_ev=_rms(ev[b]),
+                rms_f=_rms(f_err[b]),
+                rms_tau=_rms(tau_err[b]),
+                sat=float(np.mean(sat[b][alive])) if has else float("nan"),
+                failure=result.failures[b] if b < len(result.failures) else None,
+            )
         )
     return rows

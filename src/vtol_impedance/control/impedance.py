@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..conventions import G
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, SingularityError, as_finite, positive
 from ..estimator.momentum import (
     EstimatorDesign,
     EstimatorParams,
@@ -263,21 +263,56 @@ def controller_step(
 
 
 class Controller:
-    """Stateful convenience wrapper around :func:`controller_step` for use outside the simulator.
+    """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
     >>> ctrl = Controller(ControllerParams.paper("pdc"))
     >>> out = ctrl.step(Measurement(p, v, eta, eta_dot), Reference(p_d, v_d, a_d, psi_d, 0.0, 0.0))
 
-    Inputs are validated (finite, trailing shape 3, away from the Euler singularity).
+    :meth:`step` validates its inputs (finite, trailing shape 3, away from the Euler singularity) and
+    returns a :class:`ControlOutput`. :meth:`step_arrays` is the low-overhead path for real-time loops:
+    flat ``y = [p_W, v_W, eta, eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` in,
+    a flat output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
+
+    ``backend="compiled"`` (default) runs the numba kernels, ``"numpy"`` the reference functions of this
+    module; both compute the same numbers.
     """
 
-    def __init__(self, params: ControllerParams | Sequence[ControllerParams]) -> None:
+    def __init__(self, params: ControllerParams | Sequence[ControllerParams], backend: str = "compiled") -> None:
+        if backend not in ("compiled", "numpy"):
+            raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
         self.params = params
+        self.backend = backend
         self.arrays = compile_controllers(params)
+        if backend == "compiled":
+            from ..compiled import controller as kernels
+
+            batch = self.arrays if self.arrays.batch_shape else compile_controllers([params])  # type: ignore[list-item]
+            self._k = kernels
+            self._cp, self._sh = kernels.pack_controller(batch)
+            self._n = batch.est.Ad.shape[-1]
+            self._out = np.zeros((self._cp.shape[0], kernels.OUT_SIZE))
         self.reset()
 
     def reset(self) -> None:
         self.state = initial_controller_state(self.arrays)
+        if self.backend == "compiled":
+            self._cs = self._k.initial_state(self._cp, self._n)
+
+    def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
+        """One compiled step for ``vehicle`` with flat float64 inputs ``y (12,)`` and ``r (12,)``.
+
+        Returns the output row (a view, overwritten by the next call). Raises :class:`InputError` on a
+        non-finite input and :class:`SingularityError` at theta = +-90 deg.
+        """
+        if self.backend != "compiled":
+            raise InputError("step_arrays needs backend='compiled'")
+        out = self._out[vehicle]
+        status = self._k.checked_step(self._cp[vehicle], self._sh, self._cs[vehicle], y, r, out)
+        if status:
+            if status == 2:
+                raise SingularityError(f"pitch theta = {np.degrees(y[7]):.3f} deg is at the Euler singularity")
+            raise InputError(f"non-finite measurement or reference: y = {y}, r = {r}")
+        return out
 
     def step(self, meas: Measurement, ref: Reference) -> ControlOutput:
         bs = self.arrays.batch_shape
@@ -294,5 +329,43 @@ class Controller:
             as_finite("psi_ddot_d", ref.psi_ddot),
         )
         check_euler_regular(meas.eta)
-        self.state, out = controller_step(self.arrays, self.state, meas, ref)
-        return out
+        if self.backend == "numpy":
+            self.state, out = controller_step(self.arrays, self.state, meas, ref)
+            return out
+        return self._step_compiled(meas, ref, bs)
+
+    def _step_compiled(self, meas: Measurement, ref: Reference, bs: tuple[int, ...]) -> ControlOutput:
+        k = self._k
+        B = self._cp.shape[0]
+        y = np.concatenate([np.broadcast_to(v, bs + (3,)).reshape(B, 3) for v in meas], -1)
+        r = np.concatenate(
+            [
+                np.broadcast_to(ref.p_W, (B, 3)),
+                np.broadcast_to(ref.v_W, (B, 3)),
+                np.broadcast_to(ref.a_W, (B, 3)),
+                np.broadcast_to(np.stack([ref.psi, ref.psi_dot, ref.psi_ddot], -1), (B, 3)),
+            ],
+            -1,
+        )
+        for b in range(B):
+            k.controller_step(self._cp[b], self._sh, self._cs[b], y[b], np.ascontiguousarray(r[b]), self._out[b])
+        o = self._out.reshape(bs + (k.OUT_SIZE,)).copy()
+
+        def sl(i: int, n: int) -> np.ndarray:
+            return o[..., i : i + n]
+
+        return ControlOutput(
+            thrust=o[..., k.O_THRUST],
+            tau_B=sl(k.O_TAU, 3),
+            f_rotor=sl(k.O_F, 4),
+            saturated=o[..., k.O_SAT] > 0.5,
+            thrust_request=o[..., k.O_THRUST_REQ],
+            tau_B_request=sl(k.O_TAU_REQ, 3),
+            f_hat_W=sl(k.O_FHAT, 3),
+            tau_hat_eta=sl(k.O_TAUHAT_ETA, 3),
+            tau_hat_B=sl(k.O_TAUHAT_B, 3),
+            eta_d=sl(k.O_ETA_D, 3),
+            eta_d_dot=sl(k.O_ETA_D_DOT, 3),
+            mu_bar=sl(k.O_MU_BAR, 3),
+            tilt_limited=o[..., k.O_TILT] > 0.5,
+        )

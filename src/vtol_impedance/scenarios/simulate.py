@@ -17,10 +17,13 @@ def simulate(
     variants: Sequence[str] = ("pd", "pid", "pdc"),
     seed: int | None = None,
     progress: ProgressFn | None = None,
+    backend: str = "compiled",
+    log: str | int = "full",
 ) -> Result:
     """Fly ``scenario`` once per controller variant (one batch, same seed, same disturbances).
 
     The result's ``config`` holds the full scenario, the task ``window`` used for metrics and the phases.
+    ``backend`` and ``log`` are passed to :func:`~vtol_impedance.sim.loop.run_closed_loop`.
     """
     spec = get(scenario) if isinstance(scenario, str) else scenario
     variants = list(variants)
@@ -43,4 +46,7 @@ def simulate(
         start_W=b.start_W,
         progress=progress,
         config={"scenario": spec.to_dict(), "window": list(b.window), "phases": b.phases},
+        backend=backend,
+        log=log,
+        window=b.window,
     )

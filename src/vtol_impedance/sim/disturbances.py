@@ -19,6 +19,16 @@ from ..model.kinematics import cross
 
 Vec3 = tuple[float, float, float]
 
+#: Codes and parameter-vector length of the compiled encoding (see ``Disturbance.encode``).
+CODE = {"constant": 0, "step": 1, "ramp": 2, "sinusoid": 3, "push": 4, "noise": 5, "fan": 6}
+ENC_PARAMS = 16
+
+
+def _enc(*values: float) -> np.ndarray:
+    out = np.zeros(ENC_PARAMS)
+    out[: len(values)] = values
+    return out
+
 
 class Disturbance:
     """Base class: constant-in-state, deterministic disturbances need no preparation."""
@@ -30,6 +40,11 @@ class Disturbance:
 
     def __call__(self, t: float, p_W: np.ndarray, v_W: np.ndarray, R_WB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
+
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        """``(code, params (ENC_PARAMS,), series (n, 6) or None)`` for the compiled backend
+        (:mod:`vtol_impedance.compiled.plant` evaluates the same formulas)."""
+        raise NotImplementedError(f"{type(self).__name__} has no compiled form")
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind}
@@ -65,6 +80,12 @@ class ConstantWrench(Disturbance):
         """Scale of the wrench at time ``t``."""
         return 1.0
 
+    def _timing(self) -> tuple[float, ...]:
+        return ()
+
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        return CODE[self.kind], _enc(*self.force_W, *self.torque_B, *self._timing()), None
+
     def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
         k = self.profile(t)
         return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
@@ -80,6 +101,9 @@ class StepWrench(ConstantWrench):
 
     def profile(self, t: float) -> float:
         return 1.0 if self.t_on <= t < self.t_off else 0.0
+
+    def _timing(self) -> tuple[float, ...]:
+        return (self.t_on, self.t_off)
 
 
 @dataclass(frozen=True)
@@ -98,6 +122,9 @@ class RampWrench(ConstantWrench):
     def profile(self, t: float) -> float:
         return float(np.clip((t - self.t_start) / (self.t_end - self.t_start), 0.0, 1.0))
 
+    def _timing(self) -> tuple[float, ...]:
+        return (self.t_start, self.t_end)
+
 
 @dataclass(frozen=True)
 class SinusoidWrench(ConstantWrench):
@@ -115,6 +142,9 @@ class SinusoidWrench(ConstantWrench):
     def profile(self, t: float) -> float:
         return float(np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase)) if t >= self.t_on else 0.0
 
+    def _timing(self) -> tuple[float, ...]:
+        return (self.freq_hz, self.phase, self.t_on)
+
 
 @dataclass(frozen=True)
 class Push(ConstantWrench):
@@ -131,6 +161,9 @@ class Push(ConstantWrench):
     def profile(self, t: float) -> float:
         s = (t - self.t_on) / self.duration
         return float(np.sin(np.pi * s)) if 0.0 <= s <= 1.0 else 0.0
+
+    def _timing(self) -> tuple[float, ...]:
+        return (self.t_on, self.duration)
 
 
 def band_limited_noise(
@@ -169,6 +202,11 @@ class BandLimitedNoise(Disturbance):
         unit = band_limited_noise(rng, n, dt, self.f_lo, self.f_hi, 6)
         series = unit * np.concatenate([self.force_rms_W, self.torque_rms_B])
         return replace(self, _series=series, _dt=dt)
+
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        if self._series is None:
+            raise RuntimeError("BandLimitedNoise used before prepare()")
+        return CODE["noise"], _enc(self._dt), self._series
 
     def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
         if self._series is None:
@@ -220,6 +258,23 @@ class FanJet(Disturbance):
         gust = self.turbulence * band_limited_noise(rng, n, dt, *self.turbulence_band, 1)[:, 0]
         return replace(self, _gust=gust, _dt=dt)
 
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        params = _enc(
+            *self.position_W,
+            *self.direction_W,
+            self.mean_force,
+            self.ref_distance,
+            self.width,
+            *self.cop_offset_B,
+            self.t_on,
+            self._dt,
+        )
+        series = None
+        if self._gust is not None:
+            series = np.zeros((len(self._gust), 6))
+            series[:, 0] = self._gust
+        return CODE["fan"], params, series
+
     def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
         if t < self.t_on:
             z = np.zeros(np.shape(p_W))
@@ -257,6 +312,9 @@ class Wind(Disturbance):
     def __post_init__(self) -> None:
         object.__setattr__(self, "velocity_W", _vec("velocity_W", self.velocity_W))
         positive("wind drag", self.drag, allow_zero=True)
+
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        return CODE["constant"], _enc(*(self.drag * np.asarray(self.velocity_W)), 0.0, 0.0, 0.0), None
 
     def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
         return _const(p_W, self.drag * np.asarray(self.velocity_W), np.zeros(3))

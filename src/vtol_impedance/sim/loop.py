@@ -3,11 +3,17 @@
 Timing per control period ``Ts`` (ZOH): sensors are read, the controller computes rotor forces from the
 estimate of the period that just ended, and the forces are held while the plant takes ``Ts / dt`` RK4
 steps. Logged signals are sampled at the control instants.
+
+Two backends run this loop. ``"compiled"`` (default) runs the numba kernels of
+:mod:`vtol_impedance.compiled`, one thread-parallel iteration per vehicle; ``"numpy"`` runs the NumPy
+functions of :mod:`vtol_impedance.model`, :mod:`.control`, :mod:`.estimator` and :mod:`.sim` on the whole
+batch at once. They compute the same thing (parity tests), from the same random numbers.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -19,6 +25,7 @@ from ..control.impedance import (
     initial_controller_state,
 )
 from ..control.reference import Trajectory
+from ..control.signals import Reference
 from ..conventions import E3, GRAVITY_W
 from ..errors import InputError, positive
 from ..model.dynamics import coriolis_matrix_C, inertia_matrix_M, matvec, transpose
@@ -33,6 +40,7 @@ from .disturbances import Disturbance, DisturbanceSet
 from .plant import (
     OMEGA,
     QUAT,
+    ROTOR,
     V_COM,
     PlantArrays,
     PlantParams,
@@ -44,12 +52,16 @@ from .plant import (
     plant_derivative,
     rk4_step,
 )
-from .result import SIGNALS, Result
-from .sensors import SensorParams, SensorSuite
+from .result import ROW_WIDTH, SIGNAL_OFFSETS, SIGNALS, STEADY_TAIL_S, Result, metrics_row, rows_to_data
+from .sensors import NoiseSource, SensorParams, SensorSuite
 
 #: A vehicle is stopped and flagged when its tilt exceeds this (the Euler parametrisation fails at 90 deg).
 MAX_TILT_RAD = np.radians(80.0)
 MAX_DISTANCE_M = 1e3
+REASONS = {1: "non-finite state", 2: "tilt above 80 deg", 3: f"more than {MAX_DISTANCE_M:.0f} m from the origin"}
+#: Control ticks per block of random numbers (bounds memory for large batches).
+BLOCK_TICKS = 200
+BACKENDS = ("compiled", "numpy")
 
 ProgressFn = Callable[[float], None]
 
@@ -87,6 +99,57 @@ def _lumped_wrench(
     return f, tau
 
 
+@dataclass
+class _Setup:
+    CA: Any
+    PA: PlantArrays
+    dist: DisturbanceSet
+    sensors: SensorParams
+    noise: NoiseSource
+    refs: np.ndarray  # (N, 12)
+    x0: np.ndarray  # (B, 17)
+    Ts: float
+    dt: float
+    n_sub: int
+    N: int
+    dec: int  # log every dec-th tick; 0: metrics only
+    window: tuple[float, float, float]
+
+
+def _parse_log(log: str | int) -> int:
+    if log == "full":
+        return 1
+    if log == "metrics":
+        return 0
+    if isinstance(log, int) and not isinstance(log, bool) and log >= 1:
+        return log
+    if isinstance(log, str) and log.startswith("decimate:"):
+        try:
+            k = int(log.split(":", 1)[1])
+        except ValueError:
+            k = 0
+        if k >= 1:
+            return k
+    raise InputError(f"log must be 'full', 'metrics', 'decimate:K' or a whole number K >= 1, got {log!r}")
+
+
+def _window(window: tuple[float, float] | None, t_grid: np.ndarray) -> tuple[float, float, float]:
+    w0, w1 = (t_grid[0], t_grid[-1]) if window is None else window
+    inside = t_grid[(t_grid >= w0) & (t_grid <= w1)]
+    if inside.size < 2:  # as analysis.metrics.window_mask: fall back to the whole run
+        w0, w1, inside = t_grid[0], t_grid[-1], t_grid
+    return float(w0), float(w1), float(inside[-1] - STEADY_TAIL_S)
+
+
+def reference_rows(trajectory: Trajectory, t_grid: np.ndarray) -> np.ndarray:
+    """``(N, 12)`` rows ``[p, v, a, psi, psi_dot, psi_ddot]`` of the reference at the control instants."""
+    rows = np.empty((len(t_grid), 12))
+    for k, t in enumerate(t_grid):
+        r = trajectory.sample(float(t))
+        rows[k] = np.concatenate([r.p_W, r.v_W, r.a_W, [r.psi, r.psi_dot, r.psi_ddot]])
+    return rows
+
+
 def run_closed_loop(
     plant: PlantParams | Sequence[PlantParams],
     controllers: Sequence[ControllerParams],
@@ -95,23 +158,32 @@ def run_closed_loop(
     disturbances: Sequence[Disturbance] = (),
     sensors: SensorParams | None = None,
     plant_rate: float = 1000.0,
-    seed: int = 0,
+    seed: int | Sequence[int] = 0,
     labels: Sequence[str] | None = None,
     start_W: np.ndarray | None = None,
     progress: ProgressFn | None = None,
     config: dict[str, Any] | None = None,
+    backend: str = "compiled",
+    log: str | int = "full",
+    window: tuple[float, float] | None = None,
 ) -> Result:
-    """Fly ``B = len(controllers)`` vehicles through the same trajectory and disturbance realisation.
+    """Fly ``B = len(controllers)`` vehicles through the same trajectory.
 
     Parameters
     ----------
     plant : one true plant for all vehicles, or one per vehicle.
     controllers : nominal controllers, one per vehicle (they must share the control period).
     trajectory : reference; the run starts at ``start_W`` (default: the trajectory's first point).
-    disturbances : explicit external disturbances, prepared once from ``seed``.
+    disturbances : explicit external disturbances; one realisation, drawn from the first vehicle's
+        seed, is shared by the batch.
     sensors : noise and latency (default :class:`SensorParams`); use ``SensorParams.ideal()`` for none.
     plant_rate : RK4 rate in Hz; ``plant_rate * Ts`` must be an integer.
+    seed : one seed for every vehicle (the same sensor noise, a fair comparison) or one per vehicle.
     progress : called with the fraction done.
+    backend : ``"compiled"`` (numba) or ``"numpy"`` (the reference).
+    log : ``"full"`` (every control tick), ``"decimate:K"`` (every K-th), or ``"metrics"`` (no traces,
+        only the per-vehicle metrics of ``window``; for large batches).
+    window : task window for the metrics (default: the whole run).
     """
     controllers = list(controllers)
     B = len(controllers)
@@ -123,9 +195,15 @@ def run_closed_loop(
     labels = list(labels) if labels is not None else [c.variant for c in controllers]
     if len(labels) != B:
         raise InputError(f"{len(labels)} labels given for {B} controllers")
+    seeds = [int(seed)] * B if np.ndim(seed) == 0 else [int(s) for s in seed]  # type: ignore[arg-type]
+    if len(seeds) != B:
+        raise InputError(f"{len(seeds)} seeds given for {B} vehicles")
+    if backend not in BACKENDS:
+        raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
     duration = float(positive("duration", duration))
     plant_rate = float(positive("plant_rate", plant_rate))
     sensors = SensorParams() if sensors is None else sensors
+    dec = _parse_log(log)
 
     CA = compile_controllers(controllers)
     Ts = CA.Ts
@@ -134,34 +212,176 @@ def run_closed_loop(
     if n_sub < 1 or abs(n_sub * dt - Ts) > 1e-9 * Ts:
         raise InputError(f"plant_rate * Ts must be a whole number >= 1, got {plant_rate} Hz * {Ts} s")
     N = int(round(duration / Ts))
+    t_grid = np.arange(N) * Ts
 
     PA = compile_plants(plants)
-    seeds = np.random.SeedSequence(seed).spawn(1 + len(disturbances))
-    sens = SensorSuite(sensors, PA, dt, np.random.default_rng(seeds[0]))
+    dseeds = [np.random.SeedSequence([seeds[0], 1 + i]) for i in range(len(disturbances))]
     dist = DisturbanceSet(
-        [d.prepare(duration + Ts, dt, np.random.default_rng(s)) for d, s in zip(disturbances, seeds[1:], strict=True)]
+        [d.prepare(duration + Ts, dt, np.random.default_rng(s)) for d, s in zip(disturbances, dseeds, strict=True)]
     )
-
     start = trajectory.sample(0.0).p_W if start_W is None else np.asarray(start_W, dtype=float)
-    x = initial_state(PA, np.broadcast_to(start, (B, 3)))
-    x_park = x.copy()
+    setup = _Setup(
+        CA,
+        PA,
+        dist,
+        sensors,
+        NoiseSource(seeds),
+        reference_rows(trajectory, t_grid),
+        initial_state(PA, np.broadcast_to(start, (B, 3))),
+        Ts,
+        dt,
+        n_sub,
+        N,
+        dec,
+        _window(window, t_grid),
+    )
+    run = _run_compiled if backend == "compiled" else _run_numpy
+    rows, metrics, failures = run(setup, progress)
+
+    cfg = dict(config or {})
+    cfg.update(
+        {
+            "seed": seeds[0] if len(set(seeds)) == 1 else seeds,
+            "backend": backend,
+            "log": log,
+            "duration": duration,
+            "plant_rate": plant_rate,
+            "control_period": Ts,
+            "labels": labels,
+            "controllers": [c.to_dict() for c in controllers],
+            "plants": [p.to_dict() for p in plants],
+            "sensors": {k: getattr(sensors, k) for k in sensors.__dataclass_fields__},
+            "disturbances": [d.to_dict() for d in disturbances],
+        }
+    )
+    cfg.setdefault("window", list(setup.window[:2]))
+    t_log = t_grid[::dec] if dec else t_grid[:0]
+    data = rows_to_data(rows) if dec else {}
+    for i, m in enumerate(metrics):
+        m["controller"] = labels[i]
+    return Result(t_log, labels, data, cfg, failures, metrics if dec == 0 else None)
+
+
+def _failures(fail_code: np.ndarray, fail_time: np.ndarray) -> list[dict[str, Any] | None]:
+    return [
+        None if c == 0 else {"time": float(t), "reason": REASONS[int(c)]}
+        for c, t in zip(fail_code, fail_time, strict=True)
+    ]
+
+
+def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) -> list[dict[str, Any]]:
+    """Per-vehicle metrics from the compiled accumulators (same definitions as analysis.metrics)."""
+    out = []
+    for b in range(acc.shape[0]):
+        n, nt = acc[b, 0], acc[b, 7]
+        out.append(
+            metrics_row(
+                "",
+                rms_ep=np.sqrt(acc[b, 1] / n) if n else np.nan,
+                max_ep=acc[b, 2] if n else np.nan,
+                ss_ep=acc[b, 8] / nt if nt else np.nan,
+                rms_ev=np.sqrt(acc[b, 3] / n) if n else np.nan,
+                rms_f=np.sqrt(acc[b, 4] / n) if n else np.nan,
+                rms_tau=np.sqrt(acc[b, 5] / n) if n else np.nan,
+                sat=acc[b, 6] / n if n else np.nan,
+                failure=failures[b],
+            )
+        )
+    return out
+
+
+def _run_compiled(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
+    from ..compiled.controller import initial_state as ctrl_initial_state
+    from ..compiled.controller import pack_controller
+    from ..compiled.engine import N_ACC, run_block
+    from ..compiled.plant import pack_disturbances, pack_plant
+
+    B = s.x0.shape[0]
+    CA = s.CA
+    if CA.batch_shape != (B,):
+        raise InputError("the compiled backend needs one controller per vehicle")
+    cp, sh = pack_controller(CA)
+    pp = pack_plant(s.PA)
+    codes, dparams, series = pack_disturbances(s.dist.items)
+    CS = ctrl_initial_state(cp, CA.est.Ad.shape[-1])
+    suite = SensorSuite(s.sensors, s.PA, s.dt)
+    H = max(suite.k_mocap, suite.k_imu) + 1
+    hist = np.empty((B, H, 17))
+    hist[:, 0] = s.x0
+    hcount = np.ones(B, dtype=np.int64)
+    hhead = np.zeros(B, dtype=np.int64)
+    X = s.x0.copy()
+    alive = np.ones(B, dtype=np.bool_)
+    fail_time = np.zeros(B)
+    fail_code = np.zeros(B, dtype=np.int64)
+    n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
+    logs = np.full((B, n_log, ROW_WIDTH), np.nan)
+    acc = np.zeros((B, N_ACC))
+    win = np.array(s.window)
+    for k0 in range(0, s.N, BLOCK_TICKS):
+        k1 = min(k0 + BLOCK_TICKS, s.N)
+        noise = s.noise.block(k1 - k0)
+        run_block(
+            k0,
+            k1,
+            s.Ts,
+            s.dt,
+            s.n_sub,
+            X,
+            hist,
+            hcount,
+            hhead,
+            suite.k_mocap,
+            suite.k_imu,
+            suite.sigma,
+            noise,
+            CS,
+            cp,
+            sh,
+            pp,
+            codes,
+            dparams,
+            series,
+            s.refs,
+            alive,
+            fail_time,
+            fail_code,
+            s.x0,
+            logs,
+            s.dec,
+            acc,
+            win,
+        )
+        if progress is not None:
+            progress(k1 / s.N)
+    failures = _failures(fail_code, fail_time)
+    return logs, _metrics_from_acc(acc, failures), failures
+
+
+def _run_numpy(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
+    CA, PA, dist = s.CA, s.PA, s.dist
+    B = s.x0.shape[0]
+    sens = SensorSuite(s.sensors, PA, s.dt)
+    x = s.x0.copy()
+    x_park = s.x0.copy()
     sens.push(x)
     CS = initial_controller_state(CA)
-
-    logs = {k: np.full((B, N) + shape, np.nan) for k, (shape, _, _) in SIGNALS.items()}
+    logs = np.full((B, s.N, ROW_WIDTH), np.nan)
     alive = np.ones(B, dtype=bool)
-    failures: list[dict[str, Any] | None] = [None] * B
-    t_grid = np.arange(N) * Ts
-    report_every = max(N // 100, 1)
-
-    for k in range(N):
-        t = t_grid[k]
-        meas = sens.measure()
-        ref = trajectory.sample(t)
+    fail_code = np.zeros(B, dtype=np.int64)
+    fail_time = np.zeros(B)
+    report_every = max(s.N // 100, 1)
+    noise = s.noise.block(0)
+    for k in range(s.N):
+        if k % BLOCK_TICKS == 0:
+            noise = s.noise.block(min(BLOCK_TICKS, s.N - k))
+        t = k * s.Ts
+        meas = sens.measure(noise[:, k % BLOCK_TICKS])
+        r = s.refs[k]
+        ref = Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]))
         thrust_prev, tau_prev = CS.thrust_prev, CS.tau_B_prev
         CS, out = controller_step(CA, CS, meas, ref)
 
-        # True and lumped wrenches at t_k, for logging.
         x_dot = plant_derivative(PA, x, out.f_rotor, t, dist)
         R = quat_to_rotation(x[..., QUAT])
         eta = euler_from_rotation(R)
@@ -185,7 +405,7 @@ def run_closed_loop(
             "thrust": out.thrust,
             "tau_B": out.tau_B,
             "f_rotor_cmd": out.f_rotor,
-            "f_rotor": x[..., 13:17],
+            "f_rotor": x[..., ROTOR],
             "saturated": out.saturated,
             "f_ext_W": f_env,
             "tau_ext_B": tau_env,
@@ -196,50 +416,43 @@ def run_closed_loop(
             "tau_hat_eta": out.tau_hat_eta,
             "tau_hat_B": out.tau_hat_B,
         }
-        for name, val in row.items():
-            logs[name][alive, k] = np.broadcast_to(val, (B,) + SIGNALS[name][0])[alive]
+        for name, (off, n) in SIGNAL_OFFSETS.items():
+            val = np.broadcast_to(np.asarray(row[name], dtype=float), (B,) + SIGNALS[name][0]).reshape(B, n)
+            logs[alive, k, off : off + n] = val[alive]
 
         x = apply_instant_rotors(PA, x, out.f_rotor)
-        for j in range(n_sub):
-            x = rk4_step(PA, x, out.f_rotor, t + j * dt, dt, dist)
+        for j in range(s.n_sub):
+            x = rk4_step(PA, x, out.f_rotor, t + j * s.dt, s.dt, dist)
             sens.push(x)
 
-        reason = _check_vehicles(x)
-        newly = alive & (reason != "")
+        code = _check_vehicles(x)
+        newly = alive & (code != 0)
         if np.any(newly):
-            for b in np.flatnonzero(newly):
-                failures[b] = {"time": float(t + Ts), "reason": str(reason[b])}
+            fail_code[newly] = code[newly]
+            fail_time[newly] = t + s.Ts
             alive &= ~newly
             # Park failed vehicles so that their NaNs cannot reach the others' arithmetic.
             x = np.where(alive[:, None], x, x_park)
-        if progress is not None and (k % report_every == 0 or k == N - 1):
-            progress((k + 1) / N)
+        if progress is not None and (k % report_every == 0 or k == s.N - 1):
+            progress((k + 1) / s.N)
 
-    cfg = dict(config or {})
-    cfg.update(
-        {
-            "seed": int(seed),
-            "duration": duration,
-            "plant_rate": plant_rate,
-            "control_period": Ts,
-            "labels": labels,
-            "controllers": [c.to_dict() for c in controllers],
-            "plants": [p.to_dict() for p in plants],
-            "sensors": {k: getattr(sensors, k) for k in sensors.__dataclass_fields__},
-            "disturbances": [d.to_dict() for d in disturbances],
-        }
-    )
-    return Result(t_grid, labels, logs, cfg, failures)
+    failures = _failures(fail_code, fail_time)
+    if s.dec == 0:
+        from ..analysis.metrics import compute_metrics
+
+        res = Result(np.arange(s.N) * s.Ts, [""] * B, rows_to_data(logs), {"window": list(s.window[:2])}, failures)
+        return logs[:, :0], compute_metrics(res), failures
+    return logs[:, :: s.dec], [], failures
 
 
 def _check_vehicles(x: np.ndarray) -> np.ndarray:
-    """Reason string per vehicle ('' when healthy): non-finite state, excessive tilt or flyaway."""
-    reason = np.full(x.shape[0], "", dtype=object)
+    """Failure code per vehicle (0 when healthy; see :data:`REASONS`)."""
+    code = np.zeros(x.shape[0], dtype=np.int64)
     finite = np.all(np.isfinite(x), axis=-1)
-    reason[~finite] = "non-finite state"
+    code[~finite] = 1
     R = quat_to_rotation(np.where(finite[:, None], x[:, 6:10], np.array([1.0, 0, 0, 0])))
     tilt = np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0))
-    reason[finite & (tilt > MAX_TILT_RAD)] = f"tilt above {np.degrees(MAX_TILT_RAD):.0f} deg"
     far = finite & (np.linalg.norm(x[:, 0:3], axis=-1) > MAX_DISTANCE_M)
-    reason[far] = f"more than {MAX_DISTANCE_M:.0f} m from the origin"
-    return reason
+    code[finite & (tilt > MAX_TILT_RAD)] = 2
+    code[far & (code == 0)] = 3
+    return code

@@ -15,6 +15,9 @@ from ..io import write_with
 
 SCHEMA_VERSION = 1
 
+#: Length of the tail of the task window over which the steady-state error is averaged, s.
+STEADY_TAIL_S = 5.0
+
 #: Logged signals: name -> (trailing shape, unit, meaning). All are sampled at the control rate.
 SIGNALS: dict[str, tuple[tuple[int, ...], str, str]] = {
     "p_W": ((3,), "m", "true position of the body origin, world NED"),
@@ -46,13 +49,64 @@ SIGNALS: dict[str, tuple[tuple[int, ...], str, str]] = {
 }
 
 
+def metrics_row(
+    controller: str,
+    rms_ep: float,
+    max_ep: float,
+    ss_ep: float,
+    rms_ev: float,
+    rms_f: float,
+    rms_tau: float,
+    sat: float,
+    failure: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """One table row from SI values (m, m/s, N, N m, fraction); the row holds the displayed units."""
+    return {
+        "controller": controller,
+        "rms_ep_cm": 100 * float(rms_ep),
+        "max_ep_cm": 100 * float(max_ep),
+        "ss_ep_cm": 100 * float(ss_ep),
+        "rms_ev_cms": 100 * float(rms_ev),
+        "rms_f_err_N": float(rms_f),
+        "rms_tau_err_mNm": 1000 * float(rms_tau),
+        "sat_pct": 100 * float(sat),
+        "failure": None if failure is None else f"{failure['reason']} at {failure['time']:.2f} s",
+    }
+
+
+def _offsets() -> dict[str, tuple[int, int]]:
+    out, off = {}, 0
+    for name, (shape, _, _) in SIGNALS.items():
+        n = int(np.prod(shape)) if shape else 1
+        out[name] = (off, n)
+        off += n
+    return out
+
+
+#: Where each signal sits in a flat log row: name -> (offset, length).
+SIGNAL_OFFSETS: dict[str, tuple[int, int]] = _offsets()
+#: Length of a flat log row.
+ROW_WIDTH: int = sum(n for _, n in SIGNAL_OFFSETS.values())
+
+
+def rows_to_data(rows: np.ndarray) -> dict[str, np.ndarray]:
+    """Split flat log rows ``(B, N, ROW_WIDTH)`` into named signals ``(B, N, *shape)``."""
+    B, N = rows.shape[:2]
+    data = {}
+    for name, (off, n) in SIGNAL_OFFSETS.items():
+        shape = SIGNALS[name][0]
+        data[name] = rows[:, :, off : off + n].reshape((B, N) + shape)
+    return data
+
+
 @dataclass
 class Result:
     """Time series of ``B`` simulated vehicles: ``data[name]`` is ``(B, N, *shape)``, ``t`` is ``(N,)``.
 
     ``labels`` name each vehicle (for example the controller variant); ``failures[b]`` is ``None`` or a
     dict with the ``time`` and ``reason`` at which vehicle ``b`` was stopped; ``config`` is the exact
-    configuration (scenario, controllers, plant, sensors, seed) that produced the run.
+    configuration (scenario, controllers, plant, sensors, seed) that produced the run. A run logged with
+    ``log="metrics"`` has no traces (``data`` is empty) and carries ``metrics`` instead.
     """
 
     t: np.ndarray
@@ -60,6 +114,7 @@ class Result:
     data: dict[str, np.ndarray]
     config: dict[str, Any] = field(default_factory=dict)
     failures: list[dict[str, Any] | None] = field(default_factory=list)
+    metrics: list[dict[str, Any]] | None = None
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.data[name]
@@ -85,6 +140,7 @@ class Result:
             "labels": self.labels,
             "config": self.config,
             "failures": self.failures,
+            "metrics": self.metrics,
             "signals": {k: {"unit": SIGNALS[k][1], "meaning": SIGNALS[k][2]} for k in self.data if k in SIGNALS},
         }
         arrays = {f"data__{k}": v for k, v in self.data.items()}
@@ -111,4 +167,4 @@ class Result:
         for k, v in data.items():
             if v.shape[:2] != (B, len(t)):
                 raise InputError(f"{path}: signal {k} has shape {v.shape}, expected ({B}, {len(t)}, ...)")
-        return cls(t, header["labels"], data, header["config"], header["failures"])
+        return cls(t, header["labels"], data, header["config"], header["failures"], header.get("metrics"))

@@ -1,7 +1,7 @@
 """Sensor models: motion capture (position, velocity) and IMU (attitude, body rates).
 
 Each sensor reads the true state some time ago (latency, an integer number of plant steps) and adds
-seeded Gaussian noise. The controller receives Euler rates computed from the measured gyro rate,
+seeded Gaussian noise (:class:`NoiseSource`). The controller receives Euler rates computed from the measured gyro rate,
 ``eta_dot = Q(eta)^{-1} omega_B``, as on the real vehicle.
 """
 
@@ -45,10 +45,9 @@ class SensorParams:
 class SensorSuite:
     """Keeps a short history of plant states to serve delayed, noisy measurements."""
 
-    def __init__(self, params: SensorParams, plant: PlantArrays, dt_plant: float, rng: np.random.Generator) -> None:
+    def __init__(self, params: SensorParams, plant: PlantArrays, dt_plant: float) -> None:
         self.params = params
         self.plant = plant
-        self.rng = rng
         self.k_mocap = int(round(params.mocap_delay / dt_plant))
         self.k_imu = int(round(params.imu_delay / dt_plant))
         self.history: deque[np.ndarray] = deque(maxlen=max(self.k_mocap, self.k_imu) + 1)
@@ -60,17 +59,35 @@ class SensorSuite:
     def _ago(self, k: int) -> np.ndarray:
         return self.history[max(len(self.history) - 1 - k, 0)]
 
-    def _noise(self, sigma: float, shape: tuple[int, ...]) -> np.ndarray | float:
-        return sigma * self.rng.standard_normal(shape) if sigma > 0 else 0.0
-
-    def measure(self) -> Measurement:
+    def measure(self, noise: np.ndarray) -> Measurement:
+        """Measurement from the delayed states plus ``sigma * noise``; ``noise (..., 12)`` are standard
+        normals ordered ``[position (3), velocity (3), attitude (3), gyro (3)]``."""
         xm = self._ago(self.k_mocap)
         p_o, v_o = origin_kinematics(self.plant, xm)
         xi = self._ago(self.k_imu)
         eta_true = euler_from_rotation(quat_to_rotation(xi[..., QUAT]))
-        s = p_o.shape
         p = self.params
-        eta = eta_true + self._noise(p.att_noise, s)
-        omega = xi[..., OMEGA] + self._noise(p.gyro_noise, s)
+        eta = eta_true + p.att_noise * noise[..., 6:9]
+        omega = xi[..., OMEGA] + p.gyro_noise * noise[..., 9:12]
         eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega[..., None])[..., 0]
-        return Measurement(p_o + self._noise(p.pos_noise, s), v_o + self._noise(p.vel_noise, s), eta, eta_dot)
+        return Measurement(p_o + p.pos_noise * noise[..., 0:3], v_o + p.vel_noise * noise[..., 3:6], eta, eta_dot)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """``[pos, vel, att, gyro]`` standard deviations, the scale of each noise group."""
+        p = self.params
+        return np.array([p.pos_noise, p.vel_noise, p.att_noise, p.gyro_noise])
+
+
+class NoiseSource:
+    """Standard-normal sensor noise, one seeded stream per vehicle, drawn in blocks of control ticks.
+
+    A vehicle's numbers depend only on its own seed, so a batch sees exactly what single runs see.
+    """
+
+    def __init__(self, seeds: list[int]) -> None:
+        self.gens = [np.random.default_rng(np.random.SeedSequence([int(s), 0])) for s in seeds]
+
+    def block(self, n: int) -> np.ndarray:
+        """``(B, n, 12)`` standard normals."""
+        return np.stack([g.standard_normal((n, 12)) for g in self.gens])

@@ -1,0 +1,255 @@
+"""Compiled closed loop: one ``prange`` iteration per vehicle, time in blocks driven from Python.
+
+Per control period it does exactly what :func:`vtol_impedance.sim.loop.run_closed_loop` does with the
+NumPy backend (read delayed noisy sensors, controller step, log, hold the rotor command for
+``n_sub`` RK4 plant steps, check for divergence), using the kernels of :mod:`.controller` and
+:mod:`.plant`. Randomness is drawn outside, in NumPy, and passed in per block, so both backends
+consume the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ..sim.result import SIGNAL_OFFSETS as _OFF
+from .controller import (
+    O_ETA_D,
+    O_F,
+    O_FHAT,
+    O_SAT,
+    O_TAU,
+    O_TAU_REQ,
+    O_TAUHAT_B,
+    O_TAUHAT_ETA,
+    O_THRUST,
+    O_THRUST_REQ,
+    OUT_SIZE,
+    controller_step,
+    euler_Q,
+    solve3,
+)
+from .plant import (
+    PP_FMAX,
+    PP_FMIN,
+    PP_TDN,
+    PP_TUP,
+    environment_wrench,
+    euler_from_R,
+    lumped_wrench,
+    origin_kinematics,
+    plant_derivative,
+    quat_to_R,
+    rk4_step,
+)
+
+# failure codes (see REASONS)
+FAIL_NONE, FAIL_NAN, FAIL_TILT, FAIL_FAR = 0, 1, 2, 3
+# metric accumulators per vehicle
+A_N, A_E2, A_EMAX, A_EV2, A_F2, A_T2, A_SAT, A_NT, A_ET = 0, 1, 2, 3, 4, 5, 6, 7, 8
+N_ACC = 9
+
+_P, _V, _ETA, _OM = _OFF["p_W"][0], _OFF["v_W"][0], _OFF["eta"][0], _OFF["omega_B"][0]
+_PR, _VR, _PSIR = _OFF["p_ref_W"][0], _OFF["v_ref_W"][0], _OFF["psi_ref"][0]
+_PM, _VM, _ETAM, _ETAD = _OFF["p_meas_W"][0], _OFF["v_meas_W"][0], _OFF["eta_meas"][0], _OFF["eta_d"][0]
+_TREQ, _TAUREQ, _THR, _TAU = _OFF["thrust_request"][0], _OFF["tau_B_request"][0], _OFF["thrust"][0], _OFF["tau_B"][0]
+_FCMD, _FROT, _SAT = _OFF["f_rotor_cmd"][0], _OFF["f_rotor"][0], _OFF["saturated"][0]
+_FEXT, _TEXTB, _TEXTE = _OFF["f_ext_W"][0], _OFF["tau_ext_B"][0], _OFF["tau_ext_eta"][0]
+_FL, _TL = _OFF["f_lumped_W"][0], _OFF["tau_lumped_eta"][0]
+_FH, _THE, _THB = _OFF["f_hat_W"][0], _OFF["tau_hat_eta"][0], _OFF["tau_hat_B"][0]
+
+
+@njit(cache=True)
+def _ago(hist, count, head, k):  # noqa: ANN001, ANN202
+    H = hist.shape[0]
+    kk = min(k, count - 1)
+    return hist[(head - kk) % H]
+
+
+@njit(cache=True, parallel=True)
+def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
+    k0,
+    k1,
+    Ts,
+    dt,
+    n_sub,  # noqa: ANN001
+    X,
+    hist,
+    hcount,
+    hhead,
+    k_mocap,
+    k_imu,
+    sigma,
+    noise,  # noqa: ANN001
+    CS,
+    cp,
+    sh,
+    pp,
+    codes,
+    dparams,
+    series,
+    refs,  # noqa: ANN001
+    alive,
+    fail_time,
+    fail_code,
+    x_park,  # noqa: ANN001
+    logs,
+    dec,
+    acc,
+    win,  # noqa: ANN001
+):
+    """Advance every live vehicle from control tick ``k0`` to ``k1``.
+
+    ``logs (B, n_log, W)`` gets row ``k // dec`` when ``dec > 0`` and ``k % dec == 0``; ``acc`` collects the
+    window metrics (``win = [t0, t1, tail_start]``).
+    """
+    B = X.shape[0]
+    for b in prange(B):
+        if not alive[b]:
+            continue
+        x = X[b]
+        pp_b = pp[b]
+        cp_b = cp[b]
+        cs_b = CS[b]
+        hist_b = hist[b]
+        I_nom = cp_b[1:10].reshape((3, 3))
+        y = np.empty(12)
+        o = np.empty(OUT_SIZE)
+        R = np.empty((3, 3))
+        Rm = np.empty((3, 3))
+        Q = np.empty((3, 3))
+        p_o = np.empty(3)
+        v_o = np.empty(3)
+        eta = np.empty(3)
+        xd = np.empty(17)
+        f_env = np.empty(3)
+        tau_env = np.empty(3)
+        f_l = np.empty(3)
+        t_l = np.empty(3)
+        tau_prev = np.empty(3)
+        fcmd = np.empty(4)
+        w1, w2, w3, w4, wt = np.empty(17), np.empty(17), np.empty(17), np.empty(17), np.empty(17)
+        n_ctrl = CS.shape[1]
+        i_thr = n_ctrl - 4
+        lagless = pp_b[PP_TUP] <= 0 or pp_b[PP_TDN] <= 0
+        for k in range(k0, k1):
+            t = k * Ts
+            # sensors: delayed state, noise drawn outside
+            xm = _ago(hist_b, hcount[b], hhead[b], k_mocap)
+            quat_to_R(xm[6:10], Rm)
+            origin_kinematics(pp_b, xm, Rm, p_o, v_o)
+            xi = _ago(hist_b, hcount[b], hhead[b], k_imu)
+            quat_to_R(xi[6:10], Rm)
+            euler_from_R(Rm, eta)
+            nz = noise[b, k - k0]
+            om = np.empty(3)
+            for i in range(3):
+                y[6 + i] = eta[i] + sigma[2] * nz[6 + i]
+                om[i] = xi[10 + i] + sigma[3] * nz[9 + i]
+            euler_Q(y[6:9], Q)
+            ed = np.empty(3)
+            solve3(Q, om, ed)
+            for i in range(3):
+                y[9 + i] = ed[i]
+                y[i] = p_o[i] + sigma[0] * nz[i]
+                y[3 + i] = v_o[i] + sigma[1] * nz[3 + i]
+            u_prev = CS[b, i_thr]
+            for i in range(3):
+                tau_prev[i] = CS[b, i_thr + 1 + i]
+            r = refs[k]
+            controller_step(cp_b, sh, cs_b, y, r, o)
+            for i in range(4):
+                fcmd[i] = o[O_F + i]
+
+            # true and lumped wrenches at t_k
+            plant_derivative(pp_b, x, fcmd, t, codes, dparams, series, xd)
+            quat_to_R(x[6:10], R)
+            euler_from_R(R, eta)
+            environment_wrench(pp_b, t, x, R, codes, dparams, series, f_env, tau_env)
+            lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, cp_b[0], I_nom, f_l, t_l)
+            origin_kinematics(pp_b, x, R, p_o, v_o)
+
+            if win[0] <= t <= win[1]:
+                e2 = 0.0
+                ev2 = 0.0
+                fe2 = 0.0
+                te2 = 0.0
+                for i in range(3):
+                    e2 += (p_o[i] - r[i]) ** 2
+                    ev2 += (v_o[i] - r[3 + i]) ** 2
+                    fe2 += (o[O_FHAT + i] - f_l[i]) ** 2
+                    te2 += (o[O_TAUHAT_ETA + i] - t_l[i]) ** 2
+                acc[b, A_N] += 1.0
+                acc[b, A_E2] += e2
+                acc[b, A_EMAX] = max(acc[b, A_EMAX], math.sqrt(e2))
+                acc[b, A_EV2] += ev2
+                acc[b, A_F2] += fe2
+                acc[b, A_T2] += te2
+                acc[b, A_SAT] += o[O_SAT]
+                if t >= win[2]:
+                    acc[b, A_NT] += 1.0
+                    acc[b, A_ET] += math.sqrt(e2)
+
+            if dec > 0 and k % dec == 0:
+                row = logs[b, k // dec]
+                Q2 = np.empty((3, 3))
+                euler_Q(eta, Q2)
+                for i in range(3):
+                    row[_P + i] = p_o[i]
+                    row[_V + i] = v_o[i]
+                    row[_ETA + i] = eta[i]
+                    row[_OM + i] = x[10 + i]
+                    row[_PR + i] = r[i]
+                    row[_VR + i] = r[3 + i]
+                    row[_PM + i] = y[i]
+                    row[_VM + i] = y[3 + i]
+                    row[_ETAM + i] = y[6 + i]
+                    row[_ETAD + i] = o[O_ETA_D + i]
+                    row[_TAUREQ + i] = o[O_TAU_REQ + i]
+                    row[_TAU + i] = o[O_TAU + i]
+                    row[_FEXT + i] = f_env[i]
+                    row[_TEXTB + i] = tau_env[i]
+                    row[_TEXTE + i] = Q2[0, i] * tau_env[0] + Q2[1, i] * tau_env[1] + Q2[2, i] * tau_env[2]
+                    row[_FL + i] = f_l[i]
+                    row[_TL + i] = t_l[i]
+                    row[_FH + i] = o[O_FHAT + i]
+                    row[_THE + i] = o[O_TAUHAT_ETA + i]
+                    row[_THB + i] = o[O_TAUHAT_B + i]
+                row[_PSIR] = r[9]
+                row[_TREQ] = o[O_THRUST_REQ]
+                row[_THR] = o[O_THRUST]
+                row[_SAT] = o[O_SAT]
+                for i in range(4):
+                    row[_FCMD + i] = fcmd[i]
+                    row[_FROT + i] = x[13 + i]
+
+            # hold the command over the period
+            if lagless:
+                for i in range(4):
+                    x[13 + i] = min(max(fcmd[i], pp[b, PP_FMIN]), pp[b, PP_FMAX])
+            for j in range(n_sub):
+                rk4_step(pp_b, x, fcmd, t + j * dt, dt, codes, dparams, series, w1, w2, w3, w4, wt)
+                H = hist.shape[1]
+                hhead[b] = (hhead[b] + 1) % H
+                hist[b, hhead[b]] = x
+                hcount[b] = min(hcount[b] + 1, H)
+
+            # divergence check, as sim.loop._check_vehicles
+            code = FAIL_NONE
+            for i in range(17):
+                if not math.isfinite(x[i]):
+                    code = FAIL_NAN
+            if code == FAIL_NONE:
+                quat_to_R(x[6:10], R)
+                if math.acos(min(max(R[2, 2], -1.0), 1.0)) > 80.0 * math.pi / 180.0:
+                    code = FAIL_TILT
+                elif math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) > 1e3:
+                    code = FAIL_FAR
+            if code != FAIL_NONE:
+                alive[b] = False
+                fail_code[b] = code
+                fail_time[b] = t + Ts
+                x[:] = x_park[b]
+                break

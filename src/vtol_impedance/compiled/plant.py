@@ -1,0 +1,330 @@
+"""Compiled (numba) per-vehicle kernels of the true plant, its disturbances and the lumped wrench.
+
+Same equations as :mod:`vtol_impedance.sim.plant` and :mod:`vtol_impedance.sim.disturbances` (the
+NumPy reference backend and test oracle); ``tests/test_compiled.py`` proves they agree.
+State layout as in :mod:`vtol_impedance.sim.plant`: ``[p_com_W, v_com_W, q_WB, omega_B, f_rotor]`` (17).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..conventions import G
+from ..sim.disturbances import ENC_PARAMS, Disturbance
+from ..sim.plant import PlantArrays
+from .controller import _mv, euler_Q, euler_Q_dot, inertia_M_and_C, solve3
+
+PP_MASS, PP_I, PP_IINV, PP_C, PP_L, PP_CD, PP_FMAX, PP_FMIN = 0, 1, 10, 19, 22, 23, 24, 25
+PP_TUP, PP_TDN, PP_DRAG, PP_GROUND, PP_KG, PP_CG, PP_BG = 26, 27, 28, 29, 30, 31, 32
+PP_SIZE = 33
+
+
+def pack_plant(P: PlantArrays) -> np.ndarray:
+    """Plant parameter rows ``(B, PP_SIZE)`` from plant arrays with batch shape ``(B,)``."""
+    B = P.mass.shape[0]
+    pp = np.empty((B, PP_SIZE))
+    pp[:, PP_MASS] = P.mass
+    pp[:, PP_I : PP_I + 9] = P.I_com.reshape(B, 9)
+    pp[:, PP_IINV : PP_IINV + 9] = P.I_com_inv.reshape(B, 9)
+    pp[:, PP_C : PP_C + 3] = P.c_B
+    for idx, arr in (
+        (PP_L, P.arm_length),
+        (PP_CD, P.drag_factor),
+        (PP_FMAX, P.f_max),
+        (PP_FMIN, P.f_min),
+        (PP_TUP, P.tau_up),
+        (PP_TDN, P.tau_down),
+        (PP_DRAG, P.rotor_drag),
+        (PP_GROUND, P.ground),
+        (PP_KG, P.k_ground),
+        (PP_CG, P.c_ground),
+        (PP_BG, P.b_ground),
+    ):
+        pp[:, idx] = arr
+    return pp
+
+
+def pack_disturbances(items: list[Disturbance]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(codes (D,), params (D, ENC_PARAMS), series (D, n, 6))`` of prepared disturbances."""
+    enc = [d.encode() for d in items]
+    D = len(enc)
+    codes = np.array([e[0] for e in enc], dtype=np.int64)
+    params = np.array([e[1] for e in enc]).reshape(D, ENC_PARAMS)
+    n = max([1] + [len(e[2]) for e in enc if e[2] is not None])
+    series = np.zeros((D, n, 6))
+    lengths = np.zeros(D)
+    for i, e in enumerate(enc):
+        if e[2] is not None:
+            series[i, : len(e[2])] = e[2]
+            lengths[i] = len(e[2])
+    # the last parameter slot carries the series length
+    params[:, ENC_PARAMS - 1] = lengths
+    return codes, params, series
+
+
+@njit(cache=True, error_model="numpy")
+def cross3(a, b, out):  # noqa: ANN001, ANN201
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True, error_model="numpy")
+def quat_to_R(q, R):  # noqa: ANN001, ANN201
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit(cache=True, error_model="numpy")
+def euler_from_R(R, eta):  # noqa: ANN001, ANN201
+    eta[0] = math.atan2(R[2, 1], R[2, 2])
+    eta[1] = -math.asin(min(max(R[2, 0], -1.0), 1.0))
+    eta[2] = math.atan2(R[1, 0], R[0, 0])
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _R_of(s, i0):  # noqa: ANN001, ANN202
+    """Rotation of the quaternion ``s[i0:i0+4]`` as a 9-tuple (row major); no slicing, no allocation."""
+    w, x, y, z = s[i0], s[i0 + 1], s[i0 + 2], s[i0 + 3]
+    return (
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    )
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _origin(pp, x, R):  # noqa: ANN001, ANN202
+    """Body-origin position and velocity (6-tuple) as :func:`vtol_impedance.sim.plant.origin_kinematics`."""
+    c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
+    w0, w1, w2 = x[10], x[11], x[12]
+    a0, a1, a2 = w1 * c2 - w2 * c1, w2 * c0 - w0 * c2, w0 * c1 - w1 * c0
+    return (
+        x[0] - (R[0] * c0 + R[1] * c1 + R[2] * c2),
+        x[1] - (R[3] * c0 + R[4] * c1 + R[5] * c2),
+        x[2] - (R[6] * c0 + R[7] * c1 + R[8] * c2),
+        x[3] - (R[0] * a0 + R[1] * a1 + R[2] * a2),
+        x[4] - (R[3] * a0 + R[4] * a1 + R[5] * a2),
+        x[5] - (R[6] * a0 + R[7] * a1 + R[8] * a2),
+    )
+
+
+@njit(cache=True, error_model="numpy")
+def origin_kinematics(pp, x, R, p_o, v_o):  # noqa: ANN001, ANN201
+    """Array form of :func:`_origin` for a 3x3 ``R``."""
+    o = _origin(pp, x, (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2]))
+    for i in range(3):
+        p_o[i] = o[i]
+        v_o[i] = o[3 + i]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _disturbance(t, p0, p1, p2, R, codes, dparams, series):  # noqa: ANN001, ANN202, C901
+    """Sum of the encoded disturbances (6-tuple), as :class:`vtol_impedance.sim.disturbances.DisturbanceSet`."""
+    f0 = f1 = f2 = t0 = t1 = t2 = 0.0
+    for d in range(codes.shape[0]):
+        code = codes[d]
+        P = dparams[d]  # one view per disturbance
+        if code <= 4:
+            if code == 0:
+                k = 1.0
+            elif code == 1:
+                k = 1.0 if P[6] <= t < P[7] else 0.0
+            elif code == 2:
+                k = min(max((t - P[6]) / (P[7] - P[6]), 0.0), 1.0)
+            elif code == 3:
+                k = math.sin(2 * math.pi * P[6] * (t - P[8]) + P[7]) if t >= P[8] else 0.0
+            else:
+                s = (t - P[6]) / P[7]
+                k = math.sin(math.pi * s) if 0.0 <= s <= 1.0 else 0.0
+            f0 += k * P[0]
+            f1 += k * P[1]
+            f2 += k * P[2]
+            t0 += k * P[3]
+            t1 += k * P[4]
+            t2 += k * P[5]
+        elif code == 5:
+            j = min(int(t / P[0]), int(P[ENC_PARAMS - 1]) - 1)
+            f0 += series[d, j, 0]
+            f1 += series[d, j, 1]
+            f2 += series[d, j, 2]
+            t0 += series[d, j, 3]
+            t1 += series[d, j, 4]
+            t2 += series[d, j, 5]
+        elif t >= P[12]:  # fan jet
+            r0, r1, r2 = p0 - P[0], p1 - P[1], p2 - P[2]
+            s = r0 * P[3] + r1 * P[4] + r2 * P[5]
+            rr = r0 * r0 + r1 * r1 + r2 * r2 - s * s
+            n = int(P[ENC_PARAMS - 1])
+            gust = series[d, min(int(t / P[13]), n - 1), 0] if n > 0 else 0.0
+            mag = P[6] * P[7] / max(s, 0.5 * P[7]) * math.exp(-rr / (2 * P[8] ** 2)) * (1.0 + gust)
+            if not s > 0:
+                mag = 0.0
+            a0, a1, a2 = mag * P[3], mag * P[4], mag * P[5]
+            f0 += a0
+            f1 += a1
+            f2 += a2
+            b0 = R[0] * a0 + R[3] * a1 + R[6] * a2
+            b1 = R[1] * a0 + R[4] * a1 + R[7] * a2
+            b2 = R[2] * a0 + R[5] * a1 + R[8] * a2
+            t0 += P[10] * b2 - P[11] * b1
+            t1 += P[11] * b0 - P[9] * b2
+            t2 += P[9] * b1 - P[10] * b0
+    return f0, f1, f2, t0, t1, t2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _environment(pp, t, x, R, codes, dparams, series):  # noqa: ANN001, ANN202
+    """Disturbances plus rotor drag plus ground (6-tuple), as :func:`vtol_impedance.sim.plant.environment_wrench`."""
+    o = _origin(pp, x, R)
+    f0, f1, f2, t0, t1, t2 = _disturbance(t, o[0], o[1], o[2], R, codes, dparams, series)
+    kd = pp[PP_DRAG]
+    f0 = f0 - kd * o[3]
+    f1 = f1 - kd * o[4]
+    f2 = f2 - kd * o[5]
+    pen = o[2]
+    if pen > 0.0 and pp[PP_GROUND] > 0.0:
+        fz = -(pp[PP_KG] * pen + pp[PP_CG] * o[5])
+        f0 += -pp[PP_BG] * o[3]
+        f1 += -pp[PP_BG] * o[4]
+        f2 += min(fz, 0.0)
+    return f0, f1, f2, t0, t1, t2
+
+
+@njit(cache=True, error_model="numpy")
+def environment_wrench(pp, t, x, R, codes, dparams, series, f, tau):  # noqa: ANN001, ANN201
+    """Array form of :func:`_environment` for a 3x3 ``R``."""
+    Rt = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2])
+    e = _environment(pp, t, x, Rt, codes, dparams, series)
+    for i in range(3):
+        f[i] = e[i]
+        tau[i] = e[3 + i]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN001, ANN201
+    """``x_dot`` of the true plant, as :func:`vtol_impedance.sim.plant.plant_derivative` (allocation free)."""
+    R = _R_of(x, 6)
+    fe0, fe1, fe2, te0, te1, te2 = _environment(pp, t, x, R, codes, dparams, series)
+    fr0, fr1, fr2, fr3 = x[13], x[14], x[15], x[16]
+    l, cq = pp[PP_L], pp[PP_CD]
+    u = fr0 + fr1 + fr2 + fr3
+    tm0 = l * (fr1 - fr3)
+    tm1 = l * (fr2 - fr0)
+    tm2 = cq * (fr0 - fr1 + fr2 - fr3)
+    m = pp[PP_MASS]
+    F0 = -u * R[2] + fe0
+    F1 = -u * R[5] + fe1
+    F2 = -u * R[8] + fe2
+    xd[0], xd[1], xd[2] = x[3], x[4], x[5]
+    xd[3] = F0 / m
+    xd[4] = F1 / m
+    xd[5] = G + F2 / m
+    B0 = R[0] * F0 + R[3] * F1 + R[6] * F2
+    B1 = R[1] * F0 + R[4] * F1 + R[7] * F2
+    B2 = R[2] * F0 + R[5] * F1 + R[8] * F2
+    c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
+    w0, w1, w2 = x[10], x[11], x[12]
+    i = PP_I
+    h0 = pp[i] * w0 + pp[i + 1] * w1 + pp[i + 2] * w2
+    h1 = pp[i + 3] * w0 + pp[i + 4] * w1 + pp[i + 5] * w2
+    h2 = pp[i + 6] * w0 + pp[i + 7] * w1 + pp[i + 8] * w2
+    s0 = tm0 + te0 - (c1 * B2 - c2 * B1) - (w1 * h2 - w2 * h1)
+    s1 = tm1 + te1 - (c2 * B0 - c0 * B2) - (w2 * h0 - w0 * h2)
+    s2 = tm2 + te2 - (c0 * B1 - c1 * B0) - (w0 * h1 - w1 * h0)
+    j = PP_IINV
+    xd[10] = pp[j] * s0 + pp[j + 1] * s1 + pp[j + 2] * s2
+    xd[11] = pp[j + 3] * s0 + pp[j + 4] * s1 + pp[j + 5] * s2
+    xd[12] = pp[j + 6] * s0 + pp[j + 7] * s1 + pp[j + 8] * s2
+    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+    xd[6] = 0.5 * (-qx * w0 - qy * w1 - qz * w2)
+    xd[7] = 0.5 * (qw * w0 + qy * w2 - qz * w1)
+    xd[8] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
+    xd[9] = 0.5 * (qw * w2 + qx * w1 - qy * w0)
+    fmin, fmax, tup, tdn = pp[PP_FMIN], pp[PP_FMAX], pp[PP_TUP], pp[PP_TDN]
+    for i in range(4):
+        target = min(max(f_cmd[i], fmin), fmax)
+        tc = tup if target > x[13 + i] else tdn
+        xd[13 + i] = (target - x[13 + i]) / max(tc, 1e-12) if tc > 0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def rk4_step(pp, x, f_cmd, t, dt, codes, dparams, series, k1, k2, k3, k4, xt):  # noqa: ANN001, ANN201
+    """One RK4 step in place with the command held; ``k1..k4``, ``xt`` are 17-element work arrays."""
+    plant_derivative(pp, x, f_cmd, t, codes, dparams, series, k1)
+    for i in range(17):
+        xt[i] = x[i] + 0.5 * dt * k1[i]
+    plant_derivative(pp, xt, f_cmd, t + 0.5 * dt, codes, dparams, series, k2)
+    for i in range(17):
+        xt[i] = x[i] + 0.5 * dt * k2[i]
+    plant_derivative(pp, xt, f_cmd, t + 0.5 * dt, codes, dparams, series, k3)
+    for i in range(17):
+        xt[i] = x[i] + dt * k3[i]
+    plant_derivative(pp, xt, f_cmd, t + dt, codes, dparams, series, k4)
+    for i in range(17):
+        x[i] = x[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    nq = math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
+    for i in range(6, 10):
+        x[i] /= nq
+
+
+@njit(cache=True, error_model="numpy")
+def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, I_nom, f, tau_eta):  # noqa: ANN001, ANN201
+    """What the nominal model misses, as :func:`vtol_impedance.sim.loop._lumped_wrench`."""
+    c = pp[PP_C : PP_C + 3]
+    w = x[10:13]
+    wd = xd[10:13]
+    t1 = np.empty(3)
+    cross3(wd, c, t1)
+    t2 = np.empty(3)
+    cross3(w, c, t2)
+    t3 = np.empty(3)
+    cross3(w, t2, t3)
+    s = np.empty(3)
+    for i in range(3):
+        s[i] = t1[i] + t3[i]
+    Rs = np.empty(3)
+    _mv(R, s, Rs)
+    for i in range(3):
+        a_o = xd[3 + i] - Rs[i]
+        f[i] = m_nom * (a_o - (G if i == 2 else 0.0)) + u_prev * R[i, 2]
+    Q = np.empty((3, 3))
+    euler_Q(eta, Q)
+    eta_dot = np.empty(3)
+    solve3(Q, w, eta_dot)
+    Qd = np.empty((3, 3))
+    euler_Q_dot(eta, eta_dot, Qd)
+    Qde = np.empty(3)
+    _mv(Qd, eta_dot, Qde)
+    rhs = np.empty(3)
+    for i in range(3):
+        rhs[i] = wd[i] - Qde[i]
+    eta_ddot = np.empty(3)
+    solve3(Q, rhs, eta_ddot)
+    Qn = np.empty((3, 3))
+    M = np.empty((3, 3))
+    C = np.empty((3, 3))
+    inertia_M_and_C(eta, eta_dot, I_nom, Qn, M, C)
+    Me = np.empty(3)
+    _mv(M, eta_ddot, Me)
+    Ce = np.empty(3)
+    _mv(C, eta_dot, Ce)
+    for i in range(3):
+        tau_eta[i] = Me[i] + Ce[i] - (Q[0, i] * tau_prev[0] + Q[1, i] * tau_prev[1] + Q[2, i] * tau_prev[2])

@@ -1,0 +1,144 @@
+"""The compiled (numba) backend against the NumPy reference backend, the test oracle."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from vtol_impedance.analysis import compute_metrics
+from vtol_impedance.control import Controller, ControllerParams, Measurement, Reference
+from vtol_impedance.control.reference import Hold, Trajectory
+from vtol_impedance.errors import InputError, SingularityError
+from vtol_impedance.model import load_preset
+from vtol_impedance.scenarios import PAPER_CASES, apply_overrides, build, controller_params, get, set_value, simulate
+from vtol_impedance.sim import PlantParams, SensorParams, run_closed_loop
+
+
+def _rel_diff(a, b):
+    scale = max(float(np.nanmax(np.abs(a))), 1e-9)
+    both_nan = np.isnan(a) & np.isnan(b)
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    return float(np.max(np.where(both_nan, 0.0, np.abs(a - b)))) / scale
+
+
+@pytest.mark.parametrize("name", [*PAPER_CASES, "operator-push", "yaw-step"])
+def test_compiled_matches_numpy_over_5s_of_closed_loop(name):
+    spec = set_value(get(name), "duration", 5.0)
+    if name == "operator-push":  # move the push into the window
+        spec = apply_overrides(spec, ["disturbances.0.t_on=2.0"])
+    rn = simulate(spec, backend="numpy")
+    rc = simulate(spec, backend="compiled")
+    assert rn.failures == rc.failures
+    for k in rn.data:
+        assert _rel_diff(rn[k], rc[k]) <= 1e-9, k
+
+
+def _population(n):
+    veh = load_preset()
+    plants = [
+        PlantParams(veh, payload_mass=0.05 * i, payload_offset_B=(0.01 * i, -0.005 * i, 0.02), rotor_drag=0.18)
+        for i in range(n)
+    ]
+    base = ControllerParams.paper("pdc")
+    ctrls = [replace(base, gains=replace(base.gains, Kp=12.0 + 2 * i)) for i in range(n)]
+    ctrls[1] = ControllerParams.paper("pid")
+    return plants, ctrls
+
+
+def test_a_batch_equals_single_runs():
+    plants, ctrls = _population(4)
+    traj = Trajectory((Hold((0, 0, -1.0), 3.0),))
+    seeds = [3, 4, 5, 6]
+    batch = run_closed_loop(plants, ctrls, traj, 3.0, seed=seeds)
+    for i in range(4):
+        one = run_closed_loop(plants[i], [ctrls[i]], traj, 3.0, seed=seeds[i])
+        for k in one.data:
+            np.testing.assert_array_equal(batch[k][i], one[k][0], err_msg=k)
+
+
+def test_log_modes_agree():
+    spec = apply_overrides(
+        get("case-c-circle"), ["trajectory.hover_duration=1", "trajectory.circle_laps=0.25", "trajectory.land=false"]
+    )
+    full = simulate(spec)
+    dec = simulate(spec, log="decimate:5")
+    met = simulate(spec, log="metrics")
+    met_np = simulate(spec, backend="numpy", log="metrics")
+    assert met.data == {} and dec.t.shape[0] == (full.t.shape[0] + 4) // 5
+    np.testing.assert_array_equal(dec.t, full.t[::5])
+    for k in full.data:
+        np.testing.assert_array_equal(dec[k], full[k][:, ::5], err_msg=k)
+    ref = compute_metrics(full)
+    for got in (compute_metrics(met), compute_metrics(met_np)):
+        for a, b in zip(ref, got, strict=True):
+            assert a["controller"] == b["controller"]
+            for key in (
+                "rms_ep_cm",
+                "max_ep_cm",
+                "ss_ep_cm",
+                "rms_ev_cms",
+                "rms_f_err_N",
+                "rms_tau_err_mNm",
+                "sat_pct",
+            ):
+                assert b[key] == pytest.approx(a[key], rel=1e-9, abs=1e-12), key
+
+
+def test_divergence_is_flagged_the_same_way_in_both_backends():
+    veh = load_preset()
+    good = PlantParams(veh, ground=False)
+    bad = PlantParams(replace(veh, f_max=1e3), inertia_scale=(0.02, 0.02, 0.02), ground=False)
+    traj = Trajectory((Hold((0, 0, -1.0), 2.0),))
+    kw = dict(sensors=SensorParams(), seed=1, labels=["good", "bad"])
+    runs = [
+        run_closed_loop([good, bad], [ControllerParams.paper()] * 2, traj, 2.0, backend=b, **kw)
+        for b in ("numpy", "compiled")
+    ]
+    assert runs[0].failures == runs[1].failures
+    assert runs[1].failures[0] is None and runs[1].failures[1] is not None
+    assert np.all(np.isfinite(runs[1]["p_W"][0]))
+
+
+def test_embeddable_step_matches_the_reference_and_checks_inputs(rng):
+    p = ControllerParams.paper("pdc")
+    fast = Controller(p)
+    ref_ctrl = Controller(p, backend="numpy")
+    r = np.array([0.1, 0, -1, 0.2, 0, 0, 0.1, 0.2, 0, 0.3, 0.1, 0.0])
+    ref = Reference(r[0:3], r[3:6], r[6:9], np.array(r[9]), np.array(r[10]), np.array(r[11]))
+    for _ in range(30):
+        y = np.concatenate(
+            [rng.normal(0, 0.05, 3) + [0, 0, -1], rng.normal(0, 0.1, 3), rng.normal(0, 0.1, 3), rng.normal(0, 0.3, 3)]
+        )
+        out = fast.step_arrays(y, r)
+        o_ref = ref_ctrl.step(Measurement(y[0:3], y[3:6], y[6:9], y[9:12]), ref)
+        from vtol_impedance.compiled.controller import O_F, O_FHAT
+
+        np.testing.assert_allclose(out[O_F : O_F + 4], o_ref.f_rotor, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out[O_FHAT : O_FHAT + 3], o_ref.f_hat_W, rtol=1e-12, atol=1e-12)
+    bad = y.copy()
+    bad[4] = np.nan
+    with pytest.raises(InputError, match="non-finite"):
+        fast.step_arrays(bad, r)
+    sing = y.copy()
+    sing[7] = np.pi / 2
+    with pytest.raises(SingularityError):
+        fast.step_arrays(sing, r)
+
+
+def test_bad_batch_arguments():
+    veh = load_preset()
+    traj = Trajectory((Hold((0, 0, -1.0), 1.0),))
+    with pytest.raises(InputError, match="seeds"):
+        run_closed_loop(PlantParams(veh), [ControllerParams.paper()] * 2, traj, 1.0, seed=[1, 2, 3])
+    with pytest.raises(InputError, match="plants"):
+        run_closed_loop([PlantParams(veh)] * 3, [ControllerParams.paper()] * 2, traj, 1.0)
+    with pytest.raises(InputError, match="log"):
+        run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, 1.0, log="sometimes")
+    with pytest.raises(InputError, match="backend"):
+        run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, 1.0, backend="gpu")
+
+
+def test_spec_builders_are_shared_by_both_backends():
+    spec = get("case-b-fan")
+    b = build(spec)
+    assert controller_params(spec, "pdc").variant == "pdc" and b.disturbances[0].kind == "fan"
