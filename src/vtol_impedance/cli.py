@@ -1,4 +1,4 @@
-"""Command-line interface: ``vtol-impedance {paper,run,compare,list}``.
+"""Command-line interface: ``vtol-impedance {paper,run,compare,bench,list}``.
 
 Heavy modules are imported inside the commands so that ``--help`` answers at once.
 """
@@ -162,6 +162,13 @@ def cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import run
+
+    run(Path(args.out), quick=args.quick, log=(lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vtol-impedance",
@@ -205,6 +212,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--controllers", default="pd,pid,pdc", help="comma-separated (default: pd,pid,pdc)")
     common(sp)
     sp.set_defaults(func=lambda a: cmd_run(a, [c.strip() for c in a.controllers.split(",") if c.strip()]))
+
+    sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
+    sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help="JSON file (default: results/bench.json)")
+    sp.add_argument("--quick", action="store_true", help="small sizes and short runs (a smoke test)")
+    sp.add_argument("--quiet", action="store_true", help="only the table")
+    sp.set_defaults(func=cmd_bench)
 
     sp = sub.add_parser("list", help="registered scenarios and controllers")
     sp.set_defaults(func=cmd_list)

@@ -37,9 +37,10 @@ class Hold:
 
     end = start
 
-    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        z = np.zeros(3)
-        return self.start(), z, z
+    def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = np.shape(tau)[0]
+        z = np.zeros((n, 3))
+        return np.broadcast_to(self.start(), (n, 3)), z, z
 
 
 @dataclass(frozen=True)
@@ -56,9 +57,9 @@ class MinJerk:
     def end(self) -> np.ndarray:
         return np.asarray(self.p1_W, dtype=float)
 
-    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         T = self.duration
-        s, ds, dds = _smooth5(np.asarray(tau / T))
+        s, ds, dds = (v[:, None] for v in _smooth5(np.asarray(tau) / T))
         d = self.end() - self.start()
         return self.start() + s * d, ds / T * d, dds / (T * T) * d
 
@@ -101,39 +102,34 @@ class Circle:
 
     end = start
 
-    def _angle(self, tau: float) -> tuple[float, float, float]:
+    def _angle(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Angle travelled and its two derivatives at times ``tau`` (array) into the segment."""
         w, Tr, T = self._w, self.ramp, self.duration
+        tau = np.asarray(tau, dtype=float)
         if Tr == 0:
-            return w * tau, w, 0.0
-        if tau < Tr:
-            # integral of the min-jerk speed profile s(u) from 0 to tau
-            u = tau / Tr
-            integ = Tr * (2.5 * u**4 - 3 * u**5 + u**6)
-            s, ds, _ = _smooth5(np.asarray(u))
-            return w * integ, w * float(s), w * float(ds) / Tr
-        if tau <= T - Tr:
-            return w * (Tr / 2 + (tau - Tr)), w, 0.0
-        a_end = 2 * np.pi * self.laps
-        th, thd, thdd = self._angle_rampdown(T - tau)
-        return a_end - th, thd, thdd
+            return w * tau, np.full_like(tau, w), np.zeros_like(tau)
+        # ramp up: integral of the min-jerk speed profile; ramp down: its mirror from the end
+        u_up = np.clip(tau / Tr, 0.0, 1.0)
+        u_dn = np.clip((T - tau) / Tr, 0.0, 1.0)
+        s_up, ds_up, _ = _smooth5(u_up)
+        s_dn, ds_dn, _ = _smooth5(u_dn)
+        integ = lambda u: Tr * (2.5 * u**4 - 3 * u**5 + u**6)  # noqa: E731
+        up, down = tau < Tr, tau > T - Tr
+        th = np.where(
+            up, w * integ(u_up), np.where(down, 2 * np.pi * self.laps - w * integ(u_dn), w * (Tr / 2 + (tau - Tr)))
+        )
+        thd = np.where(up, w * s_up, np.where(down, w * s_dn, w))
+        thdd = np.where(up, w * ds_up / Tr, np.where(down, -w * ds_dn / Tr, 0.0))
+        return th, thd, thdd
 
-    def _angle_rampdown(self, rem: float) -> tuple[float, float, float]:
-        # mirror of the ramp-up, measured from the end
-        w, Tr = self._w, self.ramp
-        u = max(rem, 0.0) / Tr
-        integ = Tr * (2.5 * u**4 - 3 * u**5 + u**6)
-        s, ds, _ = _smooth5(np.asarray(u))
-        return w * integ, w * float(s), -w * float(ds) / Tr
-
-    def sample(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        th, thd, thdd = self._angle(tau)
+    def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        th, thd, thdd = (v[:, None] for v in self._angle(tau))
         R = self.radius
         c = self.start() - np.array([R, 0.0, 0.0])
-        cs, sn = np.cos(th), np.sin(th)
-        p = c + R * np.array([cs, sn, 0.0])
-        v = R * thd * np.array([-sn, cs, 0.0])
-        a = R * thdd * np.array([-sn, cs, 0.0]) - R * thd * thd * np.array([cs, sn, 0.0])
-        return p, v, a
+        cs, sn, z = np.cos(th), np.sin(th), np.zeros_like(th)
+        radial = np.concatenate([cs, sn, z], -1)
+        tangent = np.concatenate([-sn, cs, z], -1)
+        return c + R * radial, R * thd * tangent, R * thdd * tangent - R * thd * thd * radial
 
 
 Segment = Hold | MinJerk | Circle
@@ -166,16 +162,24 @@ class Trajectory:
         """Start time of each segment and the end time of the last, s."""
         return self._t0.copy()
 
-    def sample(self, t: float) -> Reference:
-        i = int(np.searchsorted(self._t0, t, side="right") - 1)
-        if i >= len(self.segments):
-            p = self.segments[-1].end()
-            z = np.zeros(3)
-            p_, v_, a_ = p, z, z
-        else:
-            p_, v_, a_ = self.segments[max(i, 0)].sample(max(t - self._t0[max(i, 0)], 0.0))
-        psi = self.yaw0
+    def sample_many(self, t: np.ndarray) -> np.ndarray:
+        """Rows ``[p_W (3), v_W (3), a_W (3), psi, psi_dot, psi_ddot]`` at the times ``t``, shape ``(N, 12)``."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        out = np.zeros((t.size, 12))
+        seg = np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self.segments))
+        for i, segment in enumerate(self.segments):
+            m = seg == i
+            if np.any(m):
+                p, v, a = segment.sample(np.maximum(t[m] - self._t0[i], 0.0))
+                out[m, 0:3], out[m, 3:6], out[m, 6:9] = p, v, a
+        after = seg >= len(self.segments)
+        out[after, 0:3] = self.segments[-1].end()
+        out[:, 9] = self.yaw0
         for ts, val in self.yaw_steps:
-            if t >= ts:
-                psi = val
-        return Reference(p_, v_, a_, np.asarray(psi), np.asarray(0.0), np.asarray(0.0))
+            out[t >= ts, 9] = val
+        return out
+
+    def sample(self, t: float) -> Reference:
+        """The reference at one time ``t``."""
+        r = self.sample_many(np.array([t]))[0]
+        return Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]))

@@ -141,15 +141,6 @@ def _window(window: tuple[float, float] | None, t_grid: np.ndarray) -> tuple[flo
     return float(w0), float(w1), float(inside[-1] - STEADY_TAIL_S)
 
 
-def reference_rows(trajectory: Trajectory, t_grid: np.ndarray) -> np.ndarray:
-    """``(N, 12)`` rows ``[p, v, a, psi, psi_dot, psi_ddot]`` of the reference at the control instants."""
-    rows = np.empty((len(t_grid), 12))
-    for k, t in enumerate(t_grid):
-        r = trajectory.sample(float(t))
-        rows[k] = np.concatenate([r.p_W, r.v_W, r.a_W, [r.psi, r.psi_dot, r.psi_ddot]])
-    return rows
-
-
 def run_closed_loop(
     plant: PlantParams | Sequence[PlantParams],
     controllers: Sequence[ControllerParams],
@@ -226,7 +217,7 @@ def run_closed_loop(
         dist,
         sensors,
         NoiseSource(seeds),
-        reference_rows(trajectory, t_grid),
+        trajectory.sample_many(t_grid),
         initial_state(PA, np.broadcast_to(start, (B, 3))),
         Ts,
         dt,

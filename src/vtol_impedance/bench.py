@@ -1,0 +1,162 @@
+"""``vtol-impedance bench``: speed of the compiled and NumPy backends, measured in one run.
+
+Timings live here and never in a test assertion. Each batched size runs in a child process so that its
+peak memory is its own; compile times are measured in child processes with a fresh numba cache.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .io import write_text
+
+SIZES = (1, 100, 1000, 10000)
+
+
+def _child(code: str, env: dict[str, str] | None = None) -> dict[str, Any]:
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**os.environ, **(env or {})}, check=False
+    )
+    if out.returncode != 0:
+        raise RuntimeError(f"benchmark child failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+_COMPILE = """
+import json, time
+t = time.perf_counter()
+from vtol_impedance.scenarios import get, set_value, simulate
+simulate(set_value(get("case-a-payload"), "duration", 0.05), ["pdc"])
+print(json.dumps({"seconds": time.perf_counter() - t}))
+"""
+
+_BATCH = """
+import json, resource, time
+from vtol_impedance.scenarios import build, get
+from vtol_impedance.scenarios.batch import population
+from vtol_impedance.sim import run_closed_loop
+spec = get("case-a-payload")
+b = build(spec)
+n, duration = {n}, {duration}
+plants, ctrls, seeds = population(spec, n, seed=1)
+run_closed_loop(plants[:2], ctrls[:2], b.trajectory, 0.05, b.disturbances, b.sensors, seed=seeds[:2], log="metrics")
+t = time.perf_counter()
+r = run_closed_loop(plants, ctrls, b.trajectory, duration, b.disturbances, b.sensors, seed=seeds,
+                    start_W=b.start_W, log="metrics")
+wall = time.perf_counter() - t
+failed = sum(f is not None for f in r.failures)
+print(json.dumps({{"n": n, "duration": duration, "wall": wall, "veh_s_per_s": n * duration / wall,
+                  "failed": failed, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}}))
+"""
+
+
+def _single(backend: str, duration: float) -> dict[str, float]:
+    from .scenarios import get, set_value, simulate
+
+    spec = set_value(get("case-c-circle"), "duration", duration)
+    simulate(set_value(spec, "duration", 0.05), ["pdc"], backend=backend)  # warm-up / compile
+    t = time.perf_counter()
+    simulate(spec, ["pdc"], backend=backend)
+    wall = time.perf_counter() - t
+    return {"sim_seconds": duration, "wall": wall, "real_time_factor": duration / wall}
+
+
+def _latency(calls: int) -> dict[str, float]:
+    from .control import Controller, ControllerParams, Measurement, Reference
+
+    ctrl = Controller(ControllerParams.paper("pdc"))
+    rng = np.random.default_rng(0)
+    y = np.concatenate([[0, 0, -1.0], np.zeros(9)]) + rng.normal(0, 1e-3, 12)
+    r = np.array([0, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    for _ in range(200):
+        ctrl.step_arrays(y, r)
+    ns = np.empty(calls)
+    clock = time.perf_counter_ns
+    for i in range(calls):
+        t0 = clock()
+        ctrl.step_arrays(y, r)
+        ns[i] = clock() - t0
+    meas = Measurement(y[0:3], y[3:6], y[6:9], y[9:12])
+    ref = Reference(r[0:3], r[3:6], r[6:9], np.array(0.0), np.array(0.0), np.array(0.0))
+    slow = np.empty(min(calls, 2000))
+    for i in range(len(slow)):
+        t0 = clock()
+        ctrl.step(meas, ref)
+        slow[i] = clock() - t0
+    return {
+        "step_arrays_median_us": float(np.median(ns) / 1e3),
+        "step_arrays_p99_us": float(np.percentile(ns, 99) / 1e3),
+        "step_median_us": float(np.median(slow) / 1e3),
+    }
+
+
+def run(out: Path, quick: bool = False, log=print) -> dict[str, Any]:  # noqa: ANN001
+    """Measure everything, print a table, write JSON to ``out``; returns the numbers."""
+    res: dict[str, Any] = {
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "processor": platform.processor()},
+        "quick": quick,
+    }
+    with tempfile.TemporaryDirectory() as cache:
+        env = {"NUMBA_CACHE_DIR": cache}
+        log("compile: first use (empty cache) ...")
+        res["compile_first_s"] = _child(_COMPILE, env)["seconds"]
+        log("compile: second use (cached) ...")
+        res["compile_cached_s"] = _child(_COMPILE, env)["seconds"]
+    log("single vehicle, case C realistic, PD+C ...")
+    res["single_compiled"] = _single("compiled", 5.0 if quick else 46.0)
+    res["single_numpy"] = _single("numpy", 1.0 if quick else 5.0)
+    log("controller + estimator step latency ...")
+    res["latency"] = _latency(2000 if quick else 50000)
+    res["batched"] = []
+    sizes = (1, 10) if quick else SIZES
+    for n in sizes:
+        duration = 0.5 if quick else float(min(40.0, max(4.0, 40000.0 / n)))
+        log(f"batched N = {n} x {duration:g} s (metrics only) ...")
+        res["batched"].append(_child(_BATCH.format(n=n, duration=duration)))
+    try:
+        import rotorpy  # noqa: F401
+
+        res["rotorpy"] = "installed; comparison not implemented yet"
+    except ImportError:
+        res["rotorpy"] = "not installed (optional)"
+    write_text(out, json.dumps(res, indent=1))
+    log(table(res))
+    return res
+
+
+def table(res: dict[str, Any]) -> str:
+    sc, sn = res["single_compiled"], res["single_numpy"]
+    lat = res["latency"]
+    lines = [
+        "what                                             value",
+        "-----------------------------------------------  ----------------",
+        f"single vehicle, case C realistic, compiled       {sc['real_time_factor']:10.0f} x real time",
+        f"single vehicle, case C realistic, NumPy ref.     {sn['real_time_factor']:10.2f} x real time",
+        f"step_arrays latency, median / p99                {lat['step_arrays_median_us']:6.2f} / "
+        f"{lat['step_arrays_p99_us']:.2f} us",
+        f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us",
+        f"compile, first use / cached                      {res['compile_first_s']:6.1f} / "
+        f"{res['compile_cached_s']:.1f} s",
+    ]
+    for b in res["batched"]:
+        lines.append(
+            f"batched N = {b['n']:<6d} ({b['duration']:g} s each)           {b['veh_s_per_s']:10.0f} veh-s/s, "
+            f"peak {b['peak_rss_mb']:.0f} MB"
+        )
+    lines.append(f"RotorPy                                          {res['rotorpy']}")
+    return "\n".join(lines)
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
