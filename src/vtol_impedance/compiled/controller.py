@@ -37,8 +37,8 @@ OUT_SIZE = 32
 
 
 def state_size(n: int) -> int:
-    """Controller state length for an order-``n`` estimator."""
-    return 6 * n + 25
+    """Controller state length for an order-``n`` estimator (including ``n + 6`` scratch slots)."""
+    return 7 * n + 31
 
 
 def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
@@ -82,177 +82,7 @@ def initial_state(cp: np.ndarray, n: int) -> np.ndarray:
     return cs
 
 
-# ------------------------------------------------------------------ small math
-
-
 @njit(cache=True, inline="always")
-def _mv(A, x, out):  # noqa: ANN001, ANN202
-    for i in range(3):
-        out[i] = A[i, 0] * x[0] + A[i, 1] * x[1] + A[i, 2] * x[2]
-
-
-@njit(cache=True, inline="always")
-def _mm(A, B, out):  # noqa: ANN001, ANN202
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
-
-
-@njit(cache=True, inline="always")
-def _mtm(A, B, out):  # noqa: ANN001, ANN202
-    """``A^T B``."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
-
-
-@njit(cache=True)
-def solve3(A, b, out):  # noqa: ANN001, ANN201
-    """``A^{-1} b`` for a 3x3 ``A`` by the adjugate (no LAPACK call on the hot path)."""
-    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
-    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
-    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
-    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
-    inv = 1.0 / det
-    x0 = c00 * b[0] + (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) * b[1] + (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) * b[2]
-    x1 = c01 * b[0] + (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) * b[1] + (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) * b[2]
-    x2 = c02 * b[0] + (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) * b[1] + (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) * b[2]
-    out[0], out[1], out[2] = x0 * inv, x1 * inv, x2 * inv
-
-
-@njit(cache=True)
-def euler_Q(eta, Q):  # noqa: ANN001, ANN201
-    """``Q(eta)`` of eq. (1c) into ``Q``."""
-    cf, sf = math.cos(eta[0]), math.sin(eta[0])
-    ct, st = math.cos(eta[1]), math.sin(eta[1])
-    Q[0, 0], Q[0, 1], Q[0, 2] = 1.0, 0.0, -st
-    Q[1, 0], Q[1, 1], Q[1, 2] = 0.0, cf, sf * ct
-    Q[2, 0], Q[2, 1], Q[2, 2] = 0.0, -sf, cf * ct
-
-
-@njit(cache=True)
-def euler_Q_dot(eta, eta_dot, Qd):  # noqa: ANN001, ANN201
-    cf, sf = math.cos(eta[0]), math.sin(eta[0])
-    ct, st = math.cos(eta[1]), math.sin(eta[1])
-    df, dt = eta_dot[0], eta_dot[1]
-    Qd[0, 0], Qd[0, 1], Qd[0, 2] = 0.0, 0.0, -ct * dt
-    Qd[1, 0], Qd[1, 1], Qd[1, 2] = 0.0, -sf * df, cf * ct * df - sf * st * dt
-    Qd[2, 0], Qd[2, 1], Qd[2, 2] = 0.0, -cf * df, -sf * ct * df - cf * st * dt
-
-
-@njit(cache=True)
-def rotation_zyx(eta, R):  # noqa: ANN001, ANN201
-    cf, sf = math.cos(eta[0]), math.sin(eta[0])
-    ct, st = math.cos(eta[1]), math.sin(eta[1])
-    cp, sp = math.cos(eta[2]), math.sin(eta[2])
-    R[0, 0], R[0, 1], R[0, 2] = cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf
-    R[1, 0], R[1, 1], R[1, 2] = sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf
-    R[2, 0], R[2, 1], R[2, 2] = -st, ct * sf, ct * cf
-
-
-@njit(cache=True)
-def inertia_M_and_C(eta, eta_dot, I, Q, M, C):  # noqa: ANN001, ANN201, E741
-    """``Q(eta)``, ``M = Q^T I Q`` and ``C = Q^T S(I Q eta_dot)^T Q + Q^T I Q_dot`` (the factorisation
-    satisfying (7)), written into ``Q``, ``M``, ``C``."""
-    Qd = np.empty((3, 3))
-    T1 = np.empty((3, 3))
-    T2 = np.empty((3, 3))
-    euler_Q(eta, Q)
-    euler_Q_dot(eta, eta_dot, Qd)
-    _mm(I, Q, T1)
-    _mtm(Q, T1, M)
-    w = np.empty(3)
-    _mv(Q, eta_dot, w)
-    h = np.empty(3)
-    _mv(I, w, h)
-    ST = np.empty((3, 3))  # S(h)^T
-    ST[0, 0], ST[0, 1], ST[0, 2] = 0.0, h[2], -h[1]
-    ST[1, 0], ST[1, 1], ST[1, 2] = -h[2], 0.0, h[0]
-    ST[2, 0], ST[2, 1], ST[2, 2] = h[1], -h[0], 0.0
-    _mm(ST, Q, T1)
-    _mtm(Q, T1, C)
-    _mm(I, Qd, T1)
-    _mtm(Q, T1, T2)
-    for i in range(3):
-        for j in range(3):
-            C[i, j] += T2[i, j]
-
-
-@njit(cache=True)
-def momentum_rate_known(eta, eta_dot, u, tau_B, m, Q, C, beta):  # noqa: ANN001, ANN201
-    """``beta = [-u R e3 + m g; Q^T tau_B + C^T eta_dot]``, eq. (8) without the external wrench,
-    for ``Q``, ``C`` already evaluated at ``(eta, eta_dot)``."""
-    cf, sf = math.cos(eta[0]), math.sin(eta[0])
-    ct, st = math.cos(eta[1]), math.sin(eta[1])
-    cp, sp = math.cos(eta[2]), math.sin(eta[2])
-    beta[0] = -u * (cp * st * cf + sp * sf)
-    beta[1] = -u * (sp * st * cf - cp * sf)
-    beta[2] = -u * (ct * cf) + m * G
-    for i in range(3):
-        beta[3 + i] = (
-            Q[0, i] * tau_B[0]
-            + Q[1, i] * tau_B[1]
-            + Q[2, i] * tau_B[2]
-            + C[0, i] * eta_dot[0]
-            + C[1, i] * eta_dot[1]
-            + C[2, i] * eta_dot[2]
-        )
-
-
-@njit(cache=True)
-def mix(f, l, c, tau):  # noqa: ANN001, ANN201, E741
-    """Eq. (4); returns ``u`` and writes ``tau``."""
-    tau[0] = l * (f[1] - f[3])
-    tau[1] = l * (f[2] - f[0])
-    tau[2] = c * (f[0] - f[1] + f[2] - f[3])
-    return f[0] + f[1] + f[2] + f[3]
-
-
-@njit(cache=True)
-def _yaw_hi(base, yaw, lo_lim, hi_lim):  # noqa: ANN001, ANN202
-    """Largest yaw scale in [0, 1] keeping every rotor in [lo_lim, hi_lim], and whether any fits."""
-    a_lo, a_hi, ok = 0.0, 1.0, True
-    for i in range(4):
-        if yaw[i] > 0:
-            a_hi = min(a_hi, (hi_lim - base[i]) / yaw[i])
-            a_lo = max(a_lo, (lo_lim - base[i]) / yaw[i])
-        elif yaw[i] < 0:
-            a_hi = min(a_hi, (lo_lim - base[i]) / yaw[i])
-            a_lo = max(a_lo, (hi_lim - base[i]) / yaw[i])
-        elif base[i] < lo_lim or base[i] > hi_lim:
-            ok = False
-    return a_hi, ok and a_lo <= a_hi
-
-
-@njit(cache=True)
-def allocate(u, tau, l, c, fmax, fmin, f):  # noqa: ANN001, ANN201, E741
-    """Prioritised inverse of eq. (4), as :func:`vtol_impedance.model.mixer.allocate`; returns saturated."""
-    tol = 1e-12 * max(abs(fmax), 1.0)
-    hi_lim, lo_lim = fmax + tol, fmin - tol
-    a = tau[0] / (2.0 * l)
-    bb = tau[1] / (2.0 * l)
-    rp = np.array([-bb, a, bb, -a])
-    spread = rp.max() - rp.min()
-    span = fmax - fmin
-    rp_scale = span / max(spread, 1e-300) if spread > span else 1.0
-    rp *= rp_scale
-    ys = tau[2] / (4.0 * c)
-    yaw = np.array([ys, -ys, ys, -ys])
-    base = u / 4.0 + rp
-    hi_keep, ok_keep = _yaw_hi(base, yaw, lo_lim, hi_lim)
-    if ok_keep:
-        scale = hi_keep
-    else:
-        coll = min(max(u / 4.0, fmin - rp.min()), fmax - rp.max())
-        base = coll + rp
-        scale, _ = _yaw_hi(base, yaw, lo_lim, hi_lim)
-    scale = min(max(scale, 0.0), 1.0)
-    for i in range(4):
-        f[i] = min(max(base[i] + scale * yaw[i], fmin), fmax)
-    return rp_scale < 1.0 or (not ok_keep) or scale < 1.0 - 1e-9
-
-
-@njit(cache=True)
 def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):  # noqa: ANN001, ANN201
     """Eq. (16) solved in NED with the tilt and lift limits of :func:`vtol_impedance.control.thrust_and_attitude`."""
     vert = G - mu_bar[2]
@@ -274,164 +104,282 @@ def _wrap(a):  # noqa: ANN001, ANN202
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+# ------------------------------------------------------------------ tuple math (no heap allocation)
+
+
+@njit(cache=True, inline="always")
+def _Q9(f, t):  # noqa: ANN001, ANN202
+    cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
+    return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)
+
+
+@njit(cache=True, inline="always")
+def _Qd9(f, t, df, dt):  # noqa: ANN001, ANN202
+    cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
+    return (0.0, 0.0, -ct * dt, 0.0, -sf * df, cf * ct * df - sf * st * dt, 0.0, -cf * df, -sf * ct * df - cf * st * dt)
+
+
+@njit(cache=True, inline="always")
+def _mm9(A, B):  # noqa: ANN001, ANN202
+    return (
+        A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
+        A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
+        A[0] * B[2] + A[1] * B[5] + A[2] * B[8],
+        A[3] * B[0] + A[4] * B[3] + A[5] * B[6],
+        A[3] * B[1] + A[4] * B[4] + A[5] * B[7],
+        A[3] * B[2] + A[4] * B[5] + A[5] * B[8],
+        A[6] * B[0] + A[7] * B[3] + A[8] * B[6],
+        A[6] * B[1] + A[7] * B[4] + A[8] * B[7],
+        A[6] * B[2] + A[7] * B[5] + A[8] * B[8],
+    )
+
+
+@njit(cache=True, inline="always")
+def _t9(A):  # noqa: ANN001, ANN202
+    return (A[0], A[3], A[6], A[1], A[4], A[7], A[2], A[5], A[8])
+
+
+@njit(cache=True, inline="always")
+def _mv9(A, x0, x1, x2):  # noqa: ANN001, ANN202
+    return (
+        A[0] * x0 + A[1] * x1 + A[2] * x2,
+        A[3] * x0 + A[4] * x1 + A[5] * x2,
+        A[6] * x0 + A[7] * x1 + A[8] * x2,
+    )
+
+
+@njit(cache=True, inline="always")
+def _solve9(A, b0, b1, b2):  # noqa: ANN001, ANN202
+    """``A^{-1} b`` for a 3x3 ``A`` (row-major 9-tuple) by the adjugate: no LAPACK call on the hot path."""
+    c00 = A[4] * A[8] - A[5] * A[7]
+    c01 = A[5] * A[6] - A[3] * A[8]
+    c02 = A[3] * A[7] - A[4] * A[6]
+    inv = 1.0 / (A[0] * c00 + A[1] * c01 + A[2] * c02)
+    x0 = c00 * b0 + (A[2] * A[7] - A[1] * A[8]) * b1 + (A[1] * A[5] - A[2] * A[4]) * b2
+    x1 = c01 * b0 + (A[0] * A[8] - A[2] * A[6]) * b1 + (A[2] * A[3] - A[0] * A[5]) * b2
+    x2 = c02 * b0 + (A[1] * A[6] - A[0] * A[7]) * b1 + (A[0] * A[4] - A[1] * A[3]) * b2
+    return x0 * inv, x1 * inv, x2 * inv
+
+
+@njit(cache=True, inline="always")
+def _QMC(e0, e1, d0, d1, d2, I):  # noqa: ANN001, ANN202, E741
+    """``Q``, ``M = Q^T I Q``, ``C = Q^T S(I Q eta_dot)^T Q + Q^T I Q_dot`` as 9-tuples (eq. (3b), (7))."""
+    Q = _Q9(e0, e1)
+    Qt = _t9(Q)
+    M = _mm9(Qt, _mm9(I, Q))
+    w0, w1, w2 = _mv9(Q, d0, d1, d2)
+    h0, h1, h2 = _mv9(I, w0, w1, w2)
+    ST = (0.0, h2, -h1, -h2, 0.0, h0, h1, -h0, 0.0)
+    C1 = _mm9(Qt, _mm9(ST, Q))
+    C2 = _mm9(Qt, _mm9(I, _Qd9(e0, e1, d0, d1)))
+    C = (
+        C1[0] + C2[0],
+        C1[1] + C2[1],
+        C1[2] + C2[2],
+        C1[3] + C2[3],
+        C1[4] + C2[4],
+        C1[5] + C2[5],
+        C1[6] + C2[6],
+        C1[7] + C2[7],
+        C1[8] + C2[8],
+    )
+    return Q, M, C
+
+
+@njit(cache=True, inline="always")
+def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):  # noqa: ANN001, ANN202
+    """Angular part of eq. (8): ``Q^T tau_B + C^T eta_dot``."""
+    a = _mv9(_t9(Q), t0, t1, t2)
+    b = _mv9(_t9(C), d0, d1, d2)
+    return a[0] + b[0], a[1] + b[1], a[2] + b[2]
+
+
+@njit(cache=True, inline="always")
+def _beta_lin(e0, e1, e2, u, m):  # noqa: ANN001, ANN202
+    """Linear part of eq. (8): ``-u R(eta) e3 + m g``."""
+    cf, sf = math.cos(e0), math.sin(e0)
+    ct, st = math.cos(e1), math.sin(e1)
+    cp, sp = math.cos(e2), math.sin(e2)
+    return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G
+
+
+@njit(cache=True, inline="always")
+def _yaw_lim(base, yaw, lo_lim, hi_lim, a_lo, a_hi, ok):  # noqa: ANN001, ANN202
+    if yaw > 0:
+        return max(a_lo, (lo_lim - base) / yaw), min(a_hi, (hi_lim - base) / yaw), ok
+    if yaw < 0:
+        return max(a_lo, (hi_lim - base) / yaw), min(a_hi, (lo_lim - base) / yaw), ok
+    return a_lo, a_hi, ok and lo_lim <= base <= hi_lim
+
+
+@njit(cache=True, inline="always")
+def _yaw_scale(b0, b1, b2, b3, y, lo_lim, hi_lim):  # noqa: ANN001, ANN202
+    a_lo, a_hi, ok = 0.0, 1.0, True
+    a_lo, a_hi, ok = _yaw_lim(b0, y, lo_lim, hi_lim, a_lo, a_hi, ok)
+    a_lo, a_hi, ok = _yaw_lim(b1, -y, lo_lim, hi_lim, a_lo, a_hi, ok)
+    a_lo, a_hi, ok = _yaw_lim(b2, y, lo_lim, hi_lim, a_lo, a_hi, ok)
+    a_lo, a_hi, ok = _yaw_lim(b3, -y, lo_lim, hi_lim, a_lo, a_hi, ok)
+    return a_hi, ok and a_lo <= a_hi
+
+
+@njit(cache=True, inline="always")
+def _allocate(u, t0, t1, t2, l, c, fmax, fmin):  # noqa: ANN001, ANN202, E741
+    """Prioritised inverse of eq. (4), as :func:`vtol_impedance.model.mixer.allocate`:
+    returns the four rotor forces and whether anything was given up."""
+    tol = 1e-12 * max(abs(fmax), 1.0)
+    hi_lim, lo_lim = fmax + tol, fmin - tol
+    a = t0 / (2.0 * l)
+    bb = t1 / (2.0 * l)
+    r0, r1, r2, r3 = -bb, a, bb, -a
+    rmax, rmin = max(max(r0, r1), max(r2, r3)), min(min(r0, r1), min(r2, r3))
+    spread = rmax - rmin
+    span = fmax - fmin
+    rp_scale = span / max(spread, 1e-300) if spread > span else 1.0
+    r0, r1, r2, r3 = r0 * rp_scale, r1 * rp_scale, r2 * rp_scale, r3 * rp_scale
+    rmax, rmin = rmax * rp_scale, rmin * rp_scale
+    ys = t2 / (4.0 * c)
+    coll = u / 4.0
+    scale, ok_keep = _yaw_scale(coll + r0, coll + r1, coll + r2, coll + r3, ys, lo_lim, hi_lim)
+    if not ok_keep:
+        coll = min(max(u / 4.0, fmin - rmin), fmax - rmax)
+        scale, _ = _yaw_scale(coll + r0, coll + r1, coll + r2, coll + r3, ys, lo_lim, hi_lim)
+    scale = min(max(scale, 0.0), 1.0)
+    f0 = min(max(coll + r0 + scale * ys, fmin), fmax)
+    f1 = min(max(coll + r1 - scale * ys, fmin), fmax)
+    f2 = min(max(coll + r2 + scale * ys, fmin), fmax)
+    f3 = min(max(coll + r3 - scale * ys, fmin), fmax)
+    return f0, f1, f2, f3, rp_scale < 1.0 or (not ok_keep) or scale < 1.0 - 1e-9
+
+
+def thrust_prev_index(n: int) -> int:
+    """Where the held thrust sits in the controller state (the held torque follows it)."""
+    return 6 * n + 21
+
+
 @njit(cache=True)
-def controller_step(cp, sh, cs, y, r, o):  # noqa: ANN001, ANN201, C901
+def controller_step(cp, sh, cs, y, r, o):  # noqa: ANN001, ANN201, C901, PLR0915
     """One control period for one vehicle; updates ``cs`` in place and writes ``o``. Mirrors
-    :func:`vtol_impedance.control.impedance.controller_step`."""
+    :func:`vtol_impedance.control.impedance.controller_step`, with no heap allocation."""
     Ts, fwn, fz = sh[0], sh[1], sh[2]
     n = int(sh[9])
     nn = 6 * n * n
-    Ad = sh[10 : 10 + nn].reshape((6, n, n))
-    Bd = sh[10 + nn : 10 + nn + 6 * n].reshape((6, n))
-    Cd = sh[10 + nn + 6 * n : 10 + nn + 12 * n].reshape((6, n))
+    iB = 10 + nn
+    iC = iB + 6 * n
     m = cp[CP_MASS]
-    I = cp[CP_I : CP_I + 9].reshape((3, 3))  # noqa: E741
+    I = (cp[1], cp[2], cp[3], cp[4], cp[5], cp[6], cp[7], cp[8], cp[9])  # noqa: E741
     comp = cp[CP_COMP]
-    # state views
-    ex = cs[0 : 6 * n].reshape((6, n))
-    o_q = 6 * n
-    q_prev = cs[o_q : o_q + 6]
-    eta_prev = cs[o_q + 6 : o_q + 9]
-    eta_dot_prev = cs[o_q + 9 : o_q + 12]
-    i_est_started = o_q + 12
-    fx = cs[o_q + 13 : o_q + 15]
-    fxd = cs[o_q + 15 : o_q + 17]
-    i_filt_started = o_q + 17
-    integ = cs[o_q + 18 : o_q + 21]
-    i_thrust_prev = o_q + 21
-    tau_prev = cs[o_q + 22 : o_q + 25]
+    o_q = 6 * n  # state layout: x (6n), q_prev (6), eta_prev (3), eta_dot_prev (3), started, filter (5),
+    iw = o_q + 25  # integral (3), thrust_prev, tau_prev (3), scratch: x_new (n), w_hat (6)
 
-    p = y[0:3]
-    v = y[3:6]
-    eta = y[6:9]
-    eta_dot = y[9:12]
+    p0, p1, p2, v0, v1, v2 = y[0], y[1], y[2], y[3], y[4], y[5]
+    e0, e1, e2, d0, d1, d2 = y[6], y[7], y[8], y[9], y[10], y[11]
 
     # estimator, eqs. (6)-(13)
-    Q = np.empty((3, 3))
-    M = np.empty((3, 3))
-    C = np.empty((3, 3))
-    inertia_M_and_C(eta, eta_dot, I, Q, M, C)
-    q = np.empty(6)
-    for i in range(3):
-        q[i] = m * v[i]
-        q[3 + i] = M[i, 0] * eta_dot[0] + M[i, 1] * eta_dot[1] + M[i, 2] * eta_dot[2]
-    w_hat = np.zeros(6)
-    if cs[i_est_started] > 0.5:
-        ba = np.empty(6)
-        bb = np.empty(6)
-        Qp = np.empty((3, 3))
-        Mp = np.empty((3, 3))
-        Cp = np.empty((3, 3))
-        inertia_M_and_C(eta_prev, eta_dot_prev, I, Qp, Mp, Cp)
-        momentum_rate_known(eta_prev, eta_dot_prev, cs[i_thrust_prev], tau_prev, m, Qp, Cp, ba)
-        momentum_rate_known(eta, eta_dot, cs[i_thrust_prev], tau_prev, m, Q, C, bb)
-        xn = np.empty(n)
+    Q, M, C = _QMC(e0, e1, d0, d1, d2, I)
+    qa = _mv9(M, d0, d1, d2)
+    q = (m * v0, m * v1, m * v2, qa[0], qa[1], qa[2])
+    for ch in range(6):
+        cs[iw + n + ch] = 0.0
+    if cs[o_q + 12] > 0.5:
+        u_prev = cs[o_q + 21]
+        tp0, tp1, tp2 = cs[o_q + 22], cs[o_q + 23], cs[o_q + 24]
+        pe0, pe1, pe2 = cs[o_q + 6], cs[o_q + 7], cs[o_q + 8]
+        pd0, pd1, pd2 = cs[o_q + 9], cs[o_q + 10], cs[o_q + 11]
+        Qp, Mp, Cp = _QMC(pe0, pe1, pd0, pd1, pd2, I)
+        la = _beta_lin(pe0, pe1, pe2, u_prev, m)
+        lb = _beta_lin(e0, e1, e2, u_prev, m)
+        aa = _beta_ang(Qp, Cp, tp0, tp1, tp2, pd0, pd1, pd2)
+        ab = _beta_ang(Q, C, tp0, tp1, tp2, d0, d1, d2)
+        beta = (la[0] + lb[0], la[1] + lb[1], la[2] + lb[2], aa[0] + ab[0], aa[1] + ab[1], aa[2] + ab[2])
         for ch in range(6):
-            wbar = (q[ch] - q_prev[ch]) / Ts - 0.5 * (ba[ch] + bb[ch])
+            wbar = (q[ch] - cs[o_q + ch]) / Ts - 0.5 * beta[ch]
+            base = ch * n
+            for i in range(n):
+                s = sh[iB + base + i] * wbar
+                row = 10 + (ch * n + i) * n
+                for j in range(n):
+                    s += sh[row + j] * cs[base + j]
+                cs[iw + i] = s
             acc = 0.0
             for i in range(n):
-                s = Bd[ch, i] * wbar
-                for j in range(n):
-                    s += Ad[ch, i, j] * ex[ch, j]
-                xn[i] = s
-            for i in range(n):
-                ex[ch, i] = xn[i]
-                acc += Cd[ch, i] * xn[i]
-            w_hat[ch] = acc
-    cs[i_est_started] = 1.0
-    q_prev[:] = q
-    eta_prev[:] = eta
-    eta_dot_prev[:] = eta_dot
+                cs[base + i] = cs[iw + i]
+                acc += sh[iC + base + i] * cs[iw + i]
+            cs[iw + n + ch] = acc
+    cs[o_q + 12] = 1.0
+    for ch in range(6):
+        cs[o_q + ch] = q[ch]
+    cs[o_q + 6], cs[o_q + 7], cs[o_q + 8] = e0, e1, e2
+    cs[o_q + 9], cs[o_q + 10], cs[o_q + 11] = d0, d1, d2
+    wh = iw + n
+    fh0, fh1, fh2 = cs[wh], cs[wh + 1], cs[wh + 2]
+    th0, th1, th2 = cs[wh + 3], cs[wh + 4], cs[wh + 5]
 
     # position impedance (18a), compensation, eq. (16)
-    mu_bar = np.empty(3)
-    e_p = np.empty(3)
-    for i in range(3):
-        e_p[i] = p[i] - r[i]
-        e_v = v[i] - r[3 + i]
-        mu = r[6 + i] - (cp[CP_DP + i] * e_v + cp[CP_KP + i] * e_p[i] + cp[CP_KI + i] * integ[i]) / m
-        mu_bar[i] = mu - comp * w_hat[i] / m
+    ig = o_q + 18
+    ep0, ep1, ep2 = p0 - r[0], p1 - r[1], p2 - r[2]
+    mb0 = r[6] - (cp[CP_DP] * (v0 - r[3]) + cp[CP_KP] * ep0 + cp[CP_KI] * cs[ig]) / m - comp * fh0 / m
+    mb1 = r[7] - (cp[CP_DP + 1] * (v1 - r[4]) + cp[CP_KP + 1] * ep1 + cp[CP_KI + 1] * cs[ig + 1]) / m - comp * fh1 / m
+    mb2 = r[8] - (cp[CP_DP + 2] * (v2 - r[5]) + cp[CP_KP + 2] * ep2 + cp[CP_KI + 2] * cs[ig + 2]) / m - comp * fh2 / m
     psi_d = r[9]
-    thrust_req, phi_d, theta_d, tilt_lim = thrust_and_attitude(mu_bar, psi_d, m, cp[CP_TILT], cp[CP_LIFT])
+    thrust_req, phi_d, theta_d, tilt_lim = thrust_and_attitude((mb0, mb1, mb2), psi_d, m, cp[CP_TILT], cp[CP_LIFT])
 
     # attitude filter on (phi_d, theta_d)
-    if cs[i_filt_started] < 0.5:
-        fx[0], fx[1] = phi_d, theta_d
-        fxd[0], fxd[1] = 0.0, 0.0
-        cs[i_filt_started] = 1.0
-    uin = (phi_d, theta_d)
-    eta_d = np.empty(3)
-    eta_d_dot = np.empty(3)
-    eta_d_ddot = np.empty(3)
-    for i in range(2):
-        x0, xd0 = fx[i], fxd[i]
-        eta_d[i] = x0
-        eta_d_dot[i] = xd0
-        eta_d_ddot[i] = fwn * fwn * (uin[i] - x0) - 2.0 * fz * fwn * xd0
-        fx[i] = sh[3] * x0 + sh[4] * xd0 + sh[7] * uin[i]
-        fxd[i] = sh[5] * x0 + sh[6] * xd0 + sh[8] * uin[i]
-    eta_d[2], eta_d_dot[2], eta_d_ddot[2] = psi_d, r[10], r[11]
+    fi = o_q + 13
+    if cs[o_q + 17] < 0.5:
+        cs[fi], cs[fi + 1], cs[fi + 2], cs[fi + 3] = phi_d, theta_d, 0.0, 0.0
+        cs[o_q + 17] = 1.0
+    x0, x1, xd0, xd1 = cs[fi], cs[fi + 1], cs[fi + 2], cs[fi + 3]
+    ed0, ed1, edd0, edd1 = x0, x1, xd0, xd1
+    eddd0 = fwn * fwn * (phi_d - x0) - 2.0 * fz * fwn * xd0
+    eddd1 = fwn * fwn * (theta_d - x1) - 2.0 * fz * fwn * xd1
+    cs[fi] = sh[3] * x0 + sh[4] * xd0 + sh[7] * phi_d
+    cs[fi + 2] = sh[5] * x0 + sh[6] * xd0 + sh[8] * phi_d
+    cs[fi + 1] = sh[3] * x1 + sh[4] * xd1 + sh[7] * theta_d
+    cs[fi + 3] = sh[5] * x1 + sh[6] * xd1 + sh[8] * theta_d
 
     # attitude impedance (18b) and torque (14)
-    e_eta = np.empty(3)
-    e_eta_dot = np.empty(3)
-    for i in range(3):
-        e_eta[i] = _wrap(eta[i] - eta_d[i])
-        e_eta_dot[i] = eta_dot[i] - eta_d_dot[i]
-    damp = np.empty(3)
-    _mv(C, e_eta_dot, damp)
-    for i in range(3):
-        damp[i] += cp[CP_DO + i] * e_eta_dot[i] + cp[CP_KO + i] * e_eta[i]
-    tau_bar = np.empty(3)
-    solve3(M, damp, tau_bar)
-    for i in range(3):
-        tau_bar[i] = eta_d_ddot[i] - tau_bar[i]
-    QT = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            QT[i, j] = Q[j, i]
-    rhs = np.empty(3)
-    _mv(C, eta_dot, rhs)
-    for i in range(3):
-        rhs[i] -= comp * w_hat[3 + i]
-    IQ = np.empty((3, 3))
-    _mm(I, Q, IQ)
-    tau_req = np.empty(3)
-    _mv(IQ, tau_bar, tau_req)
-    tmp = np.empty(3)
-    solve3(QT, rhs, tmp)
-    for i in range(3):
-        tau_req[i] += tmp[i]
-    tau_hat_B = np.empty(3)
-    solve3(QT, w_hat[3:6], tau_hat_B)
+    ee0, ee1, ee2 = _wrap(e0 - ed0), _wrap(e1 - ed1), _wrap(e2 - psi_d)
+    de0, de1, de2 = d0 - edd0, d1 - edd1, d2 - r[10]
+    ce = _mv9(C, de0, de1, de2)
+    k0 = ce[0] + cp[CP_DO] * de0 + cp[CP_KO] * ee0
+    k1 = ce[1] + cp[CP_DO + 1] * de1 + cp[CP_KO + 1] * ee1
+    k2 = ce[2] + cp[CP_DO + 2] * de2 + cp[CP_KO + 2] * ee2
+    s0, s1, s2 = _solve9(M, k0, k1, k2)
+    tb0, tb1, tb2 = eddd0 - s0, eddd1 - s1, r[11] - s2
+    QT = _t9(Q)
+    cd = _mv9(C, d0, d1, d2)
+    g0, g1, g2 = _solve9(QT, cd[0] - comp * th0, cd[1] - comp * th1, cd[2] - comp * th2)
+    iq = _mv9(_mm9(I, Q), tb0, tb1, tb2)
+    tr0, tr1, tr2 = iq[0] + g0, iq[1] + g1, iq[2] + g2
+    hb0, hb1, hb2 = _solve9(QT, th0, th1, th2)
 
-    f = np.empty(4)
-    sat = allocate(thrust_req, tau_req, cp[CP_L], cp[CP_C], cp[CP_FMAX], cp[CP_FMIN], f)
-    tau_out = np.empty(3)
-    u_out = mix(f, cp[CP_L], cp[CP_C], tau_out)
+    l, c = cp[CP_L], cp[CP_C]
+    f0, f1, f2, f3, sat = _allocate(thrust_req, tr0, tr1, tr2, l, c, cp[CP_FMAX], cp[CP_FMIN])
+    u_out = f0 + f1 + f2 + f3
+    to0, to1, to2 = l * (f1 - f3), l * (f2 - f0), c * (f0 - f1 + f2 - f3)
 
     # PID anti-windup
     freeze = sat or tilt_lim
-    for i in range(3):
+    for i, e in ((0, ep0), (1, ep1), (2, ep2)):
         if not freeze:
-            integ[i] += Ts * e_p[i]
+            cs[ig + i] += Ts * e
         bound = cp[CP_ILIM] / max(cp[CP_KI + i], 1e-12)
-        integ[i] = min(max(integ[i], -bound), bound)
-    cs[i_thrust_prev] = u_out
-    tau_prev[:] = tau_out
+        cs[ig + i] = min(max(cs[ig + i], -bound), bound)
+    cs[o_q + 21] = u_out
+    cs[o_q + 22], cs[o_q + 23], cs[o_q + 24] = to0, to1, to2
 
     o[O_THRUST] = u_out
-    o[O_TAU : O_TAU + 3] = tau_out
-    o[O_F : O_F + 4] = f
+    o[O_TAU], o[O_TAU + 1], o[O_TAU + 2] = to0, to1, to2
+    o[O_F], o[O_F + 1], o[O_F + 2], o[O_F + 3] = f0, f1, f2, f3
     o[O_SAT] = 1.0 if sat else 0.0
     o[O_THRUST_REQ] = thrust_req
-    o[O_TAU_REQ : O_TAU_REQ + 3] = tau_req
-    o[O_FHAT : O_FHAT + 3] = w_hat[0:3]
-    o[O_TAUHAT_ETA : O_TAUHAT_ETA + 3] = w_hat[3:6]
-    o[O_TAUHAT_B : O_TAUHAT_B + 3] = tau_hat_B
-    o[O_ETA_D : O_ETA_D + 3] = eta_d
-    o[O_ETA_D_DOT : O_ETA_D_DOT + 3] = eta_d_dot
-    o[O_MU_BAR : O_MU_BAR + 3] = mu_bar
+    o[O_TAU_REQ], o[O_TAU_REQ + 1], o[O_TAU_REQ + 2] = tr0, tr1, tr2
+    o[O_FHAT], o[O_FHAT + 1], o[O_FHAT + 2] = fh0, fh1, fh2
+    o[O_TAUHAT_ETA], o[O_TAUHAT_ETA + 1], o[O_TAUHAT_ETA + 2] = th0, th1, th2
+    o[O_TAUHAT_B], o[O_TAUHAT_B + 1], o[O_TAUHAT_B + 2] = hb0, hb1, hb2
+    o[O_ETA_D], o[O_ETA_D + 1], o[O_ETA_D + 2] = ed0, ed1, psi_d
+    o[O_ETA_D_DOT], o[O_ETA_D_DOT + 1], o[O_ETA_D_DOT + 2] = edd0, edd1, r[10]
+    o[O_MU_BAR], o[O_MU_BAR + 1], o[O_MU_BAR + 2] = mb0, mb1, mb2
     o[O_TILT] = 1.0 if tilt_lim else 0.0
 
 

@@ -16,6 +16,7 @@ from numba import njit, prange
 
 from ..sim.result import SIGNAL_OFFSETS as _OFF
 from .controller import (
+    _Q9,
     O_ETA_D,
     O_F,
     O_FHAT,
@@ -27,15 +28,16 @@ from .controller import (
     O_THRUST,
     O_THRUST_REQ,
     OUT_SIZE,
+    _solve9,
     controller_step,
-    euler_Q,
-    solve3,
 )
 from .plant import (
     PP_FMAX,
     PP_FMIN,
     PP_TDN,
     PP_TUP,
+    _origin,
+    _R_of,
     environment_wrench,
     euler_from_R,
     lumped_wrench,
@@ -99,6 +101,7 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
     dec,
     acc,
     win,  # noqa: ANN001
+    thrust_idx,
 ):
     """Advance every live vehicle from control tick ``k0`` to ``k1``.
 
@@ -114,12 +117,9 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
         cp_b = cp[b]
         cs_b = CS[b]
         hist_b = hist[b]
-        I_nom = cp_b[1:10].reshape((3, 3))
         y = np.empty(12)
         o = np.empty(OUT_SIZE)
         R = np.empty((3, 3))
-        Rm = np.empty((3, 3))
-        Q = np.empty((3, 3))
         p_o = np.empty(3)
         v_o = np.empty(3)
         eta = np.empty(3)
@@ -131,30 +131,29 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
         tau_prev = np.empty(3)
         fcmd = np.empty(4)
         w1, w2, w3, w4, wt = np.empty(17), np.empty(17), np.empty(17), np.empty(17), np.empty(17)
-        n_ctrl = CS.shape[1]
-        i_thr = n_ctrl - 4
+        i_thr = thrust_idx
         lagless = pp_b[PP_TUP] <= 0 or pp_b[PP_TDN] <= 0
         for k in range(k0, k1):
             t = k * Ts
             # sensors: delayed state, noise drawn outside
             xm = _ago(hist_b, hcount[b], hhead[b], k_mocap)
-            quat_to_R(xm[6:10], Rm)
-            origin_kinematics(pp_b, xm, Rm, p_o, v_o)
+            om_ = _origin(pp_b, xm, _R_of(xm, 6))
             xi = _ago(hist_b, hcount[b], hhead[b], k_imu)
-            quat_to_R(xi[6:10], Rm)
-            euler_from_R(Rm, eta)
-            nz = noise[b, k - k0]
-            om = np.empty(3)
-            for i in range(3):
-                y[6 + i] = eta[i] + sigma[2] * nz[6 + i]
-                om[i] = xi[10 + i] + sigma[3] * nz[9 + i]
-            euler_Q(y[6:9], Q)
-            ed = np.empty(3)
-            solve3(Q, om, ed)
+            Ri = _R_of(xi, 6)
+            j = k - k0
+            y[6] = math.atan2(Ri[7], Ri[8]) + sigma[2] * noise[b, j, 6]
+            y[7] = -math.asin(min(max(Ri[6], -1.0), 1.0)) + sigma[2] * noise[b, j, 7]
+            y[8] = math.atan2(Ri[3], Ri[0]) + sigma[2] * noise[b, j, 8]
+            ed = _solve9(
+                _Q9(y[6], y[7]),
+                xi[10] + sigma[3] * noise[b, j, 9],
+                xi[11] + sigma[3] * noise[b, j, 10],
+                xi[12] + sigma[3] * noise[b, j, 11],
+            )
             for i in range(3):
                 y[9 + i] = ed[i]
-                y[i] = p_o[i] + sigma[0] * nz[i]
-                y[3 + i] = v_o[i] + sigma[1] * nz[3 + i]
+                y[i] = om_[i] + sigma[0] * noise[b, j, i]
+                y[3 + i] = om_[3 + i] + sigma[1] * noise[b, j, 3 + i]
             u_prev = CS[b, i_thr]
             for i in range(3):
                 tau_prev[i] = CS[b, i_thr + 1 + i]
@@ -168,7 +167,7 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
             quat_to_R(x[6:10], R)
             euler_from_R(R, eta)
             environment_wrench(pp_b, t, x, R, codes, dparams, series, f_env, tau_env)
-            lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, cp_b[0], I_nom, f_l, t_l)
+            lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, cp_b[0], cp_b, f_l, t_l)
             origin_kinematics(pp_b, x, R, p_o, v_o)
 
             if win[0] <= t <= win[1]:
@@ -194,8 +193,7 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
 
             if dec > 0 and k % dec == 0:
                 row = logs[b, k // dec]
-                Q2 = np.empty((3, 3))
-                euler_Q(eta, Q2)
+                Q2 = _Q9(eta[0], eta[1])
                 for i in range(3):
                     row[_P + i] = p_o[i]
                     row[_V + i] = v_o[i]
@@ -211,7 +209,7 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
                     row[_TAU + i] = o[O_TAU + i]
                     row[_FEXT + i] = f_env[i]
                     row[_TEXTB + i] = tau_env[i]
-                    row[_TEXTE + i] = Q2[0, i] * tau_env[0] + Q2[1, i] * tau_env[1] + Q2[2, i] * tau_env[2]
+                    row[_TEXTE + i] = Q2[i] * tau_env[0] + Q2[3 + i] * tau_env[1] + Q2[6 + i] * tau_env[2]
                     row[_FL + i] = f_l[i]
                     row[_TL + i] = t_l[i]
                     row[_FH + i] = o[O_FHAT + i]

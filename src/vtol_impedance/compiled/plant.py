@@ -15,11 +15,12 @@ from numba import njit
 from ..conventions import G
 from ..sim.disturbances import ENC_PARAMS, Disturbance
 from ..sim.plant import PlantArrays
-from .controller import _mv, euler_Q, euler_Q_dot, inertia_M_and_C, solve3
+from .controller import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
 
 PP_MASS, PP_I, PP_IINV, PP_C, PP_L, PP_CD, PP_FMAX, PP_FMIN = 0, 1, 10, 19, 22, 23, 24, 25
 PP_TUP, PP_TDN, PP_DRAG, PP_GROUND, PP_KG, PP_CG, PP_BG = 26, 27, 28, 29, 30, 31, 32
-PP_SIZE = 33
+PP_INV_M, PP_INV_TUP, PP_INV_TDN = 33, 34, 35  # reciprocals: multiplications on the hot path
+PP_SIZE = 36
 
 
 def pack_plant(P: PlantArrays) -> np.ndarray:
@@ -44,6 +45,10 @@ def pack_plant(P: PlantArrays) -> np.ndarray:
         (PP_BG, P.b_ground),
     ):
         pp[:, idx] = arr
+    pp[:, PP_INV_M] = 1.0 / P.mass
+    # a zero time constant means no lag (the engine sets the rotor force directly)
+    pp[:, PP_INV_TUP] = np.where(P.tau_up > 0, 1.0 / np.maximum(P.tau_up, 1e-12), 0.0)
+    pp[:, PP_INV_TDN] = np.where(P.tau_down > 0, 1.0 / np.maximum(P.tau_down, 1e-12), 0.0)
     return pp
 
 
@@ -63,13 +68,6 @@ def pack_disturbances(items: list[Disturbance]) -> tuple[np.ndarray, np.ndarray,
     # the last parameter slot carries the series length
     params[:, ENC_PARAMS - 1] = lengths
     return codes, params, series
-
-
-@njit(cache=True, error_model="numpy")
-def cross3(a, b, out):  # noqa: ANN001, ANN201
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
 
 
 @njit(cache=True, error_model="numpy")
@@ -229,14 +227,14 @@ def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN0
     tm0 = l * (fr1 - fr3)
     tm1 = l * (fr2 - fr0)
     tm2 = cq * (fr0 - fr1 + fr2 - fr3)
-    m = pp[PP_MASS]
+    im = pp[PP_INV_M]
     F0 = -u * R[2] + fe0
     F1 = -u * R[5] + fe1
     F2 = -u * R[8] + fe2
     xd[0], xd[1], xd[2] = x[3], x[4], x[5]
-    xd[3] = F0 / m
-    xd[4] = F1 / m
-    xd[5] = G + F2 / m
+    xd[3] = F0 * im
+    xd[4] = F1 * im
+    xd[5] = G + F2 * im
     B0 = R[0] * F0 + R[3] * F1 + R[6] * F2
     B1 = R[1] * F0 + R[4] * F1 + R[7] * F2
     B2 = R[2] * F0 + R[5] * F1 + R[8] * F2
@@ -258,11 +256,10 @@ def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN0
     xd[7] = 0.5 * (qw * w0 + qy * w2 - qz * w1)
     xd[8] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
     xd[9] = 0.5 * (qw * w2 + qx * w1 - qy * w0)
-    fmin, fmax, tup, tdn = pp[PP_FMIN], pp[PP_FMAX], pp[PP_TUP], pp[PP_TDN]
+    fmin, fmax, kup, kdn = pp[PP_FMIN], pp[PP_FMAX], pp[PP_INV_TUP], pp[PP_INV_TDN]
     for i in range(4):
         target = min(max(f_cmd[i], fmin), fmax)
-        tc = tup if target > x[13 + i] else tdn
-        xd[13 + i] = (target - x[13 + i]) / max(tc, 1e-12) if tc > 0 else 0.0
+        xd[13 + i] = (target - x[13 + i]) * (kup if target > x[13 + i] else kdn)
 
 
 @njit(cache=True, error_model="numpy")
@@ -280,51 +277,34 @@ def rk4_step(pp, x, f_cmd, t, dt, codes, dparams, series, k1, k2, k3, k4, xt):  
     plant_derivative(pp, xt, f_cmd, t + dt, codes, dparams, series, k4)
     for i in range(17):
         x[i] = x[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    nq = math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
+    inq = 1.0 / math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
     for i in range(6, 10):
-        x[i] /= nq
+        x[i] *= inq
 
 
 @njit(cache=True, error_model="numpy")
-def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, I_nom, f, tau_eta):  # noqa: ANN001, ANN201
-    """What the nominal model misses, as :func:`vtol_impedance.sim.loop._lumped_wrench`."""
-    c = pp[PP_C : PP_C + 3]
-    w = x[10:13]
-    wd = xd[10:13]
-    t1 = np.empty(3)
-    cross3(wd, c, t1)
-    t2 = np.empty(3)
-    cross3(w, c, t2)
-    t3 = np.empty(3)
-    cross3(w, t2, t3)
-    s = np.empty(3)
+def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, cp, f, tau_eta):  # noqa: ANN001, ANN201
+    """What the nominal model misses, as :func:`vtol_impedance.sim.loop._lumped_wrench`; the nominal
+    inertia is read from the controller row ``cp``."""
+    c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
+    w0, w1, w2 = x[10], x[11], x[12]
+    a0, a1, a2 = xd[10], xd[11], xd[12]
+    # w_dot x c + w x (w x c)
+    u0, u1, u2 = w1 * c2 - w2 * c1, w2 * c0 - w0 * c2, w0 * c1 - w1 * c0
+    s0 = (a1 * c2 - a2 * c1) + (w1 * u2 - w2 * u1)
+    s1 = (a2 * c0 - a0 * c2) + (w2 * u0 - w0 * u2)
+    s2 = (a0 * c1 - a1 * c0) + (w0 * u1 - w1 * u0)
     for i in range(3):
-        s[i] = t1[i] + t3[i]
-    Rs = np.empty(3)
-    _mv(R, s, Rs)
-    for i in range(3):
-        a_o = xd[3 + i] - Rs[i]
+        a_o = xd[3 + i] - (R[i, 0] * s0 + R[i, 1] * s1 + R[i, 2] * s2)
         f[i] = m_nom * (a_o - (G if i == 2 else 0.0)) + u_prev * R[i, 2]
-    Q = np.empty((3, 3))
-    euler_Q(eta, Q)
-    eta_dot = np.empty(3)
-    solve3(Q, w, eta_dot)
-    Qd = np.empty((3, 3))
-    euler_Q_dot(eta, eta_dot, Qd)
-    Qde = np.empty(3)
-    _mv(Qd, eta_dot, Qde)
-    rhs = np.empty(3)
+    Q = _Q9(eta[0], eta[1])
+    d0, d1, d2 = _solve9(Q, w0, w1, w2)
+    qd = _mv9(_Qd9(eta[0], eta[1], d0, d1), d0, d1, d2)
+    dd0, dd1, dd2 = _solve9(Q, a0 - qd[0], a1 - qd[1], a2 - qd[2])
+    I = (cp[1], cp[2], cp[3], cp[4], cp[5], cp[6], cp[7], cp[8], cp[9])  # noqa: E741
+    _, M, C = _QMC(eta[0], eta[1], d0, d1, d2, I)
+    me = _mv9(M, dd0, dd1, dd2)
+    ce = _mv9(C, d0, d1, d2)
+    qt = _mv9(_t9(Q), tau_prev[0], tau_prev[1], tau_prev[2])
     for i in range(3):
-        rhs[i] = wd[i] - Qde[i]
-    eta_ddot = np.empty(3)
-    solve3(Q, rhs, eta_ddot)
-    Qn = np.empty((3, 3))
-    M = np.empty((3, 3))
-    C = np.empty((3, 3))
-    inertia_M_and_C(eta, eta_dot, I_nom, Qn, M, C)
-    Me = np.empty(3)
-    _mv(M, eta_ddot, Me)
-    Ce = np.empty(3)
-    _mv(C, eta_dot, Ce)
-    for i in range(3):
-        tau_eta[i] = Me[i] + Ce[i] - (Q[0, i] * tau_prev[0] + Q[1, i] * tau_prev[1] + Q[2, i] * tau_prev[2])
+        tau_eta[i] = me[i] + ce[i] - qt[i]

@@ -283,7 +283,7 @@ def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) ->
 
 def _run_compiled(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
     from ..compiled.controller import initial_state as ctrl_initial_state
-    from ..compiled.controller import pack_controller
+    from ..compiled.controller import pack_controller, thrust_prev_index
     from ..compiled.engine import N_ACC, run_block
     from ..compiled.plant import pack_disturbances, pack_plant
 
@@ -342,6 +342,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
             s.dec,
             acc,
             win,
+            thrust_prev_index(CA.est.Ad.shape[-1]),
         )
         if progress is not None:
             progress(k1 / s.N)
