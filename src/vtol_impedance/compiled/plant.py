@@ -137,6 +137,8 @@ def origin_kinematics(pp, x, R, p_o, v_o):  # noqa: ANN001, ANN201
 def _disturbance(t, p0, p1, p2, R, codes, dparams, series):  # noqa: ANN001, ANN202, C901
     """Sum of the encoded disturbances (6-tuple), as :class:`vtol_impedance.sim.disturbances.DisturbanceSet`."""
     f0 = f1 = f2 = t0 = t1 = t2 = 0.0
+    if codes.shape[0] == 0:
+        return f0, f1, f2, t0, t1, t2
     for d in range(codes.shape[0]):
         code = codes[d]
         P = dparams[d]  # one view per disturbance
