@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -55,13 +54,13 @@ def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
     return spec
 
 
-def _run_case(spec: Any, variants: list[str], seed: int | None, quiet: bool) -> Any:
+def _run_case(spec: Any, variants: list[str], seed: int | None, quiet: bool, backend: str = "compiled") -> Any:
     from .scenarios import simulate
 
-    return simulate(spec, variants, seed=seed, progress=_Progress(spec.name, not quiet))
+    return simulate(spec, variants, seed=seed, progress=_Progress(spec.name, not quiet), backend=backend)
 
 
-def _run_case_job(args: tuple[Any, list[str], int | None, bool]) -> Any:
+def _run_case_job(args: tuple[Any, list[str], int | None, bool, str]) -> Any:
     return _run_case(*args)
 
 
@@ -118,7 +117,7 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     spec = _load_spec(args.scenario, args.set, args.duration, args.ideal)
     out = Path(args.out)
     t0 = time.perf_counter()
-    result = _run_case(spec, variants, args.seed, args.quiet)
+    result = _run_case(spec, variants, args.seed, args.quiet, args.backend)
     stem = spec.name
     figs = _write_case(result, out, stem, not args.no_plots)
     _finish(
@@ -143,7 +142,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
     jobs = max(1, min(args.jobs, len(specs)))
-    jobs_args = [(s, variants, args.seed, args.quiet) for s in specs]
+    jobs_args = [(s, variants, args.seed, args.quiet, args.backend) for s in specs]
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -195,10 +194,18 @@ def build_parser() -> argparse.ArgumentParser:
         )
         sp.add_argument("--no-plots", action="store_true", help="skip figures")
         sp.add_argument("--quiet", action="store_true", help="no progress output")
+        sp.add_argument(
+            "--backend",
+            choices=["compiled", "numpy"],
+            default="compiled",
+            help="compiled (numba) or the NumPy reference",
+        )
 
     sp = sub.add_parser("paper", help="all three case studies with PD, PID and PD+C: figures, table, report")
     common(sp)
-    sp.add_argument("--jobs", type=int, default=min(3, os.cpu_count() or 1), help="parallel processes")
+    sp.add_argument(
+        "--jobs", type=int, default=1, help="parallel processes (the compiled backend is fast; plotting dominates)"
+    )
     sp.set_defaults(func=cmd_paper)
 
     sp = sub.add_parser("run", help="one scenario with one controller")

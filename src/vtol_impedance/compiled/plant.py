@@ -137,8 +137,6 @@ def origin_kinematics(pp, x, R, p_o, v_o):  # noqa: ANN001, ANN201
 def _disturbance(t, p0, p1, p2, R, codes, dparams, series):  # noqa: ANN001, ANN202, C901
     """Sum of the encoded disturbances (6-tuple), as :class:`vtol_impedance.sim.disturbances.DisturbanceSet`."""
     f0 = f1 = f2 = t0 = t1 = t2 = 0.0
-    if codes.shape[0] == 0:
-        return f0, f1, f2, t0, t1, t2
     for d in range(codes.shape[0]):
         code = codes[d]
         P = dparams[d]  # one view per disturbance
@@ -194,7 +192,10 @@ def _disturbance(t, p0, p1, p2, R, codes, dparams, series):  # noqa: ANN001, ANN
 def _environment(pp, t, x, R, codes, dparams, series):  # noqa: ANN001, ANN202
     """Disturbances plus rotor drag plus ground (6-tuple), as :func:`vtol_impedance.sim.plant.environment_wrench`."""
     o = _origin(pp, x, R)
-    f0, f1, f2, t0, t1, t2 = _disturbance(t, o[0], o[1], o[2], R, codes, dparams, series)
+    if codes.shape[0] > 0:  # guarded here: the call alone costs more than the rest of the environment
+        f0, f1, f2, t0, t1, t2 = _disturbance(t, o[0], o[1], o[2], R, codes, dparams, series)
+    else:
+        f0 = f1 = f2 = t0 = t1 = t2 = 0.0
     kd = pp[PP_DRAG]
     f0 = f0 - kd * o[3]
     f1 = f1 - kd * o[4]
@@ -220,23 +221,22 @@ def environment_wrench(pp, t, x, R, codes, dparams, series, f, tau):  # noqa: AN
 
 @njit(cache=True, error_model="numpy", inline="always")
 def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN001, ANN201
-    """``x_dot`` of the true plant, as :func:`vtol_impedance.sim.plant.plant_derivative` (allocation free)."""
+    """``x_dot`` of the true plant, as :func:`vtol_impedance.sim.plant.plant_derivative` (allocation free).
+
+    Everything is read into locals before ``xd`` is written, so that the compiler need not reload
+    through possibly aliasing arrays.
+    """
     R = _R_of(x, 6)
     fe0, fe1, fe2, te0, te1, te2 = _environment(pp, t, x, R, codes, dparams, series)
     fr0, fr1, fr2, fr3 = x[13], x[14], x[15], x[16]
-    l, cq = pp[PP_L], pp[PP_CD]
+    l, cq, im = pp[PP_L], pp[PP_CD], pp[PP_INV_M]
     u = fr0 + fr1 + fr2 + fr3
     tm0 = l * (fr1 - fr3)
     tm1 = l * (fr2 - fr0)
     tm2 = cq * (fr0 - fr1 + fr2 - fr3)
-    im = pp[PP_INV_M]
     F0 = -u * R[2] + fe0
     F1 = -u * R[5] + fe1
     F2 = -u * R[8] + fe2
-    xd[0], xd[1], xd[2] = x[3], x[4], x[5]
-    xd[3] = F0 * im
-    xd[4] = F1 * im
-    xd[5] = G + F2 * im
     B0 = R[0] * F0 + R[3] * F1 + R[6] * F2
     B1 = R[1] * F0 + R[4] * F1 + R[7] * F2
     B2 = R[2] * F0 + R[5] * F1 + R[8] * F2
@@ -250,18 +250,29 @@ def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN0
     s1 = tm1 + te1 - (c2 * B0 - c0 * B2) - (w2 * h0 - w0 * h2)
     s2 = tm2 + te2 - (c0 * B1 - c1 * B0) - (w0 * h1 - w1 * h0)
     j = PP_IINV
-    xd[10] = pp[j] * s0 + pp[j + 1] * s1 + pp[j + 2] * s2
-    xd[11] = pp[j + 3] * s0 + pp[j + 4] * s1 + pp[j + 5] * s2
-    xd[12] = pp[j + 6] * s0 + pp[j + 7] * s1 + pp[j + 8] * s2
+    wd0 = pp[j] * s0 + pp[j + 1] * s1 + pp[j + 2] * s2
+    wd1 = pp[j + 3] * s0 + pp[j + 4] * s1 + pp[j + 5] * s2
+    wd2 = pp[j + 6] * s0 + pp[j + 7] * s1 + pp[j + 8] * s2
     qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+    v0, v1, v2 = x[3], x[4], x[5]
+    fmin, fmax, kup, kdn = pp[PP_FMIN], pp[PP_FMAX], pp[PP_INV_TUP], pp[PP_INV_TDN]
+    g0 = min(max(f_cmd[0], fmin), fmax)
+    g1 = min(max(f_cmd[1], fmin), fmax)
+    g2 = min(max(f_cmd[2], fmin), fmax)
+    g3 = min(max(f_cmd[3], fmin), fmax)
+    xd[0], xd[1], xd[2] = v0, v1, v2
+    xd[3] = F0 * im
+    xd[4] = F1 * im
+    xd[5] = G + F2 * im
     xd[6] = 0.5 * (-qx * w0 - qy * w1 - qz * w2)
     xd[7] = 0.5 * (qw * w0 + qy * w2 - qz * w1)
     xd[8] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
     xd[9] = 0.5 * (qw * w2 + qx * w1 - qy * w0)
-    fmin, fmax, kup, kdn = pp[PP_FMIN], pp[PP_FMAX], pp[PP_INV_TUP], pp[PP_INV_TDN]
-    for i in range(4):
-        target = min(max(f_cmd[i], fmin), fmax)
-        xd[13 + i] = (target - x[13 + i]) * (kup if target > x[13 + i] else kdn)
+    xd[10], xd[11], xd[12] = wd0, wd1, wd2
+    xd[13] = (g0 - fr0) * (kup if g0 > fr0 else kdn)
+    xd[14] = (g1 - fr1) * (kup if g1 > fr1 else kdn)
+    xd[15] = (g2 - fr2) * (kup if g2 > fr2 else kdn)
+    xd[16] = (g3 - fr3) * (kup if g3 > fr3 else kdn)
 
 
 @njit(cache=True, error_model="numpy")

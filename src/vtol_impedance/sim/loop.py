@@ -59,8 +59,11 @@ from .sensors import NoiseSource, SensorParams, SensorSuite
 MAX_TILT_RAD = np.radians(80.0)
 MAX_DISTANCE_M = 1e3
 REASONS = {1: "non-finite state", 2: "tilt above 80 deg", 3: f"more than {MAX_DISTANCE_M:.0f} m from the origin"}
-#: Control ticks per block of random numbers (bounds memory for large batches).
+#: Bytes of random numbers drawn per block (bounds memory for large batches).
+BLOCK_BYTES = 50_000_000
+#: Control ticks per block of random numbers in the NumPy backend.
 BLOCK_TICKS = 200
+
 BACKENDS = ("compiled", "numpy")
 
 ProgressFn = Callable[[float], None]
@@ -309,8 +312,9 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
     logs = np.full((B, n_log, ROW_WIDTH), np.nan)
     acc = np.zeros((B, N_ACC))
     win = np.array(s.window)
-    for k0 in range(0, s.N, BLOCK_TICKS):
-        k1 = min(k0 + BLOCK_TICKS, s.N)
+    block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
+    for k0 in range(0, s.N, block):
+        k1 = min(k0 + block, s.N)
         noise = s.noise.block(k1 - k0)
         run_block(
             k0,

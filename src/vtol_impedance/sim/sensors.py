@@ -90,4 +90,7 @@ class NoiseSource:
 
     def block(self, n: int) -> np.ndarray:
         """``(B, n, 12)`` standard normals."""
-        return np.stack([g.standard_normal((n, 12)) for g in self.gens])
+        out = np.empty((len(self.gens), n, 12))
+        for b, g in enumerate(self.gens):
+            g.standard_normal(out=out[b])
+        return out

@@ -1,0 +1,45 @@
+"""Compiled (numba) kernels: the fast backend of the simulator, the batch engine and ``Controller``.
+
+They implement the same equations as the NumPy reference (``model``, ``estimator``, ``control``,
+``sim``) for one vehicle at a time with no heap allocation on the hot path; ``tests/test_compiled.py``
+proves the two agree. Kernels are compiled on first use and cached on disk.
+
+Numba keys each cached function on its own source file only, so a kernel that inlines code from
+another module could load stale machine code after that module changed (an upgrade, an edit). Before
+any kernel is imported, :func:`_refresh_cache` stamps the package's cache folder with a hash of every
+source the kernels read and clears the cached kernels when the hash differs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+_SOURCES = (
+    *sorted(_HERE.glob("*.py")),
+    _HERE.parent / "conventions.py",
+    _HERE.parent / "sim" / "result.py",
+    _HERE.parent / "sim" / "disturbances.py",
+)
+
+
+def _refresh_cache() -> None:
+    if os.environ.get("NUMBA_CACHE_DIR"):  # a user-managed cache: leave it alone
+        return
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in _SOURCES if p.exists())).hexdigest()
+    cache = _HERE / "__pycache__"
+    stamp = cache / "kernels.stamp"
+    try:
+        if stamp.exists() and stamp.read_text() == digest:
+            return
+        for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+            f.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:  # read-only install: numba falls back to its own cache location
+        pass
+
+
+_refresh_cache()
