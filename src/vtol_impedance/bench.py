@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -63,6 +62,36 @@ print(json.dumps({{"n": n, "duration": duration, "wall": wall, "veh_s_per_s": n 
 """
 
 
+_ROTORPY = """
+import json, time
+from rotorpy.controllers.quadrotor_control import SE3Control
+from rotorpy.environments import Environment
+from rotorpy.trajectories.hover_traj import HoverTraj
+from rotorpy.vehicles.crazyflie_params import quad_params
+from rotorpy.vehicles.multirotor import Multirotor
+env = Environment(vehicle=Multirotor(quad_params), controller=SE3Control(quad_params), trajectory=HoverTraj(),
+                  sim_rate={rate})
+env.run(t_final=0.1)
+t = time.perf_counter()
+env.run(t_final={duration})
+wall = time.perf_counter() - t
+print(json.dumps({{"sim_seconds": {duration}, "wall": wall, "real_time_factor": {duration} / wall,
+                  "sim_rate_hz": {rate}}}))
+"""
+
+
+def _rotorpy(duration: float) -> dict[str, Any] | str:
+    """RotorPy's single-vehicle hover (its default Crazyflie, SE(3) controller, 100 Hz steps), if installed."""
+    try:
+        import rotorpy  # noqa: F401
+    except ImportError:
+        return "not installed (pip install 'vtol-impedance[rotorpy]')"
+    try:
+        return _child(_ROTORPY.format(rate=100, duration=duration))
+    except RuntimeError as exc:  # an API change in RotorPy must not sink our own numbers
+        return f"failed: {str(exc)[-300:]}"
+
+
 def _single(backend: str, duration: float) -> dict[str, float]:
     from .scenarios import get, set_value, simulate
 
@@ -105,18 +134,24 @@ def _latency(calls: int) -> dict[str, float]:
     }
 
 
-def run(out: Path, quick: bool = False, log=print) -> dict[str, Any]:  # noqa: ANN001
-    """Measure everything, print a table, write JSON to ``out``; returns the numbers."""
+def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -> dict[str, Any]:
+    """Measure everything, print a table, write JSON to ``out``; returns the numbers.
+
+    ``compile_times=False`` skips the two cold/cached compile measurements (about 40 s each).
+    """
     res: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "processor": platform.processor()},
         "quick": quick,
+        "compile_first_s": None,
+        "compile_cached_s": None,
     }
-    with tempfile.TemporaryDirectory() as cache:
-        env = {"NUMBA_CACHE_DIR": cache}
-        log("compile: first use (empty cache) ...")
-        res["compile_first_s"] = _child(_COMPILE, env)["seconds"]
-        log("compile: second use (cached) ...")
-        res["compile_cached_s"] = _child(_COMPILE, env)["seconds"]
+    if compile_times:
+        with tempfile.TemporaryDirectory() as cache:
+            env = {"NUMBA_CACHE_DIR": cache}
+            log("compile: first use (empty cache) ...")
+            res["compile_first_s"] = _child(_COMPILE, env)["seconds"]
+            log("compile: second use (cached) ...")
+            res["compile_cached_s"] = _child(_COMPILE, env)["seconds"]
     log("single vehicle, case C realistic, PD+C ...")
     res["single_compiled"] = _single("compiled", 5.0 if quick else 46.0)
     res["single_numpy"] = _single("numpy", 1.0 if quick else 5.0)
@@ -128,12 +163,8 @@ def run(out: Path, quick: bool = False, log=print) -> dict[str, Any]:  # noqa: A
         duration = 0.5 if quick else float(min(40.0, max(4.0, 40000.0 / n)))
         log(f"batched N = {n} x {duration:g} s (metrics only) ...")
         res["batched"].append(_child(_BATCH.format(n=n, duration=duration)))
-    try:
-        import rotorpy  # noqa: F401
-
-        res["rotorpy"] = "installed; comparison not implemented yet"
-    except ImportError:
-        res["rotorpy"] = "not installed (optional)"
+    log("RotorPy single-vehicle hover (if installed) ...")
+    res["rotorpy"] = _rotorpy(2.0 if quick else 10.0)
     write_text(out, json.dumps(res, indent=1))
     log(table(res))
     return res
@@ -150,17 +181,21 @@ def table(res: dict[str, Any]) -> str:
         f"step_arrays latency, median / p99                {lat['step_arrays_median_us']:6.2f} / "
         f"{lat['step_arrays_p99_us']:.2f} us",
         f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us",
-        f"compile, first use / cached                      {res['compile_first_s']:6.1f} / "
-        f"{res['compile_cached_s']:.1f} s",
     ]
+    if res["compile_first_s"] is not None:
+        lines.append(
+            f"compile, first use / cached                      {res['compile_first_s']:6.1f} / "
+            f"{res['compile_cached_s']:.1f} s"
+        )
     for b in res["batched"]:
         lines.append(
             f"batched N = {b['n']:<6d} ({b['duration']:g} s each)           {b['veh_s_per_s']:10.0f} veh-s/s, "
             f"peak {b['peak_rss_mb']:.0f} MB"
         )
-    lines.append(f"RotorPy                                          {res['rotorpy']}")
+    rp = res["rotorpy"]
+    if isinstance(rp, dict):
+        lines.append(f"RotorPy single vehicle, hover, 100 Hz steps       {rp['real_time_factor']:10.2f} x real time")
+        lines.append("RotorPy batched                                  needs rotorpy[batched] (torch): not measured")
+    else:
+        lines.append(f"RotorPy                                          {rp}")
     return "\n".join(lines)
-
-
-def peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -42,7 +42,7 @@ class _Progress:
         self.last = pct
 
 
-def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):  # noqa: ANN202
+def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
     from .scenarios import apply_overrides, get, load_toml, set_value
 
     spec = load_toml(name) if name.endswith(".toml") else get(name)

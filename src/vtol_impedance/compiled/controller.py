@@ -83,7 +83,7 @@ def initial_state(cp: np.ndarray, n: int) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):  # noqa: ANN001, ANN201
+def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):
     """Eq. (16) solved in NED with the tilt and lift limits of :func:`vtol_impedance.control.thrust_and_attitude`."""
     vert = G - mu_bar[2]
     vert_c = max(vert, min_lift)
@@ -100,7 +100,7 @@ def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):  # noqa: ANN001, AN
 
 
 @njit(cache=True)
-def _wrap(a):  # noqa: ANN001, ANN202
+def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
@@ -108,19 +108,19 @@ def _wrap(a):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _Q9(f, t):  # noqa: ANN001, ANN202
+def _Q9(f, t):
     cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
     return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)
 
 
 @njit(cache=True, inline="always")
-def _Qd9(f, t, df, dt):  # noqa: ANN001, ANN202
+def _Qd9(f, t, df, dt):
     cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
     return (0.0, 0.0, -ct * dt, 0.0, -sf * df, cf * ct * df - sf * st * dt, 0.0, -cf * df, -sf * ct * df - cf * st * dt)
 
 
 @njit(cache=True, inline="always")
-def _mm9(A, B):  # noqa: ANN001, ANN202
+def _mm9(A, B):
     return (
         A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
         A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
@@ -135,12 +135,12 @@ def _mm9(A, B):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _t9(A):  # noqa: ANN001, ANN202
+def _t9(A):
     return (A[0], A[3], A[6], A[1], A[4], A[7], A[2], A[5], A[8])
 
 
 @njit(cache=True, inline="always")
-def _mv9(A, x0, x1, x2):  # noqa: ANN001, ANN202
+def _mv9(A, x0, x1, x2):
     return (
         A[0] * x0 + A[1] * x1 + A[2] * x2,
         A[3] * x0 + A[4] * x1 + A[5] * x2,
@@ -149,7 +149,7 @@ def _mv9(A, x0, x1, x2):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _solve9(A, b0, b1, b2):  # noqa: ANN001, ANN202
+def _solve9(A, b0, b1, b2):
     """``A^{-1} b`` for a 3x3 ``A`` (row-major 9-tuple) by the adjugate: no LAPACK call on the hot path."""
     c00 = A[4] * A[8] - A[5] * A[7]
     c01 = A[5] * A[6] - A[3] * A[8]
@@ -162,7 +162,7 @@ def _solve9(A, b0, b1, b2):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _QMC(e0, e1, d0, d1, d2, I):  # noqa: ANN001, ANN202, E741
+def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
     """``Q``, ``M = Q^T I Q``, ``C = Q^T S(I Q eta_dot)^T Q + Q^T I Q_dot`` as 9-tuples (eq. (3b), (7))."""
     Q = _Q9(e0, e1)
     Qt = _t9(Q)
@@ -187,7 +187,7 @@ def _QMC(e0, e1, d0, d1, d2, I):  # noqa: ANN001, ANN202, E741
 
 
 @njit(cache=True, inline="always")
-def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):  # noqa: ANN001, ANN202
+def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
     """Angular part of eq. (8): ``Q^T tau_B + C^T eta_dot``."""
     a = _mv9(_t9(Q), t0, t1, t2)
     b = _mv9(_t9(C), d0, d1, d2)
@@ -195,7 +195,7 @@ def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _beta_lin(e0, e1, e2, u, m):  # noqa: ANN001, ANN202
+def _beta_lin(e0, e1, e2, u, m):
     """Linear part of eq. (8): ``-u R(eta) e3 + m g``."""
     cf, sf = math.cos(e0), math.sin(e0)
     ct, st = math.cos(e1), math.sin(e1)
@@ -204,7 +204,7 @@ def _beta_lin(e0, e1, e2, u, m):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _yaw_lim(base, yaw, lo_lim, hi_lim, a_lo, a_hi, ok):  # noqa: ANN001, ANN202
+def _yaw_lim(base, yaw, lo_lim, hi_lim, a_lo, a_hi, ok):
     if yaw > 0:
         return max(a_lo, (lo_lim - base) / yaw), min(a_hi, (hi_lim - base) / yaw), ok
     if yaw < 0:
@@ -213,7 +213,7 @@ def _yaw_lim(base, yaw, lo_lim, hi_lim, a_lo, a_hi, ok):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _yaw_scale(b0, b1, b2, b3, y, lo_lim, hi_lim):  # noqa: ANN001, ANN202
+def _yaw_scale(b0, b1, b2, b3, y, lo_lim, hi_lim):
     a_lo, a_hi, ok = 0.0, 1.0, True
     a_lo, a_hi, ok = _yaw_lim(b0, y, lo_lim, hi_lim, a_lo, a_hi, ok)
     a_lo, a_hi, ok = _yaw_lim(b1, -y, lo_lim, hi_lim, a_lo, a_hi, ok)
@@ -223,7 +223,7 @@ def _yaw_scale(b0, b1, b2, b3, y, lo_lim, hi_lim):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always")
-def _allocate(u, t0, t1, t2, l, c, fmax, fmin):  # noqa: ANN001, ANN202, E741
+def _allocate(u, t0, t1, t2, l, c, fmax, fmin):  # noqa: E741
     """Prioritised inverse of eq. (4), as :func:`vtol_impedance.model.mixer.allocate`:
     returns the four rotor forces and whether anything was given up."""
     tol = 1e-12 * max(abs(fmax), 1.0)
@@ -257,7 +257,7 @@ def thrust_prev_index(n: int) -> int:
 
 
 @njit(cache=True)
-def controller_step(cp, sh, cs, y, r, o):  # noqa: ANN001, ANN201, C901, PLR0915
+def controller_step(cp, sh, cs, y, r, o):
     """One control period for one vehicle; updates ``cs`` in place and writes ``o``. Mirrors
     :func:`vtol_impedance.control.impedance.controller_step`, with no heap allocation."""
     Ts, fwn, fz = sh[0], sh[1], sh[2]
@@ -384,7 +384,7 @@ def controller_step(cp, sh, cs, y, r, o):  # noqa: ANN001, ANN201, C901, PLR0915
 
 
 @njit(cache=True)
-def checked_step(cp, sh, cs, y, r, o):  # noqa: ANN001, ANN201
+def checked_step(cp, sh, cs, y, r, o):
     """:func:`controller_step` after input checks; returns 0, or 1 for a non-finite input, 2 at the
     Euler singularity (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`)."""
     for i in range(12):

@@ -64,19 +64,19 @@ _FH, _THE, _THB = _OFF["f_hat_W"][0], _OFF["tau_hat_eta"][0], _OFF["tau_hat_B"][
 
 
 @njit(cache=True)
-def _ago(hist, count, head, k):  # noqa: ANN001, ANN202
+def _ago(hist, count, head, k):
     H = hist.shape[0]
     kk = min(k, count - 1)
     return hist[(head - kk) % H]
 
 
 @njit(cache=True, parallel=True)
-def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
+def run_block(
     k0,
     k1,
     Ts,
     dt,
-    n_sub,  # noqa: ANN001
+    n_sub,
     X,
     hist,
     hcount,
@@ -84,7 +84,7 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
     k_mocap,
     k_imu,
     sigma,
-    noise,  # noqa: ANN001
+    noise,
     CS,
     cp,
     sh,
@@ -92,15 +92,15 @@ def run_block(  # noqa: ANN201, C901, PLR0913, PLR0915
     codes,
     dparams,
     series,
-    refs,  # noqa: ANN001
+    refs,
     alive,
     fail_time,
     fail_code,
-    x_park,  # noqa: ANN001
+    x_park,
     logs,
     dec,
     acc,
-    win,  # noqa: ANN001
+    win,
     thrust_idx,
 ):
     """Advance every live vehicle from control tick ``k0`` to ``k1``.

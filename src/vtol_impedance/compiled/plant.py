@@ -71,7 +71,7 @@ def pack_disturbances(items: list[Disturbance]) -> tuple[np.ndarray, np.ndarray,
 
 
 @njit(cache=True, error_model="numpy")
-def quat_to_R(q, R):  # noqa: ANN001, ANN201
+def quat_to_R(q, R):
     w, x, y, z = q[0], q[1], q[2], q[3]
     R[0, 0] = 1 - 2 * (y * y + z * z)
     R[0, 1] = 2 * (x * y - w * z)
@@ -85,14 +85,14 @@ def quat_to_R(q, R):  # noqa: ANN001, ANN201
 
 
 @njit(cache=True, error_model="numpy")
-def euler_from_R(R, eta):  # noqa: ANN001, ANN201
+def euler_from_R(R, eta):
     eta[0] = math.atan2(R[2, 1], R[2, 2])
     eta[1] = -math.asin(min(max(R[2, 0], -1.0), 1.0))
     eta[2] = math.atan2(R[1, 0], R[0, 0])
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _R_of(s, i0):  # noqa: ANN001, ANN202
+def _R_of(s, i0):
     """Rotation of the quaternion ``s[i0:i0+4]`` as a 9-tuple (row major); no slicing, no allocation."""
     w, x, y, z = s[i0], s[i0 + 1], s[i0 + 2], s[i0 + 3]
     return (
@@ -109,7 +109,7 @@ def _R_of(s, i0):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _origin(pp, x, R):  # noqa: ANN001, ANN202
+def _origin(pp, x, R):
     """Body-origin position and velocity (6-tuple) as :func:`vtol_impedance.sim.plant.origin_kinematics`."""
     c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
     w0, w1, w2 = x[10], x[11], x[12]
@@ -125,7 +125,7 @@ def _origin(pp, x, R):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, error_model="numpy")
-def origin_kinematics(pp, x, R, p_o, v_o):  # noqa: ANN001, ANN201
+def origin_kinematics(pp, x, R, p_o, v_o):
     """Array form of :func:`_origin` for a 3x3 ``R``."""
     o = _origin(pp, x, (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2]))
     for i in range(3):
@@ -134,7 +134,7 @@ def origin_kinematics(pp, x, R, p_o, v_o):  # noqa: ANN001, ANN201
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _disturbance(t, p0, p1, p2, R, codes, dparams, series):  # noqa: ANN001, ANN202, C901
+def _disturbance(t, p0, p1, p2, R, codes, dparams, series):
     """Sum of the encoded disturbances (6-tuple), as :class:`vtol_impedance.sim.disturbances.DisturbanceSet`."""
     f0 = f1 = f2 = t0 = t1 = t2 = 0.0
     for d in range(codes.shape[0]):
@@ -189,7 +189,7 @@ def _disturbance(t, p0, p1, p2, R, codes, dparams, series):  # noqa: ANN001, ANN
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _environment(pp, t, x, R, codes, dparams, series):  # noqa: ANN001, ANN202
+def _environment(pp, t, x, R, codes, dparams, series):
     """Disturbances plus rotor drag plus ground (6-tuple), as :func:`vtol_impedance.sim.plant.environment_wrench`."""
     o = _origin(pp, x, R)
     if codes.shape[0] > 0:  # guarded here: the call alone costs more than the rest of the environment
@@ -210,7 +210,7 @@ def _environment(pp, t, x, R, codes, dparams, series):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True, error_model="numpy")
-def environment_wrench(pp, t, x, R, codes, dparams, series, f, tau):  # noqa: ANN001, ANN201
+def environment_wrench(pp, t, x, R, codes, dparams, series, f, tau):
     """Array form of :func:`_environment` for a 3x3 ``R``."""
     Rt = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2])
     e = _environment(pp, t, x, Rt, codes, dparams, series)
@@ -220,7 +220,7 @@ def environment_wrench(pp, t, x, R, codes, dparams, series, f, tau):  # noqa: AN
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN001, ANN201
+def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):
     """``x_dot`` of the true plant, as :func:`vtol_impedance.sim.plant.plant_derivative` (allocation free).
 
     Everything is read into locals before ``xd`` is written, so that the compiler need not reload
@@ -276,7 +276,7 @@ def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):  # noqa: ANN0
 
 
 @njit(cache=True, error_model="numpy")
-def rk4_step(pp, x, f_cmd, t, dt, codes, dparams, series, k1, k2, k3, k4, xt):  # noqa: ANN001, ANN201
+def rk4_step(pp, x, f_cmd, t, dt, codes, dparams, series, k1, k2, k3, k4, xt):
     """One RK4 step in place with the command held; ``k1..k4``, ``xt`` are 17-element work arrays."""
     plant_derivative(pp, x, f_cmd, t, codes, dparams, series, k1)
     for i in range(17):
@@ -296,7 +296,7 @@ def rk4_step(pp, x, f_cmd, t, dt, codes, dparams, series, k1, k2, k3, k4, xt):  
 
 
 @njit(cache=True, error_model="numpy")
-def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, cp, f, tau_eta):  # noqa: ANN001, ANN201
+def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, cp, f, tau_eta):
     """What the nominal model misses, as :func:`vtol_impedance.sim.loop._lumped_wrench`; the nominal
     inertia is read from the controller row ``cp``."""
     c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]

@@ -148,7 +148,7 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         ) or p.estimator.to_dict() != p0.estimator.to_dict():
             raise InputError("controllers in one batch must share Ts, the estimator and the attitude filter")
 
-    def col(fn) -> np.ndarray:  # noqa: ANN001
+    def col(fn) -> np.ndarray:
         arr = np.array([fn(p) for p in plist], dtype=float)
         return arr[0] if single else arr
 

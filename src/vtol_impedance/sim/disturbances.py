@@ -86,7 +86,7 @@ class ConstantWrench(Disturbance):
     def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
         return CODE[self.kind], _enc(*self.force_W, *self.torque_B, *self._timing()), None
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
+    def __call__(self, t, p_W, v_W, R_WB):
         k = self.profile(t)
         return _const(p_W, k * np.asarray(self.force_W), k * np.asarray(self.torque_B))
 
@@ -208,7 +208,7 @@ class BandLimitedNoise(Disturbance):
             raise RuntimeError("BandLimitedNoise used before prepare()")
         return CODE["noise"], _enc(self._dt), self._series
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
+    def __call__(self, t, p_W, v_W, R_WB):
         if self._series is None:
             raise RuntimeError("BandLimitedNoise used before prepare()")
         i = min(int(t / self._dt), len(self._series) - 1)
@@ -275,7 +275,7 @@ class FanJet(Disturbance):
             series[:, 0] = self._gust
         return CODE["fan"], params, series
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
+    def __call__(self, t, p_W, v_W, R_WB):
         if t < self.t_on:
             z = np.zeros(np.shape(p_W))
             return z, z
@@ -316,7 +316,7 @@ class Wind(Disturbance):
     def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
         return CODE["constant"], _enc(*(self.drag * np.asarray(self.velocity_W)), 0.0, 0.0, 0.0), None
 
-    def __call__(self, t, p_W, v_W, R_WB):  # noqa: ANN001, ANN204
+    def __call__(self, t, p_W, v_W, R_WB):
         return _const(p_W, self.drag * np.asarray(self.velocity_W), np.zeros(3))
 
 

@@ -284,7 +284,7 @@ def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) ->
     return out
 
 
-def _run_compiled(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
+def _run_compiled(s: _Setup, progress: ProgressFn | None):
     from ..compiled.controller import initial_state as ctrl_initial_state
     from ..compiled.controller import pack_controller, thrust_prev_index
     from ..compiled.engine import N_ACC, run_block
@@ -354,7 +354,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
     return logs, _metrics_from_acc(acc, failures), failures
 
 
-def _run_numpy(s: _Setup, progress: ProgressFn | None):  # noqa: ANN202
+def _run_numpy(s: _Setup, progress: ProgressFn | None):
     CA, PA, dist = s.CA, s.PA, s.dist
     B = s.x0.shape[0]
     sens = SensorSuite(s.sensors, PA, s.dt)

@@ -145,7 +145,7 @@ class Result:
         }
         arrays = {f"data__{k}": v for k, v in self.data.items()}
 
-        def writer(fh) -> None:  # noqa: ANN001
+        def writer(fh) -> None:
             np.savez_compressed(fh, t=self.t, header=np.array(json.dumps(header)), **arrays)
 
         return write_with(path, writer)
