@@ -19,5 +19,5 @@ def test_controller_in_your_loop_example():
 def test_ci_runs_the_readme_test_command():
     readme = (ROOT / "README.md").read_text()
     ci = (ROOT / ".ci" / "run").read_text()
-    cmd = 'python3 -m pip install ".[test]" && python3 -m pytest'
+    cmd = 'python3 -m venv .venv && .venv/bin/pip install ".[test]" && .venv/bin/python -m pytest'
     assert cmd in readme and cmd in ci

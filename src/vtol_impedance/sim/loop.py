@@ -367,7 +367,6 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
     fail_code = np.zeros(B, dtype=np.int64)
     fail_time = np.zeros(B)
     report_every = max(s.N // 100, 1)
-    noise = s.noise.block(0)
     for k in range(s.N):
         if k % BLOCK_TICKS == 0:
             noise = s.noise.block(min(BLOCK_TICKS, s.N - k))
