@@ -88,3 +88,12 @@ def test_run_arguments_are_checked():
         run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, 1.0, labels=["a", "b"])
     with pytest.raises(InputError, match="duration"):
         run_closed_loop(PlantParams(veh), [ControllerParams.paper()], traj, -1.0)
+
+
+def test_written_files_get_ordinary_permissions(tmp_path):
+    import os
+
+    p = write_text(tmp_path / "a.md", "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (p.stat().st_mode & 0o777) == (0o666 & ~mask)

@@ -63,7 +63,7 @@ class Allocation(NamedTuple):
 
 def _yaw_interval(base: np.ndarray, yaw: np.ndarray, fmin_r: np.ndarray, fmax_r: np.ndarray):
     """Interval of yaw scales ``a`` in [0, 1] with ``fmin <= base + a yaw <= fmax`` on every rotor."""
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # tiny yaw shares: +-inf is right
         up = np.where(yaw > 0, (fmax_r - base) / yaw, np.where(yaw < 0, (fmin_r - base) / yaw, np.inf))
         lo = np.where(yaw > 0, (fmin_r - base) / yaw, np.where(yaw < 0, (fmax_r - base) / yaw, -np.inf))
     # a rotor without yaw share must already be within limits
