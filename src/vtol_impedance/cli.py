@@ -54,6 +54,15 @@ def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
     return spec
 
 
+def _announce_compile(backend: str, quiet: bool) -> None:
+    if backend != "compiled" or quiet:
+        return
+    from .compiled import kernels_cached
+
+    if not kernels_cached():
+        print("compiling the simulation kernels (first run only, about 40 s; cached afterwards) ...", file=sys.stderr)
+
+
 def _run_case(spec: Any, variants: list[str], seed: int | None, quiet: bool, backend: str = "compiled") -> Any:
     from .scenarios import simulate
 
@@ -117,6 +126,7 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     spec = _load_spec(args.scenario, args.set, args.duration, args.ideal)
     out = Path(args.out)
     t0 = time.perf_counter()
+    _announce_compile(args.backend, args.quiet)
     result = _run_case(spec, variants, args.seed, args.quiet, args.backend)
     stem = spec.name
     figs = _write_case(result, out, stem, not args.no_plots)
@@ -141,6 +151,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if not args.quiet:
         print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
+    _announce_compile(args.backend, args.quiet)
     jobs = max(1, min(args.jobs, len(specs)))
     jobs_args = [(s, variants, args.seed, args.quiet, args.backend) for s in specs]
     if jobs > 1:
