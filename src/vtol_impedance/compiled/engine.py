@@ -38,7 +38,7 @@ from .plant import (
     PP_TUP,
     _origin,
     _R_of,
-    environment_wrench,
+    disturbance_at,
     euler_from_R,
     lumped_wrench,
     origin_kinematics,
@@ -124,8 +124,9 @@ def run_block(
         v_o = np.empty(3)
         eta = np.empty(3)
         xd = np.empty(17)
-        f_env = np.empty(3)
-        tau_env = np.empty(3)
+        env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
+        env_w = np.empty(6)  # scratch for the RK4 stages
+        dist = np.empty(6)  # explicit disturbances, held over each plant step
         f_l = np.empty(3)
         t_l = np.empty(3)
         tau_prev = np.empty(3)
@@ -163,10 +164,10 @@ def run_block(
                 fcmd[i] = o[O_F + i]
 
             # true and lumped wrenches at t_k
-            plant_derivative(pp_b, x, fcmd, t, codes, dparams, series, xd)
+            disturbance_at(pp_b, x, t, codes, dparams, series, dist)
+            plant_derivative(pp_b, x, fcmd, dist, xd, env)
             quat_to_R(x[6:10], R)
             euler_from_R(R, eta)
-            environment_wrench(pp_b, t, x, R, codes, dparams, series, f_env, tau_env)
             lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, cp_b[0], cp_b, f_l, t_l)
             origin_kinematics(pp_b, x, R, p_o, v_o)
 
@@ -207,9 +208,9 @@ def run_block(
                     row[_ETAD + i] = o[O_ETA_D + i]
                     row[_TAUREQ + i] = o[O_TAU_REQ + i]
                     row[_TAU + i] = o[O_TAU + i]
-                    row[_FEXT + i] = f_env[i]
-                    row[_TEXTB + i] = tau_env[i]
-                    row[_TEXTE + i] = Q2[i] * tau_env[0] + Q2[3 + i] * tau_env[1] + Q2[6 + i] * tau_env[2]
+                    row[_FEXT + i] = env[i]
+                    row[_TEXTB + i] = env[3 + i]
+                    row[_TEXTE + i] = Q2[i] * env[3] + Q2[3 + i] * env[4] + Q2[6 + i] * env[5]
                     row[_FL + i] = f_l[i]
                     row[_TL + i] = t_l[i]
                     row[_FH + i] = o[O_FHAT + i]
@@ -228,7 +229,8 @@ def run_block(
                 for i in range(4):
                     x[13 + i] = min(max(fcmd[i], pp[b, PP_FMIN]), pp[b, PP_FMAX])
             for j in range(n_sub):
-                rk4_step(pp_b, x, fcmd, t + j * dt, dt, codes, dparams, series, w1, w2, w3, w4, wt)
+                disturbance_at(pp_b, x, t + j * dt, codes, dparams, series, dist)
+                rk4_step(pp_b, x, fcmd, dist, dt, w1, w2, w3, w4, wt, env_w)
                 H = hist.shape[1]
                 hhead[b] = (hhead[b] + 1) % H
                 hist[b, hhead[b]] = x

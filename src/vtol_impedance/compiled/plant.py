@@ -133,9 +133,10 @@ def origin_kinematics(pp, x, R, p_o, v_o):
         v_o[i] = o[3 + i]
 
 
-@njit(cache=True, inline="always", error_model="numpy")
-def _disturbance(t, p0, p1, p2, R, codes, dparams, series):
-    """Sum of the encoded disturbances (6-tuple), as :class:`vtol_impedance.sim.disturbances.DisturbanceSet`."""
+@njit(cache=True, error_model="numpy")
+def add_disturbances(t, p0, p1, p2, R, codes, dparams, series, env):
+    """Write the sum of the encoded disturbances into ``env = [f_W, tau_B]``, as
+    :class:`vtol_impedance.sim.disturbances.DisturbanceSet`. ``R`` is the rotation as a row-major 9-tuple."""
     f0 = f1 = f2 = t0 = t1 = t2 = 0.0
     for d in range(codes.shape[0]):
         code = codes[d]
@@ -185,49 +186,44 @@ def _disturbance(t, p0, p1, p2, R, codes, dparams, series):
             t0 += P[10] * b2 - P[11] * b1
             t1 += P[11] * b0 - P[9] * b2
             t2 += P[9] * b1 - P[10] * b0
-    return f0, f1, f2, t0, t1, t2
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _environment(pp, t, x, R, codes, dparams, series):
-    """Disturbances plus rotor drag plus ground (6-tuple), as :func:`vtol_impedance.sim.plant.environment_wrench`."""
-    o = _origin(pp, x, R)
-    if codes.shape[0] > 0:  # guarded here: the call alone costs more than the rest of the environment
-        f0, f1, f2, t0, t1, t2 = _disturbance(t, o[0], o[1], o[2], R, codes, dparams, series)
-    else:
-        f0 = f1 = f2 = t0 = t1 = t2 = 0.0
-    kd = pp[PP_DRAG]
-    f0 = f0 - kd * o[3]
-    f1 = f1 - kd * o[4]
-    f2 = f2 - kd * o[5]
-    pen = o[2]
-    if pen > 0.0 and pp[PP_GROUND] > 0.0:
-        fz = -(pp[PP_KG] * pen + pp[PP_CG] * o[5])
-        f0 += -pp[PP_BG] * o[3]
-        f1 += -pp[PP_BG] * o[4]
-        f2 += min(fz, 0.0)
-    return f0, f1, f2, t0, t1, t2
-
-
-@njit(cache=True, error_model="numpy")
-def environment_wrench(pp, t, x, R, codes, dparams, series, f, tau):
-    """Array form of :func:`_environment` for a 3x3 ``R``."""
-    Rt = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2])
-    e = _environment(pp, t, x, Rt, codes, dparams, series)
-    for i in range(3):
-        f[i] = e[i]
-        tau[i] = e[3 + i]
+    env[0] = f0
+    env[1] = f1
+    env[2] = f2
+    env[3] = t0
+    env[4] = t1
+    env[5] = t2
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):
-    """``x_dot`` of the true plant, as :func:`vtol_impedance.sim.plant.plant_derivative` (allocation free).
+def plant_derivative(pp, x, f_cmd, dist, xd, env):
+    """``x_dot`` of the true plant into ``xd``, as :func:`vtol_impedance.sim.plant.plant_derivative`, and the
+    external wrench into ``env = [f_ext_W (at the body origin), tau_ext_B]``, as
+    :func:`vtol_impedance.sim.plant.environment_wrench` (disturbances, rotor drag, ground).
 
-    Everything is read into locals before ``xd`` is written, so that the compiler need not reload
-    through possibly aliasing arrays.
+    ``dist = [f_W, tau_B]`` are the explicit disturbances, evaluated by the caller (once per plant step,
+    :func:`disturbance_at`). Written out in one function on purpose: numba's inlining of small
+    tuple-returning helpers, or a disturbance call in here, cost three times the arithmetic. Allocation free.
     """
     R = _R_of(x, 6)
-    fe0, fe1, fe2, te0, te1, te2 = _environment(pp, t, x, R, codes, dparams, series)
+    # body-origin position (z only) and velocity, as sim.plant.origin_kinematics
+    c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
+    w0, w1, w2 = x[10], x[11], x[12]
+    a0, a1, a2 = w1 * c2 - w2 * c1, w2 * c0 - w0 * c2, w0 * c1 - w1 * c0
+    vo0 = x[3] - (R[0] * a0 + R[1] * a1 + R[2] * a2)
+    vo1 = x[4] - (R[3] * a0 + R[4] * a1 + R[5] * a2)
+    vo2 = x[5] - (R[6] * a0 + R[7] * a1 + R[8] * a2)
+    po2 = x[2] - (R[6] * c0 + R[7] * c1 + R[8] * c2)
+    fe0, fe1, fe2, te0, te1, te2 = dist[0], dist[1], dist[2], dist[3], dist[4], dist[5]
+    # locals only from here on: a store to an array would force reloads through possible aliases
+    kd = pp[PP_DRAG]
+    fe0 = fe0 - kd * vo0
+    fe1 = fe1 - kd * vo1
+    fe2 = fe2 - kd * vo2
+    if po2 > 0.0 and pp[PP_GROUND] > 0.0:  # the ground pushes, never pulls
+        fz = -(pp[PP_KG] * po2 + pp[PP_CG] * vo2)
+        fe0 += -pp[PP_BG] * vo0
+        fe1 += -pp[PP_BG] * vo1
+        fe2 += min(fz, 0.0)
     fr0, fr1, fr2, fr3 = x[13], x[14], x[15], x[16]
     l, cq, im = pp[PP_L], pp[PP_CD], pp[PP_INV_M]
     u = fr0 + fr1 + fr2 + fr3
@@ -240,8 +236,6 @@ def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):
     B0 = R[0] * F0 + R[3] * F1 + R[6] * F2
     B1 = R[1] * F0 + R[4] * F1 + R[7] * F2
     B2 = R[2] * F0 + R[5] * F1 + R[8] * F2
-    c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
-    w0, w1, w2 = x[10], x[11], x[12]
     i = PP_I
     h0 = pp[i] * w0 + pp[i + 1] * w1 + pp[i + 2] * w2
     h1 = pp[i + 3] * w0 + pp[i + 4] * w1 + pp[i + 5] * w2
@@ -273,21 +267,36 @@ def plant_derivative(pp, x, f_cmd, t, codes, dparams, series, xd):
     xd[14] = (g1 - fr1) * (kup if g1 > fr1 else kdn)
     xd[15] = (g2 - fr2) * (kup if g2 > fr2 else kdn)
     xd[16] = (g3 - fr3) * (kup if g3 > fr3 else kdn)
+    env[0], env[1], env[2], env[3], env[4], env[5] = fe0, fe1, fe2, te0, te1, te2
 
 
 @njit(cache=True, error_model="numpy")
-def rk4_step(pp, x, f_cmd, t, dt, codes, dparams, series, k1, k2, k3, k4, xt):
-    """One RK4 step in place with the command held; ``k1..k4``, ``xt`` are 17-element work arrays."""
-    plant_derivative(pp, x, f_cmd, t, codes, dparams, series, k1)
+def disturbance_at(pp, x, t, codes, dparams, series, dist):
+    """The explicit disturbances ``dist = [f_W, tau_B]`` at ``(t, x)``, as
+    :func:`vtol_impedance.sim.plant.disturbance_at`."""
+    if codes.shape[0] == 0:
+        for i in range(6):
+            dist[i] = 0.0
+        return
+    R = _R_of(x, 6)
+    o = _origin(pp, x, R)
+    add_disturbances(t, o[0], o[1], o[2], R, codes, dparams, series, dist)
+
+
+@njit(cache=True, error_model="numpy")
+def rk4_step(pp, x, f_cmd, dist, dt, k1, k2, k3, k4, xt, env):
+    """One RK4 step in place with the rotor command and the disturbances ``dist`` held over the step;
+    ``k1..k4``, ``xt`` (17) and ``env`` (6) are work arrays."""
+    plant_derivative(pp, x, f_cmd, dist, k1, env)
     for i in range(17):
         xt[i] = x[i] + 0.5 * dt * k1[i]
-    plant_derivative(pp, xt, f_cmd, t + 0.5 * dt, codes, dparams, series, k2)
+    plant_derivative(pp, xt, f_cmd, dist, k2, env)
     for i in range(17):
         xt[i] = x[i] + 0.5 * dt * k2[i]
-    plant_derivative(pp, xt, f_cmd, t + 0.5 * dt, codes, dparams, series, k3)
+    plant_derivative(pp, xt, f_cmd, dist, k3, env)
     for i in range(17):
         xt[i] = x[i] + dt * k3[i]
-    plant_derivative(pp, xt, f_cmd, t + dt, codes, dparams, series, k4)
+    plant_derivative(pp, xt, f_cmd, dist, k4, env)
     for i in range(17):
         x[i] = x[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     inq = 1.0 / math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
