@@ -160,7 +160,7 @@ def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -
     res["batched"] = []
     sizes = (1, 10) if quick else SIZES
     for n in sizes:
-        duration = 0.5 if quick else float(min(40.0, max(4.0, 40000.0 / n)))
+        duration = 0.5 if quick else 40.0
         log(f"batched N = {n} x {duration:g} s (metrics only) ...")
         res["batched"].append(_child(_BATCH.format(n=n, duration=duration)))
     log("RotorPy single-vehicle hover (if installed) ...")
