@@ -60,7 +60,10 @@ def _announce_compile(backend: str, quiet: bool) -> None:
     from .compiled import kernels_cached
 
     if not kernels_cached():
-        print("compiling the simulation kernels (first run only, about 40 s; cached afterwards) ...", file=sys.stderr)
+        print(
+            "compiling the simulation kernels (first run only, about half a minute; cached afterwards) ...",
+            file=sys.stderr,
+        )
 
 
 def _run_case(spec: Any, variants: list[str], seed: int | None, quiet: bool, backend: str = "compiled") -> Any:
