@@ -10,7 +10,6 @@ consume the same numbers.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -71,57 +70,44 @@ def _ago(hist, count, head, k):
     return hist[(head - kk) % H]
 
 
-class EngineSetup(NamedTuple):
-    """What stays fixed over a run: rates, sensor latencies and noise scales, packed parameters,
-    disturbances, the reference rows, the parking state, logging choices."""
-
-    Ts: float
-    dt: float
-    n_sub: int
-    k_mocap: int
-    k_imu: int
-    sigma: np.ndarray  # [pos, vel, att, gyro]
-    cp: np.ndarray  # (B, CP_SIZE)
-    sh: np.ndarray
-    pp: np.ndarray  # (B, PP_SIZE)
-    codes: np.ndarray
-    dparams: np.ndarray
-    series: np.ndarray
-    refs: np.ndarray  # (N, 12)
-    x_park: np.ndarray  # (B, 17)
-    dec: int  # log every dec-th tick; 0: metrics only
-    win: np.ndarray  # [t0, t1, tail_start]
-    thrust_idx: int  # where the held thrust sits in a controller state row
-
-
-class EngineState(NamedTuple):
-    """What a run changes, per vehicle, updated in place block after block."""
-
-    X: np.ndarray  # (B, 17) plant states
-    hist: np.ndarray  # (B, H, 17) recent states for the sensor latencies
-    hcount: np.ndarray
-    hhead: np.ndarray
-    CS: np.ndarray  # (B, state_size) controller states
-    alive: np.ndarray
-    fail_time: np.ndarray
-    fail_code: np.ndarray
-    logs: np.ndarray  # (B, n_log, ROW_WIDTH)
-    acc: np.ndarray  # (B, N_ACC) metric accumulators
-
-
 @njit(cache=True, parallel=True)
-def run_block(k0, k1, noise, P, S):
-    """Advance every live vehicle of state ``S`` from control tick ``k0`` to ``k1`` with setup ``P`` and
-    standard-normal sensor noise ``noise (B, k1 - k0, 12)``.
+def run_block(
+    k0,
+    k1,
+    Ts,
+    dt,
+    n_sub,
+    X,
+    hist,
+    hcount,
+    hhead,
+    k_mocap,
+    k_imu,
+    sigma,
+    noise,
+    CS,
+    cp,
+    sh,
+    pp,
+    codes,
+    dparams,
+    series,
+    refs,
+    alive,
+    fail_time,
+    fail_code,
+    x_park,
+    logs,
+    dec,
+    acc,
+    win,
+    thrust_idx,
+):
+    """Advance every live vehicle from control tick ``k0`` to ``k1``.
 
-    ``S.logs`` gets row ``k // dec`` when ``dec > 0`` and ``k % dec == 0``; ``S.acc`` collects the window
-    metrics (``win = [t0, t1, tail_start]``).
+    ``logs (B, n_log, W)`` gets row ``k // dec`` when ``dec > 0`` and ``k % dec == 0``; ``acc`` collects the
+    window metrics (``win = [t0, t1, tail_start]``).
     """
-    Ts, dt, n_sub, k_mocap, k_imu, sigma = P.Ts, P.dt, P.n_sub, P.k_mocap, P.k_imu, P.sigma
-    cp, sh, pp, codes, dparams, series, refs = P.cp, P.sh, P.pp, P.codes, P.dparams, P.series, P.refs
-    x_park, dec, win, thrust_idx = P.x_park, P.dec, P.win, P.thrust_idx
-    X, hist, hcount, hhead, CS = S.X, S.hist, S.hcount, S.hhead, S.CS
-    alive, fail_time, fail_code, logs, acc = S.alive, S.fail_time, S.fail_code, S.logs, S.acc
     B = X.shape[0]
     for b in prange(B):
         if not alive[b]:

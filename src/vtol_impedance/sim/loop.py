@@ -287,7 +287,7 @@ def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) ->
 def _run_compiled(s: _Setup, progress: ProgressFn | None):
     from ..compiled.controller import initial_state as ctrl_initial_state
     from ..compiled.controller import pack_controller, thrust_prev_index
-    from ..compiled.engine import N_ACC, EngineSetup, EngineState, run_block
+    from ..compiled.engine import N_ACC, run_block
     from ..compiled.plant import pack_disturbances, pack_plant
 
     B = s.x0.shape[0]
@@ -295,36 +295,63 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     if CA.batch_shape != (B,):
         raise InputError("the compiled backend needs one controller per vehicle")
     cp, sh = pack_controller(CA)
+    pp = pack_plant(s.PA)
+    codes, dparams, series = pack_disturbances(s.dist.items)
+    CS = ctrl_initial_state(cp, CA.est.Ad.shape[-1])
     suite = SensorSuite(s.sensors, s.PA, s.dt)
-    P = EngineSetup(
-        s.Ts, s.dt, s.n_sub, suite.k_mocap, suite.k_imu, suite.sigma, cp, sh, pack_plant(s.PA),
-        *pack_disturbances(s.dist.items), s.refs, s.x0, s.dec, np.array(s.window),
-        thrust_prev_index(CA.est.Ad.shape[-1]),
-    )  # fmt: skip
     H = max(suite.k_mocap, suite.k_imu) + 1
     hist = np.empty((B, H, 17))
     hist[:, 0] = s.x0
+    hcount = np.ones(B, dtype=np.int64)
+    hhead = np.zeros(B, dtype=np.int64)
+    X = s.x0.copy()
+    alive = np.ones(B, dtype=np.bool_)
+    fail_time = np.zeros(B)
+    fail_code = np.zeros(B, dtype=np.int64)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    S = EngineState(
-        X=s.x0.copy(),
-        hist=hist,
-        hcount=np.ones(B, dtype=np.int64),
-        hhead=np.zeros(B, dtype=np.int64),
-        CS=ctrl_initial_state(cp, CA.est.Ad.shape[-1]),
-        alive=np.ones(B, dtype=np.bool_),
-        fail_time=np.zeros(B),
-        fail_code=np.zeros(B, dtype=np.int64),
-        logs=np.full((B, n_log, ROW_WIDTH), np.nan),
-        acc=np.zeros((B, N_ACC)),
-    )
+    logs = np.full((B, n_log, ROW_WIDTH), np.nan)
+    acc = np.zeros((B, N_ACC))
+    win = np.array(s.window)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
     for k0 in range(0, s.N, block):
         k1 = min(k0 + block, s.N)
-        run_block(k0, k1, s.noise.block(k1 - k0), P, S)
+        noise = s.noise.block(k1 - k0)
+        run_block(
+            k0,
+            k1,
+            s.Ts,
+            s.dt,
+            s.n_sub,
+            X,
+            hist,
+            hcount,
+            hhead,
+            suite.k_mocap,
+            suite.k_imu,
+            suite.sigma,
+            noise,
+            CS,
+            cp,
+            sh,
+            pp,
+            codes,
+            dparams,
+            series,
+            s.refs,
+            alive,
+            fail_time,
+            fail_code,
+            s.x0,
+            logs,
+            s.dec,
+            acc,
+            win,
+            thrust_prev_index(CA.est.Ad.shape[-1]),
+        )
         if progress is not None:
             progress(k1 / s.N)
-    failures = _failures(S.fail_code, S.fail_time)
-    return S.logs, _metrics_from_acc(S.acc, failures), failures
+    failures = _failures(fail_code, fail_time)
+    return logs, _metrics_from_acc(acc, failures), failures
 
 
 def _run_numpy(s: _Setup, progress: ProgressFn | None):
