@@ -142,3 +142,15 @@ def test_spec_builders_are_shared_by_both_backends():
     spec = get("case-b-fan")
     b = build(spec)
     assert controller_params(spec, "pdc").variant == "pdc" and b.disturbances[0].kind == "fan"
+
+
+@pytest.mark.parametrize("backend", ["numpy", "compiled"])
+def test_a_crash_into_the_ground_is_flagged(backend):
+    veh = load_preset()
+    good = PlantParams(veh, ground=True)
+    weak = PlantParams(replace(veh, f_max=0.5), ground=True)  # cannot lift itself: falls from 2 m
+    traj = Trajectory((Hold((0, 0, -2.0), 2.0),))
+    r = run_closed_loop([good, weak], [ControllerParams.paper()] * 2, traj, 2.0, backend=backend, seed=2)
+    assert r.failures[0] is None
+    assert r.failures[1] is not None and "crashed into the ground" in r.failures[1]["reason"]
+    assert 0.5 < r.failures[1]["time"] < 0.9  # free fall from 2 m takes 0.64 s

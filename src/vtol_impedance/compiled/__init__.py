@@ -22,6 +22,7 @@ _SOURCES = (
     _HERE.parent / "conventions.py",
     _HERE.parent / "sim" / "result.py",
     _HERE.parent / "sim" / "disturbances.py",
+    _HERE.parent / "sim" / "loop.py",  # CRASH_DEPTH_M
 )
 
 

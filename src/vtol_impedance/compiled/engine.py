@@ -14,6 +14,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..sim.loop import CRASH_DEPTH_M
 from ..sim.result import SIGNAL_OFFSETS as _OFF
 from .controller import (
     _Q9,
@@ -34,6 +35,7 @@ from .controller import (
 from .plant import (
     PP_FMAX,
     PP_FMIN,
+    PP_GROUND,
     PP_TDN,
     PP_TUP,
     _origin,
@@ -48,7 +50,7 @@ from .plant import (
 )
 
 # failure codes (see REASONS)
-FAIL_NONE, FAIL_NAN, FAIL_TILT, FAIL_FAR = 0, 1, 2, 3
+FAIL_NONE, FAIL_NAN, FAIL_TILT, FAIL_FAR, FAIL_CRASH = 0, 1, 2, 3, 4
 # metric accumulators per vehicle
 A_N, A_E2, A_EMAX, A_EV2, A_F2, A_T2, A_SAT, A_NT, A_ET = 0, 1, 2, 3, 4, 5, 6, 7, 8
 N_ACC = 9
@@ -247,6 +249,8 @@ def run_block(
                     code = FAIL_TILT
                 elif math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) > 1e3:
                     code = FAIL_FAR
+                elif pp_b[PP_GROUND] > 0 and x[2] > CRASH_DEPTH_M:
+                    code = FAIL_CRASH
             if code != FAIL_NONE:
                 alive[b] = False
                 fail_code[b] = code
