@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ..sim.result import STEADY_TAIL_S, Result, metrics_row
+from ..sim.result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
 
 METRIC_COLUMNS: dict[str, str] = {
     "rms_ep_cm": "RMS ‖e_p‖ [cm]",
@@ -24,9 +24,7 @@ def window_mask(result: Result, window: tuple[float, float] | None = None) -> np
 
     A run cut shorter than the window's start (``--duration``) falls back to the whole run.
     """
-    w = window if window is not None else result.config.get("window", (result.t[0], result.t[-1]))
-    m = (result.t >= w[0]) & (result.t <= w[1])
-    return m if np.count_nonzero(m) > 1 else np.ones_like(result.t, dtype=bool)
+    return window_mask_of(result.t, window if window is not None else result.config.get("window"))
 
 
 def _rms(a: np.ndarray) -> float:

@@ -52,7 +52,16 @@ from .plant import (
     plant_derivative,
     rk4_step,
 )
-from .result import ROW_WIDTH, SIGNAL_OFFSETS, SIGNALS, STEADY_TAIL_S, Result, metrics_row, rows_to_data
+from .result import (
+    ROW_WIDTH,
+    SIGNAL_OFFSETS,
+    SIGNALS,
+    STEADY_TAIL_S,
+    Result,
+    metrics_row,
+    rows_to_data,
+    window_mask_of,
+)
 from .sensors import NoiseSource, SensorParams, SensorSuite
 
 #: A vehicle is stopped and flagged when its tilt exceeds this (the Euler parametrisation fails at 90 deg).
@@ -145,11 +154,9 @@ def _parse_log(log: str | int) -> int:
 
 
 def _window(window: tuple[float, float] | None, t_grid: np.ndarray) -> tuple[float, float, float]:
-    w0, w1 = (t_grid[0], t_grid[-1]) if window is None else window
-    inside = t_grid[(t_grid >= w0) & (t_grid <= w1)]
-    if inside.size < 2:  # as analysis.metrics.window_mask: fall back to the whole run
-        w0, w1, inside = t_grid[0], t_grid[-1], t_grid
-    return float(w0), float(w1), float(inside[-1] - STEADY_TAIL_S)
+    """``[t0, t1, tail_start]`` of the metrics window, by the rule of :func:`.result.window_mask_of`."""
+    inside = t_grid[window_mask_of(t_grid, window)]
+    return float(inside[0]), float(inside[-1]), float(inside[-1] - STEADY_TAIL_S)
 
 
 def run_closed_loop(
@@ -273,19 +280,22 @@ def _failures(fail_code: np.ndarray, fail_time: np.ndarray) -> list[dict[str, An
 
 def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) -> list[dict[str, Any]]:
     """Per-vehicle metrics from the compiled accumulators (same definitions as analysis.metrics)."""
+    from ..compiled.engine import A_E2, A_EMAX, A_ET, A_EV2, A_F2, A_N, A_NT, A_SAT, A_T2
+
     out = []
     for b in range(acc.shape[0]):
-        n, nt = acc[b, 0], acc[b, 7]
+        a = acc[b]
+        n, nt = a[A_N], a[A_NT]
         out.append(
             metrics_row(
                 "",
-                rms_ep=np.sqrt(acc[b, 1] / n) if n else np.nan,
-                max_ep=acc[b, 2] if n else np.nan,
-                ss_ep=acc[b, 8] / nt if nt else np.nan,
-                rms_ev=np.sqrt(acc[b, 3] / n) if n else np.nan,
-                rms_f=np.sqrt(acc[b, 4] / n) if n else np.nan,
-                rms_tau=np.sqrt(acc[b, 5] / n) if n else np.nan,
-                sat=acc[b, 6] / n if n else np.nan,
+                rms_ep=np.sqrt(a[A_E2] / n) if n else np.nan,
+                max_ep=a[A_EMAX] if n else np.nan,
+                ss_ep=a[A_ET] / nt if nt else np.nan,
+                rms_ev=np.sqrt(a[A_EV2] / n) if n else np.nan,
+                rms_f=np.sqrt(a[A_F2] / n) if n else np.nan,
+                rms_tau=np.sqrt(a[A_T2] / n) if n else np.nan,
+                sat=a[A_SAT] / n if n else np.nan,
                 failure=failures[b],
             )
         )

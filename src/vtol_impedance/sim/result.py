@@ -49,6 +49,15 @@ SIGNALS: dict[str, tuple[tuple[int, ...], str, str]] = {
 }
 
 
+def window_mask_of(t: np.ndarray, window: tuple[float, float] | None) -> np.ndarray:
+    """Samples of ``t`` inside ``window`` (default: all); a window holding fewer than two samples, as in a
+    run cut shorter than the window's start, falls back to the whole run."""
+    if window is None:
+        return np.ones_like(t, dtype=bool)
+    m = (t >= window[0]) & (t <= window[1])
+    return m if np.count_nonzero(m) > 1 else np.ones_like(t, dtype=bool)
+
+
 def metrics_row(
     controller: str,
     rms_ep: float,
