@@ -31,7 +31,14 @@ def as_finite(name: str, value: Any, shape_tail: tuple[int, ...] | None = None) 
 
     ``shape_tail`` is the required trailing shape (leading batch dimensions are free).
     """
-    arr = np.asarray(value, dtype=float)
+    if isinstance(value, str | bytes | dict) or value is None:
+        raise InputError(f"{name} must be numeric, got {value!r}")
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be numeric, got {_short(value)} ({exc})") from None
+    if arr.dtype == object:
+        raise InputError(f"{name} must be numeric, got {_short(value)}")
     if shape_tail is not None:
         n = len(shape_tail)
         if arr.ndim < n or tuple(arr.shape[arr.ndim - n :]) != tuple(shape_tail):
@@ -50,3 +57,45 @@ def positive(name: str, value: Any, allow_zero: bool = False) -> np.ndarray:
         bound = ">= 0" if allow_zero else "> 0"
         raise InputError(f"{name} must be {bound}, got {arr.tolist()}")
     return arr
+
+
+def check_keys(where: str, data: dict[str, Any], valid: tuple[str, ...] | list[str]) -> None:
+    """Raise :class:`InputError` naming any key of ``data`` not in ``valid``."""
+    unknown = sorted(set(data) - set(valid))
+    if unknown:
+        raise InputError(f"{where}: unknown key(s) {unknown}; valid keys: {', '.join(valid)}")
+
+
+def _short(value: Any, n: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def scalar(
+    name: str,
+    value: Any,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    integer: bool = False,
+) -> float:
+    """``value`` as one finite float (or int) within ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``).
+
+    Refuses booleans, strings, arrays of more than one value and NaN/inf with an :class:`InputError`
+    that names the value and the allowed range.
+    """
+    if isinstance(value, bool | np.bool_) or isinstance(value, str | bytes) or value is None:
+        raise InputError(f"{name} must be a number, got {value!r}")
+    arr = as_finite(name, value)
+    if arr.size != 1:
+        raise InputError(f"{name} must be a single number, got shape {arr.shape}")
+    v = float(arr.reshape(()))
+    if integer:
+        if not v.is_integer():
+            raise InputError(f"{name} must be a whole number, got {value!r}")
+    bad = (lo is not None and (v < lo or (lo_open and v == lo))) or (hi is not None and v > hi)
+    if bad:
+        left = "(" if lo_open else "["
+        rng = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
+        raise InputError(f"{name} must be in {rng}, got {value!r}")
+    return int(v) if integer else v

@@ -15,7 +15,7 @@ METRIC_COLUMNS: dict[str, str] = {
     "rms_ev_cms": "RMS ‖ė_p‖ [cm/s]",
     "rms_f_err_N": "RMS ‖f_hat − f‖ [N]",
     "rms_tau_err_mNm": "RMS ‖tau_hat − tau‖ [mN m]",
-    "sat_pct": "saturated [%]",
+    "sat_pct": "limited [%]",
 }
 
 
@@ -50,7 +50,13 @@ def compute_metrics(result: Result, window: tuple[float, float] | None = None) -
     ev = np.linalg.norm(result.e_v[:, m], axis=-1)
     f_err = np.linalg.norm(result["f_hat_W"][:, m] - result["f_lumped_W"][:, m], axis=-1)
     tau_err = np.linalg.norm(result["tau_hat_eta"][:, m] - result["tau_lumped_eta"][:, m], axis=-1)
-    sat = result["saturated"][:, m]
+    # any limit: the rotor allocation or the tilt/lift bound of eq. (16)
+    limited = (
+        result["saturated"]
+        if "tilt_limited" not in result.data
+        else np.fmax(result["saturated"], result["tilt_limited"])
+    )
+    sat = limited[:, m]
     rows = []
     for b, label in enumerate(result.labels):
         alive = np.isfinite(ep[b])

@@ -23,17 +23,30 @@ from numba import njit
 
 from ..control.impedance import ControllerArrays
 from ..conventions import SINGULARITY_COS_EPS, G
+from ..model.vehicle import MAX_ROTORS
 
-# controller parameter row
-CP_MASS, CP_I, CP_L, CP_C, CP_FMAX, CP_FMIN = 0, 1, 10, 11, 12, 13
-CP_KP, CP_DP, CP_KI, CP_KO, CP_DO = 14, 17, 20, 23, 26
-CP_COMP, CP_TILT, CP_LIFT, CP_ILIM = 29, 30, 31, 32
-CP_SIZE = 33
+# controller parameter row: fixed part, then per rotor i: E_pinv row i (4) at CP_ROT + 4 i, then
+# E (4 x n, row-major) at CP_ROT + 4 n, f_min (n) at CP_ROT + 8 n, f_max (n) at CP_ROT + 9 n
+CP_MASS, CP_I = 0, 1
+CP_KP, CP_DP, CP_KI, CP_KO, CP_DO = 10, 13, 16, 19, 22
+CP_COMP, CP_TILT, CP_LIFT, CP_ILIM, CP_SHIFT, CP_NR, CP_ROT = 25, 26, 27, 28, 29, 30, 31
 
-# output row
-O_THRUST, O_TAU, O_F, O_SAT, O_THRUST_REQ, O_TAU_REQ = 0, 1, 4, 8, 9, 10
-O_FHAT, O_TAUHAT_ETA, O_TAUHAT_B, O_ETA_D, O_ETA_D_DOT, O_MU_BAR, O_TILT = 13, 16, 19, 22, 25, 28, 31
-OUT_SIZE = 32
+# output row; the n rotor forces come last
+O_THRUST, O_TAU, O_SAT, O_THRUST_REQ, O_TAU_REQ = 0, 1, 4, 5, 6
+O_FHAT, O_TAUHAT_ETA, O_TAUHAT_B, O_ETA_D, O_ETA_D_DOT, O_MU_BAR = 9, 12, 15, 18, 21, 24
+O_TILT, O_RP, O_YAW, O_F = 27, 28, 29, 30
+#: Output row length large enough for any vehicle (scratch buffers).
+OUT_SIZE = O_F + MAX_ROTORS
+
+
+def cp_size(n_rotors: int) -> int:
+    """Controller parameter row length for ``n_rotors`` rotors."""
+    return CP_ROT + 10 * n_rotors
+
+
+def out_size(n_rotors: int) -> int:
+    """Output row length for ``n_rotors`` rotors."""
+    return O_F + n_rotors
 
 
 def state_size(n: int) -> int:
@@ -44,13 +57,10 @@ def state_size(n: int) -> int:
 def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
     """``(cp (B, CP_SIZE), sh)`` from compiled NumPy controller arrays with batch shape ``(B,)``."""
     B = P.mass.shape[0]
-    cp = np.empty((B, CP_SIZE))
+    nr = P.E.shape[-1]
+    cp = np.empty((B, cp_size(nr)))
     cp[:, CP_MASS] = P.mass
     cp[:, CP_I : CP_I + 9] = P.I_B.reshape(B, 9)
-    cp[:, CP_L] = P.arm_length
-    cp[:, CP_C] = P.drag_factor
-    cp[:, CP_FMAX] = P.f_max
-    cp[:, CP_FMIN] = P.f_min
     cp[:, CP_KP : CP_KP + 3] = P.Kp
     cp[:, CP_DP : CP_DP + 3] = P.Dp
     cp[:, CP_KI : CP_KI + 3] = P.Ki
@@ -60,6 +70,13 @@ def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
     cp[:, CP_TILT] = P.tilt_max
     cp[:, CP_LIFT] = P.min_lift_accel
     cp[:, CP_ILIM] = P.integral_limit
+    cp[:, CP_SHIFT] = P.thrust_shift_max
+    cp[:, CP_NR] = nr
+    r0 = CP_ROT
+    cp[:, r0 : r0 + 4 * nr] = P.E_pinv.reshape(B, 4 * nr)
+    cp[:, r0 + 4 * nr : r0 + 8 * nr] = P.E.reshape(B, 4 * nr)
+    cp[:, r0 + 8 * nr : r0 + 9 * nr] = P.f_min.reshape(B, nr)
+    cp[:, r0 + 9 * nr : r0 + 10 * nr] = P.f_max.reshape(B, nr)
     n = P.est.Ad.shape[-1]
     sh = np.concatenate(
         [
@@ -203,52 +220,101 @@ def _beta_lin(e0, e1, e2, u, m):
     return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G
 
 
-@njit(cache=True, inline="always")
-def _yaw_lim(base, yaw, lo_lim, hi_lim, a_lo, a_hi, ok):
-    if yaw > 0:
-        return max(a_lo, (lo_lim - base) / yaw), min(a_hi, (hi_lim - base) / yaw), ok
-    if yaw < 0:
-        return max(a_lo, (hi_lim - base) / yaw), min(a_hi, (lo_lim - base) / yaw), ok
-    return a_lo, a_hi, ok and lo_lim <= base <= hi_lim
+@njit(cache=True)
+def _allocate(cp, u, t0, t1, t2, o):
+    """Prioritised inverse of eq. (4) for any rotor layout, as :func:`vtol_impedance.model.mixer.allocate`.
+
+    Writes the rotor forces to ``o[O_F:]``; returns ``(saturated, rp_scale, yaw_scale)``. Allocation free:
+    per-rotor quantities are recomputed from the parameter row ``cp`` where needed.
+    """
+    n = int(cp[CP_NR])
+    r0 = CP_ROT
+    iFmin = r0 + 8 * n
+    iFmax = r0 + 9 * n
+    # 0. full roll/pitch at the requested thrust, with the largest yaw scale that fits, if any does
+    a_lo, a_hi, flat_bad = 0.0, 1.0, False
+    for i in range(n):
+        tol = 1e-12 * max(abs(cp[iFmax + i]), 1.0)
+        lo_i, hi_i = cp[iFmin + i] - tol, cp[iFmax + i] + tol
+        base = cp[r0 + 4 * i] * u + cp[r0 + 4 * i + 1] * t0 + cp[r0 + 4 * i + 2] * t1
+        y = cp[r0 + 4 * i + 3] * t2
+        o[O_F + i] = base
+        if y > 0:
+            a_hi = min(a_hi, (hi_i - base) / y)
+            a_lo = max(a_lo, (lo_i - base) / y)
+        elif y < 0:
+            a_hi = min(a_hi, (lo_i - base) / y)
+            a_lo = max(a_lo, (hi_i - base) / y)
+        elif base < lo_i or base > hi_i:
+            flat_bad = True
+    if not flat_bad and a_lo <= a_hi and a_hi >= 0.0:
+        ys = min(max(a_hi, 0.0), 1.0)
+        for i in range(n):
+            f = o[O_F + i] + ys * cp[r0 + 4 * i + 3] * t2
+            o[O_F + i] = min(max(f, cp[iFmin + i]), cp[iFmax + i])
+        return ys < 1.0 - 1e-9, 1.0, ys
+    # 1. feasible collective with equal shares
+    u_lo, u_hi = -math.inf, math.inf
+    for i in range(n):
+        pu = cp[r0 + 4 * i]
+        u_lo = max(u_lo, cp[iFmin + i] / pu)
+        u_hi = min(u_hi, cp[iFmax + i] / pu)
+    u_c = min(max(u, u_lo), u_hi)
+    dmax = cp[CP_SHIFT] * u_c
+    # 2. roll/pitch: rotor i needs a_i - k b_i <= delta <= c_i - k b_i, |delta| <= dmax
+    k = 1.0
+    for i in range(n):
+        pu_i = cp[r0 + 4 * i]
+        a_i = cp[iFmin + i] / pu_i - u_c
+        c_i = cp[iFmax + i] / pu_i - u_c
+        b_i = (cp[r0 + 4 * i + 1] * t0 + cp[r0 + 4 * i + 2] * t1) / pu_i
+        if b_i < 0:
+            k = min(k, (dmax - a_i) / -b_i)
+        elif b_i > 0:
+            k = min(k, (c_i + dmax) / b_i)
+        for j in range(n):
+            pu_j = cp[r0 + 4 * j]
+            b_j = (cp[r0 + 4 * j + 1] * t0 + cp[r0 + 4 * j + 2] * t1) / pu_j
+            if b_j - b_i > 0:
+                c_j = cp[iFmax + j] / pu_j - u_c
+                k = min(k, (c_j - a_i) / (b_j - b_i))
+    k = max(k, 0.0)
+    d_lo, d_hi = -dmax, dmax
+    for i in range(n):
+        pu_i = cp[r0 + 4 * i]
+        b_i = (cp[r0 + 4 * i + 1] * t0 + cp[r0 + 4 * i + 2] * t1) / pu_i
+        d_lo = max(d_lo, cp[iFmin + i] / pu_i - u_c - k * b_i)
+        d_hi = min(d_hi, cp[iFmax + i] / pu_i - u_c - k * b_i)
+    delta = min(max(0.0, d_lo), max(d_lo, d_hi))
+    # 3. yaw with what is left
+    ys = 1.0
+    for i in range(n):
+        base = cp[r0 + 4 * i] * (u_c + delta) + k * (cp[r0 + 4 * i + 1] * t0 + cp[r0 + 4 * i + 2] * t1)
+        o[O_F + i] = base
+        y = cp[r0 + 4 * i + 3] * t2
+        tol = 1e-12 * max(abs(cp[iFmax + i]), 1.0)
+        if y > 0:
+            ys = min(ys, (cp[iFmax + i] + tol - base) / y)
+        elif y < 0:
+            ys = min(ys, (cp[iFmin + i] - tol - base) / y)
+    ys = min(max(ys, 0.0), 1.0)
+    for i in range(n):
+        f = o[O_F + i] + ys * cp[r0 + 4 * i + 3] * t2
+        o[O_F + i] = min(max(f, cp[iFmin + i]), cp[iFmax + i])
+    shift = u_c + delta - u
+    sat = k < 1.0 - 1e-9 or ys < 1.0 - 1e-9 or abs(shift) > 1e-9 * max(abs(u), 1.0)
+    return sat, k, ys
 
 
 @njit(cache=True, inline="always")
-def _yaw_scale(b0, b1, b2, b3, y, lo_lim, hi_lim):
-    a_lo, a_hi, ok = 0.0, 1.0, True
-    a_lo, a_hi, ok = _yaw_lim(b0, y, lo_lim, hi_lim, a_lo, a_hi, ok)
-    a_lo, a_hi, ok = _yaw_lim(b1, -y, lo_lim, hi_lim, a_lo, a_hi, ok)
-    a_lo, a_hi, ok = _yaw_lim(b2, y, lo_lim, hi_lim, a_lo, a_hi, ok)
-    a_lo, a_hi, ok = _yaw_lim(b3, -y, lo_lim, hi_lim, a_lo, a_hi, ok)
-    return a_hi, ok and a_lo <= a_hi
-
-
-@njit(cache=True, inline="always")
-def _allocate(u, t0, t1, t2, l, c, fmax, fmin):  # noqa: E741
-    """Prioritised inverse of eq. (4), as :func:`vtol_impedance.model.mixer.allocate`:
-    returns the four rotor forces and whether anything was given up."""
-    tol = 1e-12 * max(abs(fmax), 1.0)
-    hi_lim, lo_lim = fmax + tol, fmin - tol
-    a = t0 / (2.0 * l)
-    bb = t1 / (2.0 * l)
-    r0, r1, r2, r3 = -bb, a, bb, -a
-    rmax, rmin = max(max(r0, r1), max(r2, r3)), min(min(r0, r1), min(r2, r3))
-    spread = rmax - rmin
-    span = fmax - fmin
-    rp_scale = span / max(spread, 1e-300) if spread > span else 1.0
-    r0, r1, r2, r3 = r0 * rp_scale, r1 * rp_scale, r2 * rp_scale, r3 * rp_scale
-    rmax, rmin = rmax * rp_scale, rmin * rp_scale
-    ys = t2 / (4.0 * c)
-    coll = u / 4.0
-    scale, ok_keep = _yaw_scale(coll + r0, coll + r1, coll + r2, coll + r3, ys, lo_lim, hi_lim)
-    if not ok_keep:
-        coll = min(max(u / 4.0, fmin - rmin), fmax - rmax)
-        scale, _ = _yaw_scale(coll + r0, coll + r1, coll + r2, coll + r3, ys, lo_lim, hi_lim)
-    scale = min(max(scale, 0.0), 1.0)
-    f0 = min(max(coll + r0 + scale * ys, fmin), fmax)
-    f1 = min(max(coll + r1 - scale * ys, fmin), fmax)
-    f2 = min(max(coll + r2 + scale * ys, fmin), fmax)
-    f3 = min(max(coll + r3 - scale * ys, fmin), fmax)
-    return f0, f1, f2, f3, rp_scale < 1.0 or (not ok_keep) or scale < 1.0 - 1e-9
+def _mix_row(cp, o, row):
+    """Row ``row`` of ``E f`` for the rotor forces in ``o[O_F:]``."""
+    n = int(cp[CP_NR])
+    e0 = CP_ROT + 4 * n + row * n
+    acc = 0.0
+    for i in range(n):
+        acc += cp[e0 + i] * o[O_F + i]
+    return acc
 
 
 def thrust_prev_index(n: int) -> int:
@@ -353,10 +419,9 @@ def controller_step(cp, sh, cs, y, r, o):
     tr0, tr1, tr2 = iq[0] + g0, iq[1] + g1, iq[2] + g2
     hb0, hb1, hb2 = _solve9(QT, th0, th1, th2)
 
-    l, c = cp[CP_L], cp[CP_C]
-    f0, f1, f2, f3, sat = _allocate(thrust_req, tr0, tr1, tr2, l, c, cp[CP_FMAX], cp[CP_FMIN])
-    u_out = f0 + f1 + f2 + f3
-    to0, to1, to2 = l * (f1 - f3), l * (f2 - f0), c * (f0 - f1 + f2 - f3)
+    sat, rp_scale, yaw_scale = _allocate(cp, thrust_req, tr0, tr1, tr2, o)
+    u_out = _mix_row(cp, o, 0)
+    to0, to1, to2 = _mix_row(cp, o, 1), _mix_row(cp, o, 2), _mix_row(cp, o, 3)
 
     # PID anti-windup
     freeze = sat or tilt_lim
@@ -370,7 +435,6 @@ def controller_step(cp, sh, cs, y, r, o):
 
     o[O_THRUST] = u_out
     o[O_TAU], o[O_TAU + 1], o[O_TAU + 2] = to0, to1, to2
-    o[O_F], o[O_F + 1], o[O_F + 2], o[O_F + 3] = f0, f1, f2, f3
     o[O_SAT] = 1.0 if sat else 0.0
     o[O_THRUST_REQ] = thrust_req
     o[O_TAU_REQ], o[O_TAU_REQ + 1], o[O_TAU_REQ + 2] = tr0, tr1, tr2
@@ -381,6 +445,8 @@ def controller_step(cp, sh, cs, y, r, o):
     o[O_ETA_D_DOT], o[O_ETA_D_DOT + 1], o[O_ETA_D_DOT + 2] = edd0, edd1, r[10]
     o[O_MU_BAR], o[O_MU_BAR + 1], o[O_MU_BAR + 2] = mb0, mb1, mb2
     o[O_TILT] = 1.0 if tilt_lim else 0.0
+    o[O_RP] = rp_scale
+    o[O_YAW] = yaw_scale
 
 
 @njit(cache=True)

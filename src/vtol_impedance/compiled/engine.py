@@ -15,12 +15,14 @@ import numpy as np
 from numba import njit, prange
 
 from ..sim.loop import CRASH_DEPTH_M
+from ..sim.result import ROW_BASE
 from ..sim.result import SIGNAL_OFFSETS as _OFF
 from .controller import (
     _Q9,
     O_ETA_D,
     O_F,
     O_FHAT,
+    O_RP,
     O_SAT,
     O_TAU,
     O_TAU_REQ,
@@ -28,20 +30,23 @@ from .controller import (
     O_TAUHAT_ETA,
     O_THRUST,
     O_THRUST_REQ,
+    O_TILT,
+    O_YAW,
     OUT_SIZE,
     _solve9,
     controller_step,
 )
 from .plant import (
-    PP_FMAX,
-    PP_FMIN,
     PP_GROUND,
+    PP_NR,
+    PP_ROT,
     PP_TDN,
     PP_TUP,
     _origin,
     _R_of,
     disturbance_at,
     euler_from_R,
+    lowest_contact_depth,
     lumped_wrench,
     origin_kinematics,
     plant_derivative,
@@ -59,7 +64,7 @@ _P, _V, _ETA, _OM = _OFF["p_W"][0], _OFF["v_W"][0], _OFF["eta"][0], _OFF["omega_
 _PR, _VR, _PSIR = _OFF["p_ref_W"][0], _OFF["v_ref_W"][0], _OFF["psi_ref"][0]
 _PM, _VM, _ETAM, _ETAD = _OFF["p_meas_W"][0], _OFF["v_meas_W"][0], _OFF["eta_meas"][0], _OFF["eta_d"][0]
 _TREQ, _TAUREQ, _THR, _TAU = _OFF["thrust_request"][0], _OFF["tau_B_request"][0], _OFF["thrust"][0], _OFF["tau_B"][0]
-_FCMD, _FROT, _SAT = _OFF["f_rotor_cmd"][0], _OFF["f_rotor"][0], _OFF["saturated"][0]
+_SAT, _TILT, _RPS, _YAWS = _OFF["saturated"][0], _OFF["tilt_limited"][0], _OFF["rp_scale"][0], _OFF["yaw_scale"][0]
 _FEXT, _TEXTB, _TEXTE = _OFF["f_ext_W"][0], _OFF["tau_ext_B"][0], _OFF["tau_ext_eta"][0]
 _FL, _TL = _OFF["f_lumped_W"][0], _OFF["tau_lumped_eta"][0]
 _FH, _THE, _THB = _OFF["f_hat_W"][0], _OFF["tau_hat_eta"][0], _OFF["tau_hat_B"][0]
@@ -125,15 +130,17 @@ def run_block(
         p_o = np.empty(3)
         v_o = np.empty(3)
         eta = np.empty(3)
-        xd = np.empty(17)
+        ns = x.shape[0]
+        nr = int(pp_b[PP_NR])
+        xd = np.empty(ns)
         env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
         env_w = np.empty(6)  # scratch for the RK4 stages
         dist = np.empty(6)  # explicit disturbances, held over each plant step
         f_l = np.empty(3)
         t_l = np.empty(3)
         tau_prev = np.empty(3)
-        fcmd = np.empty(4)
-        w1, w2, w3, w4, wt = np.empty(17), np.empty(17), np.empty(17), np.empty(17), np.empty(17)
+        fcmd = np.empty(nr)
+        w1, w2, w3, w4, wt = np.empty(ns), np.empty(ns), np.empty(ns), np.empty(ns), np.empty(ns)
         i_thr = thrust_idx
         lagless = pp_b[PP_TUP] <= 0 or pp_b[PP_TDN] <= 0
         for k in range(k0, k1):
@@ -162,7 +169,7 @@ def run_block(
                 tau_prev[i] = CS[b, i_thr + 1 + i]
             r = refs[k]
             controller_step(cp_b, sh, cs_b, y, r, o)
-            for i in range(4):
+            for i in range(nr):
                 fcmd[i] = o[O_F + i]
 
             # true and lumped wrenches at t_k
@@ -189,7 +196,7 @@ def run_block(
                 acc[b, A_EV2] += ev2
                 acc[b, A_F2] += fe2
                 acc[b, A_T2] += te2
-                acc[b, A_SAT] += o[O_SAT]
+                acc[b, A_SAT] += max(o[O_SAT], o[O_TILT])
                 if t >= win[2]:
                     acc[b, A_NT] += 1.0
                     acc[b, A_ET] += math.sqrt(e2)
@@ -222,14 +229,17 @@ def run_block(
                 row[_TREQ] = o[O_THRUST_REQ]
                 row[_THR] = o[O_THRUST]
                 row[_SAT] = o[O_SAT]
-                for i in range(4):
-                    row[_FCMD + i] = fcmd[i]
-                    row[_FROT + i] = x[13 + i]
+                row[_TILT] = o[O_TILT]
+                row[_RPS] = o[O_RP]
+                row[_YAWS] = o[O_YAW]
+                for i in range(nr):
+                    row[ROW_BASE + i] = fcmd[i]
+                    row[ROW_BASE + nr + i] = x[13 + i]
 
             # hold the command over the period
             if lagless:
-                for i in range(4):
-                    x[13 + i] = min(max(fcmd[i], pp[b, PP_FMIN]), pp[b, PP_FMAX])
+                for i in range(nr):
+                    x[13 + i] = min(max(fcmd[i], pp_b[PP_ROT + 4 * nr + i]), pp_b[PP_ROT + 5 * nr + i])
             for j in range(n_sub):
                 disturbance_at(pp_b, x, t + j * dt, codes, dparams, series, dist)
                 rk4_step(pp_b, x, fcmd, dist, dt, w1, w2, w3, w4, wt, env_w)
@@ -240,7 +250,7 @@ def run_block(
 
             # divergence check, as sim.loop._check_vehicles
             code = FAIL_NONE
-            for i in range(17):
+            for i in range(ns):
                 if not math.isfinite(x[i]):
                     code = FAIL_NAN
             if code == FAIL_NONE:
@@ -249,7 +259,7 @@ def run_block(
                     code = FAIL_TILT
                 elif math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) > 1e3:
                     code = FAIL_FAR
-                elif pp_b[PP_GROUND] > 0 and x[2] > CRASH_DEPTH_M:
+                elif pp_b[PP_GROUND] > 0 and lowest_contact_depth(pp_b, x) > CRASH_DEPTH_M:
                     code = FAIL_CRASH
             if code != FAIL_NONE:
                 alive[b] = False

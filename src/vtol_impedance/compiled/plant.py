@@ -2,7 +2,9 @@
 
 Same equations as :mod:`vtol_impedance.sim.plant` and :mod:`vtol_impedance.sim.disturbances` (the
 NumPy reference backend and test oracle); ``tests/test_compiled.py`` proves they agree.
-State layout as in :mod:`vtol_impedance.sim.plant`: ``[p_com_W, v_com_W, q_WB, omega_B, f_rotor]`` (17).
+State layout as in :mod:`vtol_impedance.sim.plant`: ``[p_com_W, v_com_W, q_WB, omega_B, f_rotor (n)]``
+(``13 + n``). Rotor forces act through the true effectiveness matrix ``E`` here, while the NumPy plant sums
+the rotors' cross products: the parity tests tie the two.
 """
 
 from __future__ import annotations
@@ -17,25 +19,32 @@ from ..sim.disturbances import ENC_PARAMS, Disturbance
 from ..sim.plant import PlantArrays
 from .controller import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
 
-PP_MASS, PP_I, PP_IINV, PP_C, PP_L, PP_CD, PP_FMAX, PP_FMIN = 0, 1, 10, 19, 22, 23, 24, 25
-PP_TUP, PP_TDN, PP_DRAG, PP_GROUND, PP_KG, PP_CG, PP_BG = 26, 27, 28, 29, 30, 31, 32
-PP_INV_M, PP_INV_TUP, PP_INV_TDN = 33, 34, 35  # reciprocals: multiplications on the hot path
-PP_SIZE = 36
+# plant parameter row: fixed part, then E (4 x n, row-major) at PP_ROT, f_min (n), f_max (n)
+PP_MASS, PP_I, PP_IINV, PP_C, PP_CONTACT = 0, 1, 10, 19, 22
+PP_TUP, PP_TDN, PP_DRAG, PP_GROUND, PP_KG, PP_CG, PP_BG = 25, 26, 27, 28, 29, 30, 31
+PP_INV_M, PP_INV_TUP, PP_INV_TDN = 32, 33, 34  # reciprocals: multiplications on the hot path
+PP_NR, PP_ROT = 35, 36
+
+
+def pp_size(n_rotors: int) -> int:
+    return PP_ROT + 6 * n_rotors
 
 
 def pack_plant(P: PlantArrays) -> np.ndarray:
-    """Plant parameter rows ``(B, PP_SIZE)`` from plant arrays with batch shape ``(B,)``."""
+    """Plant parameter rows ``(B, pp_size(n))`` from plant arrays with batch shape ``(B,)``."""
     B = P.mass.shape[0]
-    pp = np.empty((B, PP_SIZE))
+    nr = P.spins.shape[-1]
+    pp = np.empty((B, pp_size(nr)))
     pp[:, PP_MASS] = P.mass
     pp[:, PP_I : PP_I + 9] = P.I_com.reshape(B, 9)
     pp[:, PP_IINV : PP_IINV + 9] = P.I_com_inv.reshape(B, 9)
     pp[:, PP_C : PP_C + 3] = P.c_B
+    pp[:, PP_CONTACT : PP_CONTACT + 3] = P.r_contact_B
+    pp[:, PP_NR] = nr
+    pp[:, PP_ROT : PP_ROT + 4 * nr] = P.E.reshape(B, 4 * nr)
+    pp[:, PP_ROT + 4 * nr : PP_ROT + 5 * nr] = P.f_min.reshape(B, nr)
+    pp[:, PP_ROT + 5 * nr : PP_ROT + 6 * nr] = P.f_max.reshape(B, nr)
     for idx, arr in (
-        (PP_L, P.arm_length),
-        (PP_CD, P.drag_factor),
-        (PP_FMAX, P.f_max),
-        (PP_FMIN, P.f_min),
         (PP_TUP, P.tau_up),
         (PP_TDN, P.tau_down),
         (PP_DRAG, P.rotor_drag),
@@ -195,10 +204,18 @@ def add_disturbances(t, p0, p1, p2, R, codes, dparams, series, env):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _ground(pp, pz, v0, v1, v2):
+    """Ground force at a contact point at depth ``pz`` moving with ``v``, as ``sim.plant._ground_force``."""
+    if pz > 0.0 and pp[PP_GROUND] > 0.0:  # the ground pushes, never pulls
+        return -pp[PP_BG] * v0, -pp[PP_BG] * v1, min(-(pp[PP_KG] * pz + pp[PP_CG] * v2), 0.0)
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def plant_derivative(pp, x, f_cmd, dist, xd, env):
     """``x_dot`` of the true plant into ``xd``, as :func:`vtol_impedance.sim.plant.plant_derivative`, and the
     external wrench into ``env = [f_ext_W (at the body origin), tau_ext_B]``, as
-    :func:`vtol_impedance.sim.plant.environment_wrench` (disturbances, rotor drag, ground).
+    :func:`vtol_impedance.sim.plant.environment_wrench` (disturbances, rotor drag, ground at two points).
 
     ``dist = [f_W, tau_B]`` are the explicit disturbances, evaluated by the caller (once per plant step,
     :func:`disturbance_at`). Written out in one function on purpose: numba's inlining of small
@@ -219,17 +236,42 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     fe0 = fe0 - kd * vo0
     fe1 = fe1 - kd * vo1
     fe2 = fe2 - kd * vo2
-    if po2 > 0.0 and pp[PP_GROUND] > 0.0:  # the ground pushes, never pulls
-        fz = -(pp[PP_KG] * po2 + pp[PP_CG] * vo2)
-        fe0 += -pp[PP_BG] * vo0
-        fe1 += -pp[PP_BG] * vo1
-        fe2 += min(fz, 0.0)
-    fr0, fr1, fr2, fr3 = x[13], x[14], x[15], x[16]
-    l, cq, im = pp[PP_L], pp[PP_CD], pp[PP_INV_M]
-    u = fr0 + fr1 + fr2 + fr3
-    tm0 = l * (fr1 - fr3)
-    tm1 = l * (fr2 - fr0)
-    tm2 = cq * (fr0 - fr1 + fr2 - fr3)
+    g0, g1, g2 = _ground(pp, po2, vo0, vo1, vo2)
+    fe0 += g0
+    fe1 += g1
+    fe2 += g2
+    # second contact point (the payload) r_p: from the CoM d = r_p - c
+    r0, r1, r2 = pp[PP_CONTACT], pp[PP_CONTACT + 1], pp[PP_CONTACT + 2]
+    d0, d1, d2 = r0 - c0, r1 - c1, r2 - c2
+    pc2 = x[2] + R[6] * d0 + R[7] * d1 + R[8] * d2
+    if pc2 > 0.0 and pp[PP_GROUND] > 0.0:
+        e0, e1, e2 = w1 * d2 - w2 * d1, w2 * d0 - w0 * d2, w0 * d1 - w1 * d0
+        vc0 = x[3] + R[0] * e0 + R[1] * e1 + R[2] * e2
+        vc1 = x[4] + R[3] * e0 + R[4] * e1 + R[5] * e2
+        vc2 = x[5] + R[6] * e0 + R[7] * e1 + R[8] * e2
+        h0, h1, h2 = _ground(pp, pc2, vc0, vc1, vc2)
+        fe0 += h0
+        fe1 += h1
+        fe2 += h2
+        b0 = R[0] * h0 + R[3] * h1 + R[6] * h2
+        b1 = R[1] * h0 + R[4] * h1 + R[7] * h2
+        b2 = R[2] * h0 + R[5] * h1 + R[8] * h2
+        te0 += r1 * b2 - r2 * b1
+        te1 += r2 * b0 - r0 * b2
+        te2 += r0 * b1 - r1 * b0
+    n = int(pp[PP_NR])
+    e = PP_ROT
+    u = 0.0
+    tm0 = 0.0
+    tm1 = 0.0
+    tm2 = 0.0
+    for i in range(n):
+        fr = x[13 + i]
+        u += pp[e + i] * fr
+        tm0 += pp[e + n + i] * fr
+        tm1 += pp[e + 2 * n + i] * fr
+        tm2 += pp[e + 3 * n + i] * fr
+    im = pp[PP_INV_M]
     F0 = -u * R[2] + fe0
     F1 = -u * R[5] + fe1
     F2 = -u * R[8] + fe2
@@ -249,11 +291,7 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     wd2 = pp[j + 6] * s0 + pp[j + 7] * s1 + pp[j + 8] * s2
     qw, qx, qy, qz = x[6], x[7], x[8], x[9]
     v0, v1, v2 = x[3], x[4], x[5]
-    fmin, fmax, kup, kdn = pp[PP_FMIN], pp[PP_FMAX], pp[PP_INV_TUP], pp[PP_INV_TDN]
-    g0 = min(max(f_cmd[0], fmin), fmax)
-    g1 = min(max(f_cmd[1], fmin), fmax)
-    g2 = min(max(f_cmd[2], fmin), fmax)
-    g3 = min(max(f_cmd[3], fmin), fmax)
+    kup, kdn = pp[PP_INV_TUP], pp[PP_INV_TDN]
     xd[0], xd[1], xd[2] = v0, v1, v2
     xd[3] = F0 * im
     xd[4] = F1 * im
@@ -263,11 +301,22 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     xd[8] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
     xd[9] = 0.5 * (qw * w2 + qx * w1 - qy * w0)
     xd[10], xd[11], xd[12] = wd0, wd1, wd2
-    xd[13] = (g0 - fr0) * (kup if g0 > fr0 else kdn)
-    xd[14] = (g1 - fr1) * (kup if g1 > fr1 else kdn)
-    xd[15] = (g2 - fr2) * (kup if g2 > fr2 else kdn)
-    xd[16] = (g3 - fr3) * (kup if g3 > fr3 else kdn)
+    lo = e + 4 * n
+    for i in range(n):
+        g = min(max(f_cmd[i], pp[lo + i]), pp[lo + n + i])
+        fr = x[13 + i]
+        xd[13 + i] = (g - fr) * (kup if g > fr else kdn)
     env[0], env[1], env[2], env[3], env[4], env[5] = fe0, fe1, fe2, te0, te1, te2
+
+
+@njit(cache=True, error_model="numpy")
+def lowest_contact_depth(pp, x):
+    """Depth below ground of the lower contact point, as :func:`vtol_impedance.sim.plant.lowest_contact_depth`."""
+    R = _R_of(x, 6)
+    c0, c1, c2 = pp[PP_C], pp[PP_C + 1], pp[PP_C + 2]
+    z_o = x[2] - (R[6] * c0 + R[7] * c1 + R[8] * c2)
+    d0, d1, d2 = pp[PP_CONTACT] - c0, pp[PP_CONTACT + 1] - c1, pp[PP_CONTACT + 2] - c2
+    return max(z_o, x[2] + R[6] * d0 + R[7] * d1 + R[8] * d2)
 
 
 @njit(cache=True, error_model="numpy")
@@ -286,18 +335,19 @@ def disturbance_at(pp, x, t, codes, dparams, series, dist):
 @njit(cache=True, error_model="numpy")
 def rk4_step(pp, x, f_cmd, dist, dt, k1, k2, k3, k4, xt, env):
     """One RK4 step in place with the rotor command and the disturbances ``dist`` held over the step;
-    ``k1..k4``, ``xt`` (17) and ``env`` (6) are work arrays."""
+    ``k1..k4``, ``xt`` (as long as ``x``) and ``env`` (6) are work arrays."""
+    ns = x.shape[0]
     plant_derivative(pp, x, f_cmd, dist, k1, env)
-    for i in range(17):
+    for i in range(ns):
         xt[i] = x[i] + 0.5 * dt * k1[i]
     plant_derivative(pp, xt, f_cmd, dist, k2, env)
-    for i in range(17):
+    for i in range(ns):
         xt[i] = x[i] + 0.5 * dt * k2[i]
     plant_derivative(pp, xt, f_cmd, dist, k3, env)
-    for i in range(17):
+    for i in range(ns):
         xt[i] = x[i] + dt * k3[i]
     plant_derivative(pp, xt, f_cmd, dist, k4, env)
-    for i in range(17):
+    for i in range(ns):
         x[i] = x[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     inq = 1.0 / math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
     for i in range(6, 10):

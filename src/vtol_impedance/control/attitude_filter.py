@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from ..errors import positive
+from ..errors import scalar
 
 
 class FilterDesign(NamedTuple):
@@ -29,8 +29,8 @@ class FilterState(NamedTuple):
 
 
 def design_filter(wn: float, zeta: float, Ts: float) -> FilterDesign:
-    wn = float(positive("attitude filter wn", wn))
-    zeta = float(positive("attitude filter zeta", zeta))
+    wn = scalar("attitude filter wn", wn, lo=0.0, lo_open=True)
+    zeta = scalar("attitude filter zeta", zeta, lo=0.0, lo_open=True)
     A = np.array([[0.0, 1.0], [-wn * wn, -2.0 * zeta * wn]])
     aug = np.zeros((3, 3))
     aug[:2, :2] = A * Ts

@@ -6,16 +6,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, as_finite, positive, scalar
 
 
 def _vec3(name: str, value: float | np.ndarray, allow_zero: bool = False) -> np.ndarray:
-    arr = positive(name, value, allow_zero=allow_zero)
+    arr = as_finite(name, value)
+    if arr.shape == (3, 3):  # a diagonal gain matrix, as eq. (18) writes it
+        if np.any(arr - np.diag(np.diag(arr))):
+            raise InputError(f"{name} must be diagonal (one gain per axis), got off-diagonal entries in {arr.tolist()}")
+        arr = np.diag(arr)
     if arr.shape not in ((), (1,), (3,)):
-        raise InputError(f"{name} must be a scalar or 3 values (one per axis), got shape {arr.shape}")
+        raise InputError(f"{name} must be a scalar, 3 values or a diagonal 3x3 matrix, got shape {arr.shape}")
+    arr = positive(name, arr, allow_zero=allow_zero)
     arr = np.broadcast_to(arr, (3,)).astype(float)
     arr.setflags(write=False)
     return arr
+
+
+#: Nominal mass of the paper's Pelican, kg (Sec. VI.A), the mass its printed gains were tuned for.
+PAPER_MASS = 1.2
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +62,7 @@ class ImpedanceGains:
         Position: ``Kp = m wn^2``, ``Dp = 2 zeta wn m``; attitude about hover, where ``M(0) = I_B``:
         ``Ko = wn^2 diag(I_B)``, ``Do = 2 zeta wn diag(I_B)``.
         """
-        mass = float(positive("mass", mass))
+        mass = scalar("mass", mass, lo=0.0, lo_open=True)
         I = as_finite("inertia", inertia)
         Idiag = np.diag(I) if I.ndim == 2 else np.broadcast_to(I, (3,))
         for name, v in (("wn_p", wn_p), ("zeta_p", zeta_p), ("wn_o", wn_o), ("zeta_o", zeta_o)):
@@ -67,15 +76,34 @@ class ImpedanceGains:
         )
 
     @classmethod
-    def paper(cls, inertia: np.ndarray, Ki: float | np.ndarray = 0.0) -> ImpedanceGains:
+    def from_position(
+        cls,
+        Kp: float | np.ndarray,
+        Dp: float | np.ndarray,
+        inertia: np.ndarray,
+        wn_o: float = 8.0,
+        zeta_o: float = 1.0,
+        Ki: float | np.ndarray = 0.0,
+    ) -> ImpedanceGains:
+        """Position gains as given (N/m, N s/m) and attitude gains from the attitude loop's natural
+        frequency ``wn_o`` (rad/s) and damping ``zeta_o`` on the nominal ``inertia`` (paper: 8, 1)."""
+        att = cls.from_natural(1.0, inertia, 1.0, 1.0, wn_o, zeta_o)
+        return cls(Kp=Kp, Dp=Dp, Ko=att.Ko, Do=att.Do, Ki=Ki)
+
+    @classmethod
+    def paper(cls, inertia: np.ndarray, Ki: float | np.ndarray = 0.0, mass: float | None = None) -> ImpedanceGains:
         """The printed gains of Sec. VI.A: ``Kp = 16 I``, ``Dp = 12 I``; attitude wn = 8 rad/s, zeta = 1.
+
+        With ``mass`` (kg) the position gains are scaled by ``mass / 1.2`` so that ``Kp/m``, ``Dp/m`` and
+        ``Ki/m`` (the closed-loop poles of (19a)) stay the paper's on another vehicle; ``Ki`` is given
+        for the paper's 1.2 kg.
 
         Note: ``Kp = 16``, ``Dp = 12`` do not follow from the stated wn = 4 rad/s, zeta = 1 with
         m = 1.2 kg (that would be Kp = 19.2, Dp = 9.6); they are what the paper printed and what the
         case studies use. The attitude gains follow :meth:`from_natural` with wn = 8, zeta = 1.
         """
-        att = cls.from_natural(1.0, inertia, 1.0, 1.0, 8.0, 1.0)
-        return cls(Kp=16.0, Dp=12.0, Ko=att.Ko, Do=att.Do, Ki=Ki)
+        k = 1.0 if mass is None else scalar("mass", mass, lo=0.0, lo_open=True) / PAPER_MASS
+        return cls.from_position(16.0 * k, 12.0 * k, inertia, 8.0, 1.0, Ki=np.asarray(Ki, dtype=float) * k)
 
     def natural(self, mass: float) -> dict[str, np.ndarray]:
         """Natural frequency and damping of the position loop ``m e'' + Dp e' + Kp e = 0``."""

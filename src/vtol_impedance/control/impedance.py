@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..conventions import G
-from ..errors import InputError, SingularityError, as_finite, positive
+from ..errors import InputError, SingularityError, as_finite, scalar
 from ..estimator.momentum import (
     EstimatorDesign,
     EstimatorParams,
@@ -39,12 +39,16 @@ from ..estimator.momentum import (
 from ..estimator.momentum import initial_state as estimator_initial_state
 from ..model.dynamics import coriolis_matrix_C, inertia_matrix_M, matvec, transpose
 from ..model.kinematics import check_euler_regular, euler_rate_matrix_Q, wrap_angle
-from ..model.mixer import allocate
+from ..model.mixer import THRUST_SHIFT_MAX, allocate
 from ..model.vehicle import VehicleParams, load_preset
 from .attitude_filter import FilterDesign, FilterState, design_filter, filter_step
 from .gains import ImpedanceGains
 from .signals import ControlOutput, Measurement, Reference
 from .thrust import thrust_and_attitude
+
+#: Default bandwidth of the second-order filter on the desired roll and pitch, rad/s (see README,
+#: "Python API": chosen by the measurement reported there).
+ATTITUDE_FILTER_WN = 20.0
 
 VARIANTS: dict[str, str] = {
     "pd": "PD (no compensation)",
@@ -66,27 +70,45 @@ class ControllerParams:
     Ts: float = 0.01
     tilt_max: float = float(np.radians(35.0))
     min_lift_accel: float = 0.2 * G
-    attitude_filter_wn: float = 20.0
+    attitude_filter_wn: float = ATTITUDE_FILTER_WN
     attitude_filter_zeta: float = 1.0
     integral_limit: float = 3.0
+    thrust_shift_max: float = THRUST_SHIFT_MAX
 
     def __post_init__(self) -> None:
-        if self.variant not in VARIANTS:
+        if not isinstance(self.variant, str) or self.variant not in VARIANTS:
             raise InputError(f"unknown controller variant {self.variant!r}; choose one of {sorted(VARIANTS)}")
-        positive("Ts", self.Ts)
-        positive("integral_limit", self.integral_limit)
-        positive("min_lift_accel", self.min_lift_accel)
+        for name, want in (("vehicle", VehicleParams), ("gains", ImpedanceGains), ("estimator", EstimatorParams)):
+            if not isinstance(getattr(self, name), want):
+                raise InputError(f"{name} must be a {want.__name__}, got {type(getattr(self, name)).__name__}")
+        for name in ("Ts", "integral_limit", "min_lift_accel", "attitude_filter_wn", "attitude_filter_zeta"):
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, lo_open=True))
+        if self.Ts > 1.0:
+            raise InputError(f"Ts = {self.Ts} s is not a control period a multirotor can fly with (at most 1 s)")
+        object.__setattr__(self, "thrust_shift_max", scalar("thrust_shift_max", self.thrust_shift_max, lo=0.0, hi=1.0))
+        object.__setattr__(self, "tilt_max", scalar("tilt_max", self.tilt_max))
         if not 0.0 < self.tilt_max < np.pi / 2:
             raise InputError(f"tilt_max must be in (0, pi/2) rad, got {self.tilt_max}")
+        if self.attitude_filter_wn * self.Ts >= np.pi:
+            raise InputError(
+                f"attitude_filter_wn * Ts = {self.attitude_filter_wn * self.Ts:.2f} >= pi: the attitude filter "
+                f"({self.attitude_filter_wn} rad/s) is too fast for the control period {self.Ts} s"
+            )
         if self.variant == "pid" and not np.any(self.gains.Ki > 0):
             raise InputError("variant 'pid' needs Ki > 0 on at least one axis (the paper uses Ki = 0.5)")
 
     @classmethod
     def paper(cls, variant: str = "pdc", vehicle: VehicleParams | None = None, **kw: object) -> ControllerParams:
-        """The paper's controller (Sec. VI.A-B) for the nominal Pelican or the given nominal vehicle."""
+        """The paper's controller (Sec. VI.A-B) for the nominal Pelican or the given nominal vehicle.
+
+        For another vehicle the position gains keep the paper's ``Kp/m``, ``Dp/m`` and ``Ki/m`` (the same
+        closed-loop poles) and the attitude gains its wn = 8 rad/s, zeta = 1 on that vehicle's inertia
+        (:meth:`ImpedanceGains.paper`).
+        """
         vehicle = vehicle or load_preset("pelican")
         Ki = PAPER_KI if variant == "pid" else 0.0
-        return cls(vehicle=vehicle, gains=ImpedanceGains.paper(vehicle.inertia, Ki=Ki), variant=variant, **kw)
+        gains = ImpedanceGains.paper(vehicle.inertia, Ki=Ki, mass=vehicle.mass)
+        return cls(vehicle=vehicle, gains=gains, variant=variant, **kw)
 
     def to_dict(self) -> dict:
         return {
@@ -100,6 +122,7 @@ class ControllerParams:
             "attitude_filter_wn": self.attitude_filter_wn,
             "attitude_filter_zeta": self.attitude_filter_zeta,
             "integral_limit": self.integral_limit,
+            "thrust_shift_max": self.thrust_shift_max,
         }
 
 
@@ -108,10 +131,10 @@ class ControllerArrays(NamedTuple):
 
     mass: np.ndarray
     I_B: np.ndarray
-    arm_length: np.ndarray
-    drag_factor: np.ndarray
-    f_max: np.ndarray
-    f_min: np.ndarray
+    E: np.ndarray  # (..., 4, n) effectiveness of the nominal rotors
+    E_pinv: np.ndarray  # (..., n, 4)
+    f_max: np.ndarray  # (..., n)
+    f_min: np.ndarray  # (..., n)
     Kp: np.ndarray
     Dp: np.ndarray
     Ki: np.ndarray
@@ -121,6 +144,7 @@ class ControllerArrays(NamedTuple):
     tilt_max: np.ndarray
     min_lift_accel: np.ndarray
     integral_limit: np.ndarray
+    thrust_shift_max: np.ndarray
     est: EstimatorDesign
     filt: FilterDesign
     Ts: float
@@ -147,6 +171,11 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
             p0.attitude_filter_zeta,
         ) or p.estimator.to_dict() != p0.estimator.to_dict():
             raise InputError("controllers in one batch must share Ts, the estimator and the attitude filter")
+        if p.vehicle.n_rotors != p0.vehicle.n_rotors:
+            raise InputError(
+                f"controllers in one batch must have the same number of rotors, got {p0.vehicle.n_rotors} and "
+                f"{p.vehicle.n_rotors}"
+            )
 
     def col(fn) -> np.ndarray:
         arr = np.array([fn(p) for p in plist], dtype=float)
@@ -155,10 +184,10 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
     return ControllerArrays(
         mass=col(lambda p: p.vehicle.mass),
         I_B=col(lambda p: p.vehicle.inertia),
-        arm_length=col(lambda p: p.vehicle.arm_length),
-        drag_factor=col(lambda p: p.vehicle.drag_factor),
-        f_max=col(lambda p: p.vehicle.f_max),
-        f_min=col(lambda p: p.vehicle.f_min),
+        E=col(lambda p: p.vehicle.geometry.E),
+        E_pinv=col(lambda p: p.vehicle.geometry.E_pinv),
+        f_max=col(lambda p: p.vehicle.geometry.f_max),
+        f_min=col(lambda p: p.vehicle.geometry.f_min),
         Kp=col(lambda p: p.gains.Kp),
         Dp=col(lambda p: p.gains.Dp),
         Ki=col(lambda p: p.gains.Ki if p.variant == "pid" else np.zeros(3)),
@@ -168,6 +197,7 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         tilt_max=col(lambda p: p.tilt_max),
         min_lift_accel=col(lambda p: p.min_lift_accel),
         integral_limit=col(lambda p: p.integral_limit),
+        thrust_shift_max=col(lambda p: p.thrust_shift_max),
         est=design(p0.estimator, p0.Ts),
         filt=design_filter(p0.attitude_filter_wn, p0.attitude_filter_zeta, p0.Ts),
         Ts=float(p0.Ts),
@@ -235,7 +265,7 @@ def controller_step(
     )
     tau_hat_B = np.linalg.solve(QT, tau_hat_eta[..., None])[..., 0]
 
-    alloc = allocate(thrust_req, tau_B_req, P.arm_length, P.drag_factor, P.f_max, P.f_min)
+    alloc = allocate(thrust_req, tau_B_req, P.E, P.E_pinv, P.f_min, P.f_max, P.thrust_shift_max)
 
     # PID anti-windup: freeze while saturated or tilt-limited, and bound |Ki int e_p| per axis.
     freeze = (alloc.saturated | tilt_limited)[..., None]
@@ -258,28 +288,56 @@ def controller_step(
         eta_d_dot=eta_d_dot,
         mu_bar=mu_bar,
         tilt_limited=tilt_limited,
+        rp_scale=alloc.rp_scale,
+        yaw_scale=alloc.yaw_scale,
     )
     return state, out
+
+
+class ControllerWarning(UserWarning):
+    """Something the controller did that a user should know of (once per cause and :class:`Controller`)."""
+
+
+def _vec_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
+    arr = as_finite(name, value, (3,))
+    if arr.shape[:-1] != bs:
+        raise InputError(f"{name} has shape {arr.shape}; this controller expects {bs + (3,)}")
+    return arr
+
+
+def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
+    arr = as_finite(name, value)
+    if arr.shape not in ((), bs):
+        raise InputError(f"{name} has shape {arr.shape}; this controller expects () or {bs}")
+    return arr
 
 
 class Controller:
     """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
     >>> ctrl = Controller(ControllerParams.paper("pdc"))
-    >>> out = ctrl.step(Measurement(p, v, eta, eta_dot), Reference(p_d, v_d, a_d, psi_d, 0.0, 0.0))
+    >>> out = ctrl.step(Measurement(p_W, v_W, eta, omega_B=gyro), Reference(np.array([0, 0, -1.0])))
 
-    :meth:`step` validates its inputs (finite, trailing shape 3, away from the Euler singularity) and
-    returns a :class:`ControlOutput`. :meth:`step_arrays` is the low-overhead path for real-time loops:
-    flat ``y = [p_W, v_W, eta, eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` in,
-    a flat output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
+    :meth:`step` validates its inputs (numeric, finite, shape ``(3,)`` or the batch's ``(B, 3)``, away from
+    the Euler singularity) and returns a :class:`ControlOutput` (plain floats and ``(3,)`` arrays for one
+    vehicle). :meth:`step_arrays` is the low-overhead path for real-time loops: flat ``y = [p_W, v_W, eta,
+    eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` (float64, shape ``(12,)``) in, a flat
+    output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
+
+    The controller keeps what it learnt in flight (the wrench estimate, the attitude filter, the PID
+    integral, the last command); :meth:`reset` forgets it. Call it before every new flight.
 
     ``backend="compiled"`` (default) runs the numba kernels, ``"numpy"`` the reference functions of this
-    module; both compute the same numbers.
+    module; both compute the same numbers. A :class:`ControllerWarning` is issued once per cause
+    (rotor saturation, tilt limit) per controller and :meth:`reset`.
     """
 
     def __init__(self, params: ControllerParams | Sequence[ControllerParams], backend: str = "compiled") -> None:
         if backend not in ("compiled", "numpy"):
             raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
+        single = isinstance(params, ControllerParams)
+        if not single and not all(isinstance(p, ControllerParams) for p in params):  # type: ignore[union-attr]
+            raise InputError("Controller takes a ControllerParams or a sequence of them")
         self.params = params
         self.backend = backend
         self.arrays = compile_controllers(params)
@@ -290,22 +348,40 @@ class Controller:
             self._k = kernels
             self._cp, self._sh = kernels.pack_controller(batch)
             self._n = batch.est.Ad.shape[-1]
-            self._out = np.zeros((self._cp.shape[0], kernels.OUT_SIZE))
+            self._nr = batch.E.shape[-1]
+            self._out = np.zeros((self._cp.shape[0], kernels.out_size(self._nr)))
         self.reset()
 
+    @property
+    def n_rotors(self) -> int:
+        return int(self.arrays.E.shape[-1])
+
     def reset(self) -> None:
+        """Forget the wrench estimate, the attitude filter, the PID integral and the held command.
+
+        Without it a controller reused for a second flight starts with the first flight's estimate.
+        """
         self.state = initial_controller_state(self.arrays)
+        self._warned: set[str] = set()
         if self.backend == "compiled":
             self._cs = self._k.initial_state(self._cp, self._n)
 
     def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
-        """One compiled step for ``vehicle`` with flat float64 inputs ``y (12,)`` and ``r (12,)``.
+        """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, C-contiguous float64.
 
         Returns the output row (a view, overwritten by the next call). Raises :class:`InputError` on a
-        non-finite input and :class:`SingularityError` at theta = +-90 deg.
+        wrong type, dtype, shape or a non-finite value, and :class:`SingularityError` at theta = +-90 deg.
         """
         if self.backend != "compiled":
             raise InputError("step_arrays needs backend='compiled'")
+        for name, a in (("y", y), ("r", r)):
+            if type(a) is not np.ndarray or a.dtype != np.float64 or a.shape != (12,) or not a.flags.c_contiguous:
+                raise InputError(
+                    f"step_arrays: {name} must be a C-contiguous float64 array of shape (12,), got "
+                    + (f"{type(a).__name__}" if type(a) is not np.ndarray else f"{a.dtype} array of shape {a.shape}")
+                )
+        if type(vehicle) is not int or not 0 <= vehicle < self._cp.shape[0]:
+            raise InputError(f"step_arrays: vehicle must be an int in [0, {self._cp.shape[0]}), got {vehicle!r}")
         out = self._out[vehicle]
         status = self._k.checked_step(self._cp[vehicle], self._sh, self._cs[vehicle], y, r, out)
         if status:
@@ -314,42 +390,89 @@ class Controller:
             raise InputError(f"non-finite measurement or reference: y = {y}, r = {r}")
         return out
 
+    def _measurement(self, meas: Measurement, bs: tuple[int, ...]) -> Measurement:
+        if not isinstance(meas, Measurement):
+            raise InputError(f"step expects a Measurement, got {type(meas).__name__}")
+        p_W, v_W, eta = (_vec_input(n, v, bs) for n, v in (("p_W", meas.p_W), ("v_W", meas.v_W), ("eta", meas.eta)))
+        if (meas.eta_dot is None) == (meas.omega_B is None):
+            raise InputError("Measurement needs exactly one of eta_dot (Euler rates) or omega_B (gyro body rates)")
+        check_euler_regular(eta)
+        if meas.eta_dot is not None:
+            eta_dot = _vec_input("eta_dot", meas.eta_dot, bs)
+        else:
+            omega_B = _vec_input("omega_B", meas.omega_B, bs)
+            eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B[..., None])[..., 0]
+        return Measurement(p_W, v_W, eta, eta_dot)
+
     def step(self, meas: Measurement, ref: Reference) -> ControlOutput:
+        """One control period (call it every ``Ts``): returns rotor forces, thrust, torque and the estimate."""
         bs = self.arrays.batch_shape
-        meas = Measurement(*(as_finite(n, v, (3,)) for n, v in zip(Measurement._fields, meas, strict=True)))
-        for name, v in zip(Measurement._fields, meas, strict=True):
-            if v.shape[:-1] != bs:
-                raise InputError(f"measurement {name} has batch shape {v.shape[:-1]}, the controller has {bs}")
+        meas = self._measurement(meas, bs)
+        if not isinstance(ref, Reference):
+            raise InputError(f"step expects a Reference, got {type(ref).__name__}")
         ref = Reference(
-            as_finite("p_d", ref.p_W, (3,)),
-            as_finite("v_d", ref.v_W, (3,)),
-            as_finite("a_d", ref.a_W, (3,)),
-            as_finite("psi_d", ref.psi),
-            as_finite("psi_dot_d", ref.psi_dot),
-            as_finite("psi_ddot_d", ref.psi_ddot),
+            as_finite("p_d (Reference.p_W)", ref.p_W, (3,)),
+            as_finite("v_d (Reference.v_W)", ref.v_W, (3,)),
+            as_finite("a_d (Reference.a_W)", ref.a_W, (3,)),
+            _scalar_input("psi_d", ref.psi, bs),
+            _scalar_input("psi_dot_d", ref.psi_dot, bs),
+            _scalar_input("psi_ddot_d", ref.psi_ddot, bs),
         )
-        check_euler_regular(meas.eta)
+        for name, v in zip(("p_d", "v_d", "a_d"), ref[:3], strict=True):
+            if v.shape[:-1] not in ((), bs):
+                raise InputError(f"reference {name} has shape {v.shape}; this controller expects (3,) or {bs + (3,)}")
         if self.backend == "numpy":
             self.state, out = controller_step(self.arrays, self.state, meas, ref)
-            return out
-        return self._step_compiled(meas, ref, bs)
+        else:
+            out = self._step_compiled(meas, ref, bs)
+        self._warn_once(out)
+        if not bs:  # one vehicle: plain numbers
+            out = out._replace(
+                thrust=float(out.thrust),
+                thrust_request=float(out.thrust_request),
+                saturated=bool(out.saturated),
+                tilt_limited=bool(out.tilt_limited),
+                rp_scale=float(out.rp_scale),
+                yaw_scale=float(out.yaw_scale),
+            )
+        return out
+
+    def _warn_once(self, out: ControlOutput) -> None:
+        import warnings
+
+        causes = (
+            (
+                "saturated",
+                "the rotors could not give the requested thrust and torque (see ControlOutput.saturated, "
+                "rp_scale, yaw_scale)",
+            ),
+            (
+                "tilt_limited",
+                "the tilt or lift limit of eq. (16) clamped the desired attitude (tilt_max, "
+                "min_lift_accel; see ControlOutput.tilt_limited)",
+            ),
+        )
+        for field_name, text in causes:
+            if field_name not in self._warned and np.any(getattr(out, field_name)):
+                self._warned.add(field_name)
+                warnings.warn(f"{text}; warned once per cause until reset()", ControllerWarning, stacklevel=3)
 
     def _step_compiled(self, meas: Measurement, ref: Reference, bs: tuple[int, ...]) -> ControlOutput:
         k = self._k
         B = self._cp.shape[0]
-        y = np.concatenate([np.broadcast_to(v, bs + (3,)).reshape(B, 3) for v in meas], -1)
+        y = np.concatenate([np.broadcast_to(v, bs + (3,)).reshape(B, 3) for v in meas[:4]], -1)
         r = np.concatenate(
             [
-                np.broadcast_to(ref.p_W, (B, 3)),
+                np.broadcast_to(ref.p_W, bs + (3,)).reshape(B, 3),
                 np.broadcast_to(ref.v_W, (B, 3)),
                 np.broadcast_to(ref.a_W, (B, 3)),
-                np.broadcast_to(np.stack([ref.psi, ref.psi_dot, ref.psi_ddot], -1), (B, 3)),
+                np.stack([np.broadcast_to(v, bs).reshape(B) for v in (ref.psi, ref.psi_dot, ref.psi_ddot)], -1),
             ],
             -1,
         )
         for b in range(B):
             k.controller_step(self._cp[b], self._sh, self._cs[b], y[b], np.ascontiguousarray(r[b]), self._out[b])
-        o = self._out.reshape(bs + (k.OUT_SIZE,)).copy()
+        o = self._out.reshape(bs + (self._out.shape[-1],)).copy()
 
         def sl(i: int, n: int) -> np.ndarray:
             return o[..., i : i + n]
@@ -357,7 +480,7 @@ class Controller:
         return ControlOutput(
             thrust=o[..., k.O_THRUST],
             tau_B=sl(k.O_TAU, 3),
-            f_rotor=sl(k.O_F, 4),
+            f_rotor=sl(k.O_F, self._nr),
             saturated=o[..., k.O_SAT] > 0.5,
             thrust_request=o[..., k.O_THRUST_REQ],
             tau_B_request=sl(k.O_TAU_REQ, 3),
@@ -368,4 +491,6 @@ class Controller:
             eta_d_dot=sl(k.O_ETA_D_DOT, 3),
             mu_bar=sl(k.O_MU_BAR, 3),
             tilt_limited=o[..., k.O_TILT] > 0.5,
+            rp_scale=o[..., k.O_RP],
+            yaw_scale=o[..., k.O_YAW],
         )

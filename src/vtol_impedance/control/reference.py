@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, as_finite, positive, scalar
 from .signals import Reference
 
 
@@ -147,7 +147,7 @@ class Trajectory:
     def __post_init__(self) -> None:
         if not self.segments:
             raise InputError("a trajectory needs at least one segment")
-        durations = [float(positive("segment duration", s.duration, allow_zero=True)) for s in self.segments]
+        durations = [scalar("segment duration", s.duration, lo=0.0) for s in self.segments]
         for a, b in zip(self.segments[:-1], self.segments[1:], strict=True):
             if not np.allclose(a.end(), b.start(), atol=1e-9):
                 raise InputError(f"trajectory segments do not join: {a.end()} then {b.start()}")

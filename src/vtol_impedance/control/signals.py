@@ -6,29 +6,41 @@ from typing import NamedTuple
 
 import numpy as np
 
+_ZERO3 = np.zeros(3)
+_ZERO3.setflags(write=False)
+
 
 class Measurement(NamedTuple):
     """What the controller and estimator receive, each ``(..., 3)``.
 
-    ``p_W``, ``v_W``: position and velocity of the body origin in the world NED frame (motion capture);
-    ``eta``: ZYX Euler angles; ``eta_dot``: Euler-angle rates (from the gyro via ``Q^{-1} omega_B``).
+    ``p_W``, ``v_W``: position (m) and velocity (m/s) of the body origin in the world NED frame (motion
+    capture); ``eta``: ZYX Euler angles ``[phi, theta, psi]`` (rad); and the attitude rate as *either*
+    ``eta_dot`` (Euler-angle rates, rad/s) *or* ``omega_B`` (the gyro's body rates, FRD, rad/s), from which
+    :class:`~vtol_impedance.control.Controller` computes ``eta_dot = Q(eta)^{-1} omega_B`` (eq. (1c)).
+    The pure :func:`~vtol_impedance.control.controller_step` needs ``eta_dot``.
     """
 
     p_W: np.ndarray
     v_W: np.ndarray
     eta: np.ndarray
-    eta_dot: np.ndarray
+    eta_dot: np.ndarray | None = None
+    omega_B: np.ndarray | None = None
 
 
 class Reference(NamedTuple):
-    """Desired flat outputs: position, velocity, acceleration ``(..., 3)`` in W, and yaw with two derivatives."""
+    """Desired flat outputs: position ``p_W`` (m), velocity ``v_W`` (m/s), acceleration ``a_W`` (m/s^2), each
+    ``(..., 3)`` in the world NED frame, and yaw ``psi`` (rad) with two derivatives.
+
+    Everything but ``p_W`` defaults to zero, so ``Reference(np.array([0, 0, -1.0]))`` holds a point 1 m up
+    with the nose north.
+    """
 
     p_W: np.ndarray
-    v_W: np.ndarray
-    a_W: np.ndarray
-    psi: np.ndarray
-    psi_dot: np.ndarray
-    psi_ddot: np.ndarray
+    v_W: np.ndarray = _ZERO3
+    a_W: np.ndarray = _ZERO3
+    psi: np.ndarray | float = 0.0
+    psi_dot: np.ndarray | float = 0.0
+    psi_ddot: np.ndarray | float = 0.0
 
 
 class ControlOutput(NamedTuple):
@@ -37,7 +49,10 @@ class ControlOutput(NamedTuple):
     ``thrust_request``/``tau_B_request`` come from eqs. (16)-(20) and (14); ``thrust``/``tau_B`` are what
     the allocated rotor forces ``f_rotor`` produce (they differ when ``saturated``). The wrench estimate is
     ``f_hat_W`` (world frame, N), ``tau_hat_eta`` (Euler coordinates, as in eq. (5b)) and ``tau_hat_B``
-    (the same moment in the body frame, ``Q^{-T} tau_hat_eta``).
+    (the same moment in the body frame, ``Q^{-T} tau_hat_eta``). What the limits took: ``tilt_limited``
+    (the tilt or lift bound of eq. (16) acted), ``rp_scale`` and ``yaw_scale`` (the share of the roll/pitch
+    and yaw torque the rotors could give, 1 when all of it). For one vehicle ``thrust`` and the flags are
+    plain Python numbers and the vectors ``(3,)`` arrays.
     """
 
     thrust: np.ndarray
@@ -53,3 +68,5 @@ class ControlOutput(NamedTuple):
     eta_d_dot: np.ndarray
     mu_bar: np.ndarray
     tilt_limited: np.ndarray
+    rp_scale: np.ndarray
+    yaw_scale: np.ndarray

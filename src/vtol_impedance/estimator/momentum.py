@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, as_finite, positive, scalar
 from ..model.dynamics import generalized_momentum, momentum_rate_known
 
 _PROTOTYPES = ("zeta", "binomial", "butterworth")
@@ -149,7 +149,7 @@ class EstimatorDesign(NamedTuple):
 
 def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
     """Exact zero-order-hold discretisation of ``G_i(s)`` for the sampling period ``Ts`` (s)."""
-    Ts = float(positive("Ts", Ts))
+    Ts = scalar("Ts", Ts, lo=0.0, lo_open=True)
     poles = params.channel_poles()
     worst = float(np.max(np.abs(poles)) * Ts)
     if worst >= np.pi:

@@ -15,10 +15,32 @@ from .kinematics import (
     rotation_zyx,
     skew,
 )
-from .mixer import Allocation, allocate, mix, unmix
-from .vehicle import VehicleParams, load_preset
+from .mixer import THRUST_SHIFT_MAX, Allocation, allocate, mix, unmix
+from .vehicle import (
+    LAYOUTS,
+    Rotor,
+    RotorGeometry,
+    VehicleParams,
+    drag_factor_from_constants,
+    effectiveness,
+    f_max_from_motor,
+    layout_positions,
+    load_preset,
+    preset_names,
+    vehicle_from_dict,
+)
 
 __all__ = [
+    "LAYOUTS",
+    "THRUST_SHIFT_MAX",
+    "Rotor",
+    "RotorGeometry",
+    "drag_factor_from_constants",
+    "effectiveness",
+    "f_max_from_motor",
+    "layout_positions",
+    "preset_names",
+    "vehicle_from_dict",
     "Allocation",
     "VehicleParams",
     "allocate",

@@ -1,7 +1,9 @@
-"""Rotor mixer, eq. (4) of Ruggiero et al. (2014), its inverse and a prioritised allocation.
+"""Rotor mixer, eq. (4) of Ruggiero et al. (2014) for any multirotor, its inverse and a prioritised allocation.
 
-``u = sum f_i``, ``tau_phi = l (f2 - f4)``, ``tau_theta = l (f3 - f1)``,
-``tau_psi = c (f1 - f2 + f3 - f4)``; rotor forces are ``(..., 4)``.
+With the effectiveness matrix ``E (4, n)`` of :func:`~vtol_impedance.model.vehicle.effectiveness`,
+``[u, tau_B] = E f`` for rotor forces ``f (..., n)``; for the paper's '+' quadrotor this is eq. (4):
+``u = sum f_i``, ``tau_phi = l (f2 - f4)``, ``tau_theta = l (f3 - f1)``, ``tau_psi = c (f1 - f2 + f3 - f4)``.
+The inverse without limits is the pseudo-inverse ``E_pinv (n, 4)`` (the least-squares rotor forces).
 """
 
 from __future__ import annotations
@@ -10,39 +12,21 @@ from typing import NamedTuple
 
 import numpy as np
 
-_YAW_SIGNS = np.array([1.0, -1.0, 1.0, -1.0])
+#: Default bound on how far the allocator may move the collective thrust to make room for roll and
+#: pitch, as a fraction of the (feasible) requested thrust.
+THRUST_SHIFT_MAX = 0.25
 
 
-def mix(f: np.ndarray, arm_length: np.ndarray, drag_factor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. (4): rotor forces ``f (..., 4)`` to total thrust ``u (...)`` and body torque ``tau_B (..., 3)``."""
-    f = np.asarray(f, dtype=float)
-    l = np.asarray(arm_length, dtype=float)
-    c = np.asarray(drag_factor, dtype=float)
-    u = f.sum(-1)
-    tau_B = np.stack(
-        [l * (f[..., 1] - f[..., 3]), l * (f[..., 2] - f[..., 0]), c * (f @ _YAW_SIGNS)],
-        -1,
-    )
-    return u, tau_B
+def mix(f: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (4): rotor forces ``f (..., n)`` to total thrust ``u (...)`` and body torque ``tau_B (..., 3)``."""
+    w = np.einsum("...ij,...j->...i", np.asarray(E, dtype=float), np.asarray(f, dtype=float))
+    return w[..., 0], w[..., 1:]
 
 
-def unmix(thrust: np.ndarray, tau_B: np.ndarray, arm_length: np.ndarray, drag_factor: np.ndarray) -> np.ndarray:
-    """Exact inverse of eq. (4), without limits: ``(u, tau_B)`` to rotor forces ``(..., 4)``."""
-    u = np.asarray(thrust, dtype=float)
-    tau_B = np.asarray(tau_B, dtype=float)
-    l = np.asarray(arm_length, dtype=float)
-    c = np.asarray(drag_factor, dtype=float)
-    base = u[..., None] / 4.0
-    rp = _roll_pitch_part(tau_B, l)
-    yaw = (tau_B[..., 2] / (4.0 * c))[..., None] * _YAW_SIGNS
-    return base + rp + yaw
-
-
-def _roll_pitch_part(tau_B: np.ndarray, l: np.ndarray) -> np.ndarray:
-    a = tau_B[..., 0] / (2.0 * l)
-    b = tau_B[..., 1] / (2.0 * l)
-    z = np.zeros_like(a)
-    return np.stack([-b, a, b, -a], -1) + z[..., None]
+def unmix(thrust: np.ndarray, tau_B: np.ndarray, E_pinv: np.ndarray) -> np.ndarray:
+    """Inverse of eq. (4) without limits: ``(u, tau_B)`` to the least-squares rotor forces ``(..., n)``."""
+    w = np.concatenate([np.asarray(thrust, dtype=float)[..., None], np.asarray(tau_B, dtype=float)], -1)
+    return np.einsum("...ij,...j->...i", np.asarray(E_pinv, dtype=float), w)
 
 
 class Allocation(NamedTuple):
@@ -50,7 +34,9 @@ class Allocation(NamedTuple):
 
     ``f`` are the rotor forces sent to the motors; ``thrust`` and ``tau_B`` are what those forces
     produce (eq. (4) applied to ``f``), which differ from the request when ``saturated`` is True.
-    ``yaw_scale``, ``thrust_shift`` and ``rp_scale`` say what was given up.
+    What was given up: ``rp_scale`` (the roll/pitch torque was multiplied by it), ``yaw_scale`` (likewise
+    yaw), ``thrust_shift`` (N, collective moved away from the request: clipped to what the rotors can
+    give, plus the bounded shift that makes room for roll/pitch).
     """
 
     f: np.ndarray
@@ -59,71 +45,99 @@ class Allocation(NamedTuple):
     saturated: np.ndarray
     yaw_scale: np.ndarray
     rp_scale: np.ndarray
+    thrust_shift: np.ndarray
 
 
-def _yaw_interval(base: np.ndarray, yaw: np.ndarray, fmin_r: np.ndarray, fmax_r: np.ndarray):
-    """Interval of yaw scales ``a`` in [0, 1] with ``fmin <= base + a yaw <= fmax`` on every rotor."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # tiny yaw shares: +-inf is right
-        up = np.where(yaw > 0, (fmax_r - base) / yaw, np.where(yaw < 0, (fmin_r - base) / yaw, np.inf))
-        lo = np.where(yaw > 0, (fmin_r - base) / yaw, np.where(yaw < 0, (fmax_r - base) / yaw, -np.inf))
-    # a rotor without yaw share must already be within limits
-    flat_bad = (yaw == 0) & ((base < fmin_r) | (base > fmax_r))
+def _yaw_interval(base: np.ndarray, yw: np.ndarray, fmin: np.ndarray, fmax: np.ndarray):
+    """Yaw scales ``a`` in ``[lo, hi]`` (with ``lo <= 1``, ``hi`` capped at 1) keeping ``base + a yw`` in range."""
+    tol = 1e-12 * np.maximum(np.abs(fmax), 1.0)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        hi = np.where(yw > 0, (fmax + tol - base) / yw, np.where(yw < 0, (fmin - tol - base) / yw, np.inf))
+        lo = np.where(yw > 0, (fmin - tol - base) / yw, np.where(yw < 0, (fmax + tol - base) / yw, -np.inf))
+    flat_bad = ((yw == 0) & ((base < fmin - tol) | (base > fmax + tol))).any(-1)
     a_lo = np.maximum(lo.max(-1), 0.0)
-    a_hi = np.minimum(up.min(-1), 1.0)
-    return a_lo, a_hi, (a_lo <= a_hi) & ~flat_bad.any(-1)
+    a_hi = np.minimum(hi.min(-1), 1.0)
+    return np.where(flat_bad, np.inf, a_lo), a_hi
 
 
 def allocate(
     thrust: np.ndarray,
     tau_B: np.ndarray,
-    arm_length: np.ndarray,
-    drag_factor: np.ndarray,
+    E: np.ndarray,
+    E_pinv: np.ndarray,
+    f_min: np.ndarray,
     f_max: np.ndarray,
-    f_min: np.ndarray | float = 0.0,
+    thrust_shift_max: float | np.ndarray = THRUST_SHIFT_MAX,
 ) -> Allocation:
-    """Invert eq. (4) within rotor limits ``[f_min, f_max]``, with priorities as flight stacks do.
+    """Invert eq. (4) within rotor limits ``[f_min, f_max] (..., n)``, with priorities as flight stacks do.
 
-    Priority, highest first: roll/pitch torque, total thrust, yaw torque.
+    Priority, highest first: roll/pitch torque, collective thrust (within a bounded change), yaw torque.
+    With ``p_u``, ``p_rp``, ``p_y`` the thrust, roll/pitch and yaw parts of the pseudo-inverse:
 
-    1. If the roll/pitch request alone spans more than ``f_max - f_min`` across rotors, it is scaled
-       down to fit (``rp_scale < 1``).
-    2. With the requested collective ``u/4``, the yaw part is scaled by the largest ``yaw_scale`` in
-       ``[0, 1]`` that keeps every rotor in range.
-    3. Only if no yaw scale makes collective + roll/pitch fit, the collective is moved to the nearest
-       feasible value (thrust given up) and step 2 is repeated.
+    1. The collective is clipped to what the rotors can give with equal shares, ``u_c``.
+    2. Roll/pitch ``k p_rp`` is added with the largest ``k`` in [0, 1] for which a collective change
+       ``|delta| <= thrust_shift_max * u_c`` keeps every rotor in range (solved exactly: each rotor pair
+       bounds ``k`` linearly); then the smallest such ``|delta|`` is taken. The collective never moves
+       by more than that bound, so a roll/pitch request can never multiply the thrust.
+    3. Yaw ``a p_y`` is added with the largest ``a`` in [0, 1] that keeps every rotor in range.
 
-    Within limits this equals :func:`unmix`. ``saturated`` is True where anything was given up.
+    Before all that, if the full roll/pitch at the requested thrust fits with some yaw scale, the largest
+    such yaw scale is used and nothing else changes (so a feasible request is met exactly).
+
+    Within limits this equals :func:`unmix`. Works for any geometry whose thrust shares ``p_u`` are
+    positive (checked when the vehicle is built), including non-square ones (hexarotor).
     """
     u = np.asarray(thrust, dtype=float)
     tau_B = np.asarray(tau_B, dtype=float)
-    l = np.asarray(arm_length, dtype=float)
-    c = np.asarray(drag_factor, dtype=float)
-    fmax = np.asarray(f_max, dtype=float)
+    Ep = np.asarray(E_pinv, dtype=float)
     fmin = np.asarray(f_min, dtype=float)
-    # Round-off slack so that an exact solution on a limit counts as feasible.
-    tol = 1e-12 * np.maximum(np.abs(fmax), 1.0)
-    fmax_r = np.expand_dims(fmax + tol, -1)
-    fmin_r = np.expand_dims(fmin - tol, -1)
-    span = fmax - fmin
+    fmax = np.asarray(f_max, dtype=float)
+    shape = np.broadcast_shapes(u.shape, tau_B.shape[:-1], Ep.shape[:-2], fmin.shape[:-1], np.shape(thrust_shift_max))
+    n = Ep.shape[-2]
+    pu = np.broadcast_to(Ep[..., :, 0], shape + (n,))
+    rp = Ep[..., :, 1] * tau_B[..., 0, None] + Ep[..., :, 2] * tau_B[..., 1, None]
+    yw = Ep[..., :, 3] * tau_B[..., 2, None]
+    rp = np.broadcast_to(rp, shape + (n,))
+    yw = np.broadcast_to(yw, shape + (n,))
+    fmin = np.broadcast_to(fmin, shape + (n,))
+    fmax = np.broadcast_to(fmax, shape + (n,))
 
-    rp = _roll_pitch_part(tau_B, l)
-    rp_spread = rp.max(-1) - rp.min(-1)
-    rp_scale = np.where(rp_spread > span, span / np.maximum(rp_spread, 1e-300), 1.0)
-    rp = rp * rp_scale[..., None]
-    yaw = (tau_B[..., 2] / (4.0 * c))[..., None] * _YAW_SIGNS
+    # 1. feasible collective with equal shares
+    u_lo = (fmin / pu).max(-1)
+    u_hi = (fmax / pu).min(-1)
+    u_c = np.clip(u, u_lo, u_hi)
+    dmax = np.asarray(thrust_shift_max, dtype=float) * u_c
 
-    # Thrust kept: the best yaw scale, if any makes the rotors fit.
-    base_keep = u[..., None] / 4.0 + rp
-    _, hi_keep, ok_keep = _yaw_interval(base_keep, yaw, fmin_r, fmax_r)
-    # Thrust given up: nearest collective at which roll/pitch fit, then the best yaw scale.
-    collective = np.clip(u / 4.0, fmin - rp.min(-1), fmax - rp.max(-1))
-    base_move = collective[..., None] + rp
-    _, hi_move, _ = _yaw_interval(base_move, yaw, fmin_r, fmax_r)
+    # 2. roll/pitch: rotor i needs a_i - k b_i <= delta <= c_i - k b_i, and |delta| <= dmax
+    a = fmin / pu - u_c[..., None]
+    c = fmax / pu - u_c[..., None]
+    b = rp / pu
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        db = b[..., None, :] - b[..., :, None]  # [i, j] = b_j - b_i
+        pair = np.where(db > 0, (c[..., None, :] - a[..., :, None]) / db, np.inf).min((-2, -1))
+        lo_lim = np.where(b < 0, (dmax[..., None] - a) / -b, np.inf).min(-1)
+        hi_lim = np.where(b > 0, (c + dmax[..., None]) / b, np.inf).min(-1)
+    k = np.clip(np.minimum(np.minimum(pair, lo_lim), hi_lim), 0.0, 1.0)
+    d_lo = np.maximum((a - k[..., None] * b).max(-1), -dmax)
+    d_hi = np.minimum((c - k[..., None] * b).min(-1), dmax)
+    delta = np.clip(0.0, d_lo, np.maximum(d_lo, d_hi))
+    base = pu * (u_c + delta)[..., None] + k[..., None] * rp
 
-    base = np.where(ok_keep[..., None], base_keep, base_move)
-    yaw_scale = np.clip(np.where(ok_keep, hi_keep, hi_move), 0.0, 1.0)
-    f = np.clip(base + yaw_scale[..., None] * yaw, np.expand_dims(fmin, -1), np.expand_dims(fmax, -1))
+    # 3. yaw with what is left
+    ys = np.clip(_yaw_interval(base, yw, fmin, fmax)[1], 0.0, 1.0)
 
-    u_out, tau_out = mix(f, l, c)
-    saturated = (rp_scale < 1.0) | ~ok_keep | (yaw_scale < 1.0 - 1e-9)
-    return Allocation(f, u_out, tau_out, saturated, yaw_scale, rp_scale)
+    # 0. but first: if the full roll/pitch at the requested thrust fits with some yaw, keep them (a
+    #    feasible request is met exactly, and yaw may be what makes roll/pitch fit)
+    base_keep = pu * u[..., None] + rp
+    lo_keep, hi_keep = _yaw_interval(base_keep, yw, fmin, fmax)
+    keep = (lo_keep <= hi_keep) & (hi_keep >= 0.0)
+    k = np.where(keep, 1.0, k)
+    ys = np.where(keep, np.clip(hi_keep, 0.0, 1.0), ys)
+    delta = np.where(keep, u - u_c, delta)
+    base = np.where(keep[..., None], base_keep, base)
+    f = np.clip(base + ys[..., None] * yw, fmin, fmax)
+
+    u_out, tau_out = mix(f, E)
+    shift = u_c + delta - u
+    saturated = (k < 1.0 - 1e-9) | (ys < 1.0 - 1e-9) | (np.abs(shift) > 1e-9 * np.maximum(np.abs(u), 1.0))
+    return Allocation(f, u_out, tau_out, saturated, ys, k, shift)

@@ -1,16 +1,35 @@
-"""Vehicle parameters (nominal or true) and presets."""
+"""Vehicle parameters (nominal or true), rotor geometry and presets.
+
+A multirotor is its rigid body (mass, inertia) plus a list of rotors, each a position ``r_i`` in the body
+frame (FRD, m), a spin sign ``s_i`` and force limits ``[f_min_i, f_max_i]`` (N), plus the yaw drag factor
+``c`` (N m per N). Every rotor pushes along ``-z_B``; rotor ``i`` with force ``f_i`` gives the moment
+``r_i x (-f_i e3) + s_i c f_i e3`` about the body origin, so the effectiveness matrix ``E`` (4 x n) maps
+rotor forces to ``[u, tau_x, tau_y, tau_z]`` (DESIGN.md section 1). The paper's '+' quadrotor of
+eq. (4) is the layout ``"plus"``: rotor 1 aft (x = -l), 2 left (y = -l), 3 forward, 4 right, spins
+(+1, -1, +1, -1), which reproduces ``u = sum f``, ``tau_phi = l (f2 - f4)``, ``tau_theta = l (f3 - f1)``,
+``tau_psi = c (f1 - f2 + f3 - f4)``.
+
+Spin sign: ``s_i = +1`` is a propeller turning counter-clockwise seen from above, whose drag pushes the
+body nose-right (positive yaw about the FRD ``z`` axis, which points down).
+"""
 
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..conventions import G
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, as_finite, check_keys, scalar
+
+#: Rotor layouts built from an arm length, see :func:`layout_positions`.
+LAYOUTS = ("plus", "x", "hex")
+#: The most rotors a vehicle may have (the compiled kernels size their buffers by it).
+MAX_ROTORS = 12
 
 
 def _inertia(value: Any) -> np.ndarray:
@@ -20,75 +39,363 @@ def _inertia(value: Any) -> np.ndarray:
     if arr.shape != (3, 3):
         raise InputError(f"inertia must be a 3-vector (diagonal) or a 3x3 matrix, got shape {arr.shape}")
     if not np.allclose(arr, arr.T, atol=1e-12):
-        raise InputError("inertia matrix must be symmetric")
+        raise InputError(f"inertia matrix must be symmetric, got {arr.tolist()}")
     if np.any(np.linalg.eigvalsh(arr) <= 0):
         raise InputError(f"inertia matrix must be positive definite, eigenvalues {np.linalg.eigvalsh(arr)}")
     arr.setflags(write=False)
     return arr
 
 
+def f_max_from_motor(thrust_constant: float, max_speed: float) -> float:
+    """Largest rotor force ``k_f * omega_max^2`` (N) from the thrust constant ``k_f`` (N s^2/rad^2) and the
+    maximum rotor speed ``omega_max`` (rad/s), the way flight stacks and RotorPy describe a motor."""
+    return (
+        scalar("thrust_constant", thrust_constant, lo=0.0, lo_open=True)
+        * scalar("max_speed", max_speed, lo=0.0, lo_open=True) ** 2
+    )
+
+
+def drag_factor_from_constants(torque_constant: float, thrust_constant: float) -> float:
+    """Yaw drag factor ``c = k_m / k_f`` (N m per N) of eq. (4d) from the rotor torque constant ``k_m``
+    (N m s^2/rad^2) and thrust constant ``k_f`` (N s^2/rad^2): both scale with the speed squared."""
+    return scalar("torque_constant", torque_constant, lo=0.0, lo_open=True) / scalar(
+        "thrust_constant", thrust_constant, lo=0.0, lo_open=True
+    )
+
+
+@dataclass(frozen=True)
+class Rotor:
+    """One rotor: ``position_B`` (m, FRD, from the body origin), ``spin`` (+1 or -1, see the module
+    docstring), force limits ``f_min``, ``f_max`` (N)."""
+
+    position_B: tuple[float, float, float]
+    spin: int
+    f_max: float = 7.0
+    f_min: float = 0.0
+
+    def __post_init__(self) -> None:
+        pos = as_finite("rotor position_B", self.position_B, (3,))
+        if pos.shape != (3,):
+            raise InputError(f"rotor position_B must be 3 values, got shape {pos.shape}")
+        object.__setattr__(self, "position_B", tuple(float(v) for v in pos))
+        if self.spin not in (1, -1) or isinstance(self.spin, bool):
+            raise InputError(f"rotor spin must be +1 or -1, got {self.spin!r}")
+        object.__setattr__(self, "spin", int(self.spin))
+        object.__setattr__(self, "f_max", scalar("rotor f_max", self.f_max, lo=0.0, lo_open=True))
+        object.__setattr__(self, "f_min", scalar("rotor f_min", self.f_min, lo=0.0))
+        if self.f_min >= self.f_max:
+            raise InputError(f"rotor f_min = {self.f_min} must be below f_max = {self.f_max}")
+
+
+def layout_positions(layout: str, arm_length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotor positions ``(n, 3)`` and spins ``(n,)`` of a named layout with the given arm length.
+
+    * ``"plus"``: eq. (4) of the paper; rotors aft, left, forward, right; spins (+, -, +, -).
+    * ``"x"``: rotors at 45 deg: 1 front-right, 2 rear-left, 3 front-left, 4 rear-right; spins
+      (+, +, -, -) (the common quad-X numbering of flight stacks).
+    * ``"hex"``: six rotors every 60 deg from forward, turning towards the right; spins alternate from +.
+    """
+    if layout == "plus":
+        ang = np.radians([180.0, -90.0, 0.0, 90.0])
+        spins = np.array([1, -1, 1, -1])
+    elif layout == "x":
+        ang = np.radians([45.0, -135.0, -45.0, 135.0])
+        spins = np.array([1, 1, -1, -1])
+    elif layout == "hex":
+        ang = np.radians(np.arange(6) * 60.0)
+        spins = np.array([1, -1, 1, -1, 1, -1])
+    else:
+        raise InputError(f"unknown rotor layout {layout!r}; choose one of {', '.join(LAYOUTS)} or give rotors")
+    pos = arm_length * np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], -1)
+    pos[np.abs(pos) < 1e-15] = 0.0
+    return pos, spins
+
+
+def effectiveness(positions_B: np.ndarray, spins: np.ndarray, drag_factor: float) -> np.ndarray:
+    """Effectiveness matrix ``E (4, n)``: ``[u, tau_B] = E f`` for rotor forces ``f (n,)`` along ``-z_B``.
+
+    Column ``i`` is ``[1, r_i x (-e3) + s_i c e3]`` = ``[1, -r_iy, r_ix, s_i c]``.
+    """
+    r = np.asarray(positions_B, dtype=float)
+    s = np.asarray(spins, dtype=float)
+    return np.stack([np.ones(len(r)), -r[:, 1], r[:, 0], s * drag_factor])
+
+
+@dataclass(frozen=True, eq=False)
+class RotorGeometry:
+    """Arrays of a vehicle's rotors: ``E (4, n)``, its pseudo-inverse ``E_pinv (n, 4)``, limits ``(n,)``."""
+
+    positions_B: np.ndarray
+    spins: np.ndarray
+    f_min: np.ndarray
+    f_max: np.ndarray
+    drag_factor: float
+    E: np.ndarray
+    E_pinv: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.spins.shape[0])
+
+
 @dataclass(frozen=True, eq=False)
 class VehicleParams:
-    """Rigid-body and rotor parameters of a quadrotor in the '+' layout of eq. (4).
+    """Rigid body and rotors of a multirotor, nominal (the controller's) or true (the plant's).
 
     Attributes
     ----------
     mass : kg.
     inertia : ``I_B``, 3x3 about the centre of mass in the body frame, kg m^2 (a 3-vector is a diagonal).
-    arm_length : ``l`` of eq. (4b)-(4c), m.
     drag_factor : ``c`` of eq. (4d), N m per N.
-    f_max, f_min : limits of each rotor force, N.
+    rotors : explicit rotors (:class:`Rotor`); or leave ``None`` and give a ``layout`` with the shorthand
+        ``arm_length`` (m), ``f_max``, ``f_min`` (N, the same for every rotor).
+    layout : ``"plus"`` (eq. (4), the default), ``"x"`` or ``"hex"`` (:func:`layout_positions`).
     name : label.
     """
 
     mass: float
     inertia: np.ndarray
-    arm_length: float = 0.21
+    arm_length: float | None = None
     drag_factor: float = 0.016
-    f_max: float = 7.0
-    f_min: float = 0.0
+    f_max: float | None = None
+    f_min: float | None = None
     name: str = "custom"
+    layout: str = "plus"
+    rotors: tuple[Rotor, ...] | None = None
+    _geometry: RotorGeometry | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mass", float(positive("mass", self.mass)))
+        object.__setattr__(self, "mass", scalar("mass", self.mass, lo=0.0, lo_open=True))
         object.__setattr__(self, "inertia", _inertia(self.inertia))
-        object.__setattr__(self, "arm_length", float(positive("arm_length", self.arm_length)))
-        object.__setattr__(self, "drag_factor", float(positive("drag_factor", self.drag_factor)))
-        object.__setattr__(self, "f_max", float(positive("f_max", self.f_max)))
-        object.__setattr__(self, "f_min", float(positive("f_min", self.f_min, allow_zero=True)))
-        if self.f_min >= self.f_max:
-            raise InputError(f"f_min = {self.f_min} must be below f_max = {self.f_max}")
+        object.__setattr__(self, "drag_factor", scalar("drag_factor", self.drag_factor, lo=0.0, lo_open=True))
+        if not isinstance(self.name, str):
+            raise InputError(f"vehicle name must be a string, got {self.name!r}")
+        if self.rotors is not None:
+            given = [k for k in ("arm_length", "f_max", "f_min") if getattr(self, k) is not None]
+            if given:
+                raise InputError(
+                    f"give either explicit rotors or the shorthand {given} with a layout, not both "
+                    "(per-rotor limits live in each Rotor)"
+                )
+            rotors = tuple(self.rotors)
+            if not all(isinstance(r, Rotor) for r in rotors):
+                raise InputError("rotors must be a sequence of vtol_impedance.model.Rotor")
+            pos = np.array([r.position_B for r in rotors], dtype=float).reshape(-1, 3)
+            spins = np.array([r.spin for r in rotors])
+            f_min = np.array([r.f_min for r in rotors])
+            f_max = np.array([r.f_max for r in rotors])
+            object.__setattr__(self, "rotors", rotors)
+        else:
+            for k, default in (("arm_length", 0.21), ("f_max", 7.0), ("f_min", 0.0)):
+                if getattr(self, k) is None:
+                    object.__setattr__(self, k, default)
+            object.__setattr__(self, "arm_length", scalar("arm_length", self.arm_length, lo=0.0, lo_open=True))
+            object.__setattr__(self, "f_max", scalar("f_max", self.f_max, lo=0.0, lo_open=True))
+            object.__setattr__(self, "f_min", scalar("f_min", self.f_min, lo=0.0))
+            if self.f_min >= self.f_max:
+                raise InputError(f"f_min = {self.f_min} must be below f_max = {self.f_max}")
+            pos, spins = layout_positions(self.layout, self.arm_length)
+            f_min = np.full(len(spins), self.f_min)
+            f_max = np.full(len(spins), self.f_max)
+        object.__setattr__(self, "_geometry", _geometry(pos, spins, f_min, f_max, self.drag_factor))
+
+    @property
+    def geometry(self) -> RotorGeometry:
+        assert self._geometry is not None
+        return self._geometry
+
+    @property
+    def n_rotors(self) -> int:
+        return self.geometry.n
 
     @property
     def thrust_to_weight(self) -> float:
         """Maximum total thrust over nominal weight."""
-        return 4.0 * self.f_max / (self.mass * G)
+        return float(self.geometry.f_max.sum() / (self.mass * G))
+
+    @property
+    def hover_authority(self) -> float:
+        """Largest collective thrust (N) at which every rotor can still be equal: ``n * min f_max``."""
+        return float(self.geometry.n * self.geometry.f_max.min())
+
+    def with_rotor_limits(self, f_max: float | None = None, f_min: float | None = None) -> VehicleParams:
+        """A copy with every rotor's limits replaced (``None`` keeps them)."""
+        rotors = [
+            Rotor(
+                tuple(p),
+                int(s),
+                float(f_max) if f_max is not None else float(hi),
+                float(f_min) if f_min is not None else float(lo),
+            )
+            for p, s, lo, hi in zip(
+                self.geometry.positions_B, self.geometry.spins, self.geometry.f_min, self.geometry.f_max, strict=True
+            )
+        ]
+        return VehicleParams(
+            self.mass, self.inertia, drag_factor=self.drag_factor, name=self.name, rotors=tuple(rotors)
+        )
 
     def to_dict(self) -> dict[str, Any]:
+        g = self.geometry
         return {
             "name": self.name,
             "mass": self.mass,
             "inertia": self.inertia.tolist(),
-            "arm_length": self.arm_length,
             "drag_factor": self.drag_factor,
-            "f_max": self.f_max,
-            "f_min": self.f_min,
+            "rotors": [
+                {"position_B": p.tolist(), "spin": int(s), "f_min": float(lo), "f_max": float(hi)}
+                for p, s, lo, hi in zip(g.positions_B, g.spins, g.f_min, g.f_max, strict=True)
+            ],
         }
 
 
-def load_preset(name: str = "pelican") -> VehicleParams:
-    """Load a vehicle preset shipped in ``vtol_impedance/presets/NAME.toml``."""
+def _geometry(pos: np.ndarray, spins: np.ndarray, f_min: np.ndarray, f_max: np.ndarray, c: float) -> RotorGeometry:
+    n = len(spins)
+    if not 4 <= n <= MAX_ROTORS:
+        raise InputError(f"a multirotor needs 4 to {MAX_ROTORS} rotors, got {n}")
+    E = effectiveness(pos, spins, c)
+    if np.linalg.matrix_rank(E, tol=1e-9 * max(1.0, np.abs(E).max())) < 4:
+        raise InputError(
+            "the rotor layout cannot produce thrust, roll, pitch and yaw independently (effectiveness matrix "
+            f"rank < 4); positions {pos.tolist()}, spins {spins.tolist()}"
+        )
+    E_pinv = np.linalg.pinv(E)
+    pu = E_pinv[:, 0]
+    if np.all(pu > 0) and np.max(f_min / pu) >= np.min(f_max / pu):
+        raise InputError(
+            f"rotor limits leave no collective thrust that every rotor can share (f_min {list(f_min)}, "
+            f"f_max {list(f_max)})"
+        )
+    if np.any(pu <= 0):
+        raise InputError(
+            "with this rotor layout pure thrust would need a negative force on some rotor "
+            f"(thrust shares {E_pinv[:, 0].round(4).tolist()}); place the rotors around the body origin"
+        )
+    arrays = [np.array(a, dtype=float) for a in (pos, spins, f_min, f_max)]
+    E.setflags(write=False)
+    E_pinv.setflags(write=False)
+    for a in arrays:
+        a.setflags(write=False)
+    return RotorGeometry(*arrays, float(c), E, E_pinv)
+
+
+PRESET_KEYS = (
+    "name",
+    "mass",
+    "inertia_diag",
+    "inertia",
+    "layout",
+    "arm_length",
+    "drag_factor",
+    "f_max",
+    "f_min",
+    "thrust_constant",
+    "torque_constant",
+    "max_speed",
+    "rotors",
+)
+ROTOR_KEYS = ("position_B", "spin", "f_max", "f_min", "max_speed")
+
+
+def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleParams:
+    """Build a vehicle from a parsed TOML table (see ``presets/*.toml`` and the README).
+
+    Rotor limits may be given as ``f_max`` or as ``thrust_constant`` and ``max_speed`` (rad/s); the drag
+    factor as ``drag_factor`` or as ``torque_constant`` with ``thrust_constant``.
+    """
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: expected a table, got {data!r}")
+    check_keys(source, data, PRESET_KEYS)
+    try:
+        inertia = data["inertia"] if "inertia" in data else data["inertia_diag"]
+        mass = data["mass"]
+    except KeyError as exc:
+        raise InputError(f"{source}: missing key {exc.args[0]!r} (need mass and inertia or inertia_diag)") from None
+    kf = data.get("thrust_constant")
+    if "drag_factor" in data:
+        c = data["drag_factor"]
+    elif "torque_constant" in data and kf is not None:
+        c = drag_factor_from_constants(data["torque_constant"], kf)
+    else:
+        c = 0.016
+
+    def limit(table: dict[str, Any], where: str) -> float | None:
+        if "f_max" in table:
+            return table["f_max"]
+        if "max_speed" in table:
+            if kf is None:
+                raise InputError(f"{where}: max_speed needs the vehicle's thrust_constant")
+            return f_max_from_motor(kf, table["max_speed"])
+        return None
+
+    name = data.get("name", source)
+    for key, want in (("name", str), ("layout", str)):
+        if key in data and not isinstance(data[key], want):
+            raise InputError(f"{source}: {key} must be a string, got {data[key]!r}")
+    try:
+        if "rotors" in data:
+            rows = data["rotors"]
+            if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+                raise InputError(f"{source}: rotors must be a list of tables ([[rotors]])")
+            rotors = []
+            for i, r in enumerate(rows):
+                where = f"{source}: rotors[{i}]"
+                check_keys(where, r, ROTOR_KEYS)
+                if "position_B" not in r or "spin" not in r:
+                    raise InputError(f"{where}: needs position_B and spin")
+                fmax = limit(r, where)
+                rotors.append(Rotor(r["position_B"], r["spin"], 7.0 if fmax is None else fmax, r.get("f_min", 0.0)))
+            return VehicleParams(mass, inertia, drag_factor=c, name=name, rotors=tuple(rotors))
+        return VehicleParams(
+            mass,
+            inertia,
+            arm_length=data.get("arm_length"),
+            drag_factor=c,
+            f_max=limit(data, source),
+            f_min=data.get("f_min"),
+            name=name,
+            layout=data.get("layout", "plus"),
+        )
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, InputError):
+            raise InputError(f"{source}: {exc}") from None
+        raise InputError(f"{source}: malformed value ({exc})") from None
+
+
+def preset_names() -> list[str]:
     files = resources.files("vtol_impedance") / "presets"
-    available = sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".toml"))
+    return sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".toml"))
+
+
+def load_preset(name: str = "pelican") -> VehicleParams:
+    """A vehicle preset shipped in ``vtol_impedance/presets/NAME.toml``, or a vehicle TOML file by path."""
+    if not isinstance(name, str):
+        raise InputError(f"vehicle must be a preset name or a .toml path, got {name!r}")
+    if name.endswith(".toml"):
+        path = Path(name)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise InputError(f"cannot read vehicle file {path}: {exc}") from None
+        return vehicle_from_dict(data, str(path))
+    available = preset_names()
     if name not in available:
-        raise InputError(f"unknown vehicle preset {name!r}; available: {', '.join(available)}")
-    data = tomllib.loads((files / f"{name}.toml").read_text())
-    return VehicleParams(
-        mass=data["mass"],
-        inertia=data["inertia_diag"],
-        arm_length=data["arm_length"],
-        drag_factor=data["drag_factor"],
-        f_max=data["f_max"],
-        f_min=data.get("f_min", 0.0),
-        name=data.get("name", name),
-    )
+        raise InputError(f"unknown vehicle preset {name!r}; available: {', '.join(available)} (or a .toml path)")
+    data = tomllib.loads((resources.files("vtol_impedance") / "presets" / f"{name}.toml").read_text())
+    return vehicle_from_dict(data, name)
+
+
+__all__ = [
+    "LAYOUTS",
+    "MAX_ROTORS",
+    "Rotor",
+    "RotorGeometry",
+    "VehicleParams",
+    "drag_factor_from_constants",
+    "effectiveness",
+    "f_max_from_motor",
+    "layout_positions",
+    "load_preset",
+    "preset_names",
+    "vehicle_from_dict",
+]

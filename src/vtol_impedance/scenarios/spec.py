@@ -190,8 +190,7 @@ def build(spec: ScenarioSpec) -> Built:
     duration = spec.duration if spec.duration > 0 else traj.duration
     window = (min(window[0], duration), min(window[1], duration))
     ps, pl = spec.plant, spec.payload
-    f_max = vehicle.f_max if ps.rotor_limits else 1e6
-    true_vehicle = replace(vehicle, f_max=f_max, name=f"{vehicle.name} (true)")
+    true_vehicle = vehicle if ps.rotor_limits else vehicle.with_rotor_limits(f_max=1e6)
     if spec.ideal:
         plant = PlantParams(true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground)
         sensors = SensorParams.ideal()

@@ -27,7 +27,7 @@ from ..control.impedance import (
 from ..control.reference import Trajectory
 from ..control.signals import Reference
 from ..conventions import E3, GRAVITY_W
-from ..errors import InputError, positive
+from ..errors import InputError, as_finite, scalar
 from ..model.dynamics import coriolis_matrix_C, inertia_matrix_M, matvec, transpose
 from ..model.kinematics import (
     cross,
@@ -48,18 +48,19 @@ from .plant import (
     compile_plants,
     environment_wrench,
     initial_state,
+    lowest_contact_depth,
     origin_kinematics,
     plant_derivative,
     rk4_step,
 )
 from .result import (
-    ROW_WIDTH,
-    SIGNAL_OFFSETS,
-    SIGNALS,
     STEADY_TAIL_S,
     Result,
     metrics_row,
+    row_width,
     rows_to_data,
+    signal_offsets,
+    signal_shape,
     window_mask_of,
 )
 from .sensors import NoiseSource, SensorParams, SensorSuite
@@ -67,14 +68,15 @@ from .sensors import NoiseSource, SensorParams, SensorSuite
 #: A vehicle is stopped and flagged when its tilt exceeds this (the Euler parametrisation fails at 90 deg).
 MAX_TILT_RAD = np.radians(80.0)
 MAX_DISTANCE_M = 1e3
-#: A vehicle whose centre of mass goes this far into the ground has crashed: the paper's landings
-#: compress the ground model by a few millimetres, an impact at about 2.5 m/s by this much.
+#: A vehicle one of whose ground contact points (the body origin, the payload) goes this far into the
+#: ground has crashed: the paper's landings compress the ground model by a few millimetres, an impact
+#: at about 2.5 m/s by this much.
 CRASH_DEPTH_M = 0.015
 REASONS = {
     1: "non-finite state",
     2: "tilt above 80 deg",
     3: f"more than {MAX_DISTANCE_M:.0f} m from the origin",
-    4: f"crashed into the ground (centre of mass {100 * CRASH_DEPTH_M:.1f} cm into it)",
+    4: f"crashed into the ground (a contact point {100 * CRASH_DEPTH_M:.1f} cm into it)",
 }
 #: Bytes of random numbers drawn per block (bounds memory for large batches).
 BLOCK_BYTES = 50_000_000
@@ -209,8 +211,8 @@ def run_closed_loop(
         raise InputError(f"{len(seeds)} seeds given for {B} vehicles")
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    duration = float(positive("duration", duration))
-    plant_rate = float(positive("plant_rate", plant_rate))
+    duration = scalar("duration", duration, lo=0.0, lo_open=True)
+    plant_rate = scalar("plant_rate", plant_rate, lo=0.0, lo_open=True)
     sensors = SensorParams() if sensors is None else sensors
     dec = _parse_log(log)
 
@@ -228,7 +230,13 @@ def run_closed_loop(
     dist = DisturbanceSet(
         [d.prepare(duration + Ts, dt, np.random.default_rng(s)) for d, s in zip(disturbances, dseeds, strict=True)]
     )
-    start = trajectory.sample(0.0).p_W if start_W is None else np.asarray(start_W, dtype=float)
+    start = trajectory.sample(0.0).p_W if start_W is None else as_finite("start_W", start_W, (3,))
+    if start.shape != (3,):
+        raise InputError(f"start_W must be one point of shape (3,), got shape {start.shape}")
+    x0 = initial_state(PA, np.broadcast_to(start, (B, 3)), np.array([0.0, 0.0, trajectory.yaw0]))
+    # A vehicle set down with a contact point (a low-slung payload) under the ground is lifted onto it.
+    lift = np.where(PA.ground > 0, np.maximum(lowest_contact_depth(PA, x0), 0.0), 0.0)
+    x0[:, 2] -= lift
     setup = _Setup(
         CA,
         PA,
@@ -236,7 +244,7 @@ def run_closed_loop(
         sensors,
         NoiseSource(seeds),
         trajectory.sample_many(t_grid),
-        initial_state(PA, np.broadcast_to(start, (B, 3))),
+        x0,
         Ts,
         dt,
         n_sub,
@@ -264,6 +272,8 @@ def run_closed_loop(
         }
     )
     cfg.setdefault("window", list(setup.window[:2]))
+    if np.any(lift > 0):
+        cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
     t_log = t_grid[::dec] if dec else t_grid[:0]
     data = rows_to_data(rows) if dec else {}
     for i, m in enumerate(metrics):
@@ -318,7 +328,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     CS = ctrl_initial_state(cp, CA.est.Ad.shape[-1])
     suite = SensorSuite(s.sensors, s.PA, s.dt)
     H = max(suite.k_mocap, suite.k_imu) + 1
-    hist = np.empty((B, H, 17))
+    hist = np.empty((B, H, s.x0.shape[1]))
     hist[:, 0] = s.x0
     hcount = np.ones(B, dtype=np.int64)
     hhead = np.zeros(B, dtype=np.int64)
@@ -327,7 +337,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     fail_time = np.zeros(B)
     fail_code = np.zeros(B, dtype=np.int64)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    logs = np.full((B, n_log, ROW_WIDTH), np.nan)
+    logs = np.full((B, n_log, row_width(s.x0.shape[1] - 13)), np.nan)
     acc = np.zeros((B, N_ACC))
     win = np.array(s.window)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
@@ -380,7 +390,9 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
     x_park = s.x0.copy()
     sens.push(x)
     CS = initial_controller_state(CA)
-    logs = np.full((B, s.N, ROW_WIDTH), np.nan)
+    n_rotors = PA.spins.shape[-1]
+    logs = np.full((B, s.N, row_width(n_rotors)), np.nan)
+    offsets = signal_offsets(n_rotors)
     alive = np.ones(B, dtype=bool)
     fail_code = np.zeros(B, dtype=np.int64)
     fail_time = np.zeros(B)
@@ -420,6 +432,9 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
             "f_rotor_cmd": out.f_rotor,
             "f_rotor": x[..., ROTOR],
             "saturated": out.saturated,
+            "tilt_limited": out.tilt_limited,
+            "rp_scale": out.rp_scale,
+            "yaw_scale": out.yaw_scale,
             "f_ext_W": f_env,
             "tau_ext_B": tau_env,
             "tau_ext_eta": matvec(transpose(euler_rate_matrix_Q(eta)), tau_env),
@@ -429,8 +444,9 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
             "tau_hat_eta": out.tau_hat_eta,
             "tau_hat_B": out.tau_hat_B,
         }
-        for name, (off, n) in SIGNAL_OFFSETS.items():
-            val = np.broadcast_to(np.asarray(row[name], dtype=float), (B,) + SIGNALS[name][0]).reshape(B, n)
+        for name, (off, n) in offsets.items():
+            val = np.broadcast_to(np.asarray(row[name], dtype=float), (B,) + signal_shape(name, n_rotors))
+            val = val.reshape(B, n)
             logs[alive, k, off : off + n] = val[alive]
 
         x = apply_instant_rotors(PA, x, out.f_rotor)
@@ -438,7 +454,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
             x = rk4_step(PA, x, out.f_rotor, t + j * s.dt, s.dt, dist)
             sens.push(x)
 
-        code = _check_vehicles(x, PA.ground)
+        code = _check_vehicles(PA, x)
         newly = alive & (code != 0)
         if np.any(newly):
             fail_code[newly] = code[newly]
@@ -458,7 +474,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
     return logs[:, :: s.dec], [], failures
 
 
-def _check_vehicles(x: np.ndarray, ground: np.ndarray) -> np.ndarray:
+def _check_vehicles(PA: PlantArrays, x: np.ndarray) -> np.ndarray:
     """Failure code per vehicle (0 when healthy; see :data:`REASONS`)."""
     code = np.zeros(x.shape[0], dtype=np.int64)
     finite = np.all(np.isfinite(x), axis=-1)
@@ -468,6 +484,7 @@ def _check_vehicles(x: np.ndarray, ground: np.ndarray) -> np.ndarray:
     far = finite & (np.linalg.norm(x[:, 0:3], axis=-1) > MAX_DISTANCE_M)
     code[finite & (tilt > MAX_TILT_RAD)] = 2
     code[far & (code == 0)] = 3
-    crash = finite & (np.broadcast_to(ground, code.shape) > 0) & (x[:, 2] > CRASH_DEPTH_M)
+    depth = lowest_contact_depth(PA, np.where(finite[:, None], x, 0.0))
+    crash = finite & (np.broadcast_to(PA.ground, code.shape) > 0) & (depth > CRASH_DEPTH_M)
     code[crash & (code == 0)] = 4
     return code

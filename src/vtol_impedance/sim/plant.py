@@ -4,16 +4,21 @@ This is deliberately *not* the controller's model. Its state is the composite ce
 moving in the world NED frame, a unit quaternion for attitude (no Euler singularity in the plant),
 the body rate and the four rotor forces:
 
-    x = [p_com_W (3), v_com_W (3), q_WB (4, [w, x, y, z]), omega_B (3), f_rotor (4)]   (17 values)
+    x = [p_com_W (3), v_com_W (3), q_WB (4, [w, x, y, z], body to world), omega_B (3), f_rotor (n)]
+                                                                                  (13 + n values)
 
 Forces and moments:
 
-* rotors: eq. (4) with the *true* arm length and drag factor, thrust along ``-z_B`` at the body origin
-  (the geometric centre the controller believes is the CoM); a payload moves the CoM by ``c_B``, so the
+* rotors: the *true* rotor geometry (the vehicle's rotors with positions scaled by ``arm_length_scale``
+  and the drag factor by ``drag_factor_scale``): rotor ``i`` pushes ``f_i`` along ``-z_B`` at ``r_i``
+  and adds the yaw reaction ``s_i c f_i e3``, summed here from the cross products ``r_i x (-f_i e3)``
+  (not from the controller's effectiveness matrix); a payload moves the CoM by ``c_B``, so the
   thrust has a moment ``-c_B x F`` about the true CoM;
 * rotor lag: ``f_dot = (clip(f_cmd) - f) / tau`` with a faster time constant up than down;
 * environment: explicit disturbances ``f_dist_W`` (at the body origin) and ``tau_dist_B``, linear rotor
-  drag ``-k_drag v`` and a spring-damper ground under the body origin (z = 0 in NED, +z is down).
+  drag ``-k_drag v`` and a spring-damper ground (z = 0 in NED, +z is down) acting at two contact points:
+  the body origin (the landing gear the controller's position refers to) and the payload (which touches
+  first when it hangs below).
 
 Newton-Euler about the CoM: ``m a = m g_W - u R e3 + f_env_W``, ``I w_dot = tau - w x I w``.
 All functions broadcast over leading batch dimensions.
@@ -28,14 +33,18 @@ from typing import NamedTuple
 import numpy as np
 
 from ..conventions import GRAVITY_W, G
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, as_finite, positive, scalar
 from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
-from ..model.mixer import mix
-from ..model.vehicle import VehicleParams
+from ..model.vehicle import VehicleParams, effectiveness
 
-N_STATE = 17
-P_COM, V_COM, QUAT, OMEGA, ROTOR = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, 17)
+#: State length without the rotors; the state is ``N_BODY + n_rotors`` long.
+N_BODY = 13
+P_COM, V_COM, QUAT, OMEGA, ROTOR = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, None)
+
+
+def state_size(n_rotors: int) -> int:
+    return N_BODY + n_rotors
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,19 +77,25 @@ class PlantParams:
     ground_friction: float = 20.0
 
     def __post_init__(self) -> None:
-        positive("payload_mass", self.payload_mass, allow_zero=True)
-        as_finite("payload_offset_B", self.payload_offset_B, (3,))
-        positive("inertia_scale", self.inertia_scale)
-        positive("arm_length_scale", self.arm_length_scale)
-        positive("drag_factor_scale", self.drag_factor_scale)
-        positive("rotor_tau_up", self.rotor_tau_up, allow_zero=True)
-        positive("rotor_tau_down", self.rotor_tau_down, allow_zero=True)
-        positive("rotor_drag", self.rotor_drag, allow_zero=True)
-        positive("ground_stiffness", self.ground_stiffness)
-        positive("ground_damping", self.ground_damping, allow_zero=True)
-        positive("ground_friction", self.ground_friction, allow_zero=True)
-        if np.shape(self.inertia_scale) not in ((), (3,)):
-            raise InputError(f"inertia_scale must be a scalar or 3 values, got {self.inertia_scale}")
+        if not isinstance(self.vehicle, VehicleParams):
+            raise InputError(f"PlantParams.vehicle must be a VehicleParams, got {type(self.vehicle).__name__}")
+        object.__setattr__(self, "payload_mass", scalar("payload_mass", self.payload_mass, lo=0.0))
+        off = as_finite("payload_offset_B", self.payload_offset_B, (3,))
+        if off.shape != (3,) or np.linalg.norm(off) > 10.0:
+            raise InputError(f"payload_offset_B must be 3 values within 10 m of the body origin, got {off.tolist()}")
+        object.__setattr__(self, "payload_offset_B", tuple(float(v) for v in off))
+        scale = positive("inertia_scale", self.inertia_scale)
+        if scale.shape not in ((), (3,)):
+            raise InputError(f"inertia_scale must be a scalar or 3 values, got {self.inertia_scale!r}")
+        object.__setattr__(self, "inertia_scale", tuple(float(v) for v in np.broadcast_to(scale, (3,))))
+        for name in ("arm_length_scale", "drag_factor_scale", "ground_stiffness"):
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, lo_open=True))
+        for name in ("rotor_tau_up", "rotor_tau_down"):
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, hi=10.0))
+        for name in ("rotor_drag", "ground_damping", "ground_friction"):
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0))
+        if not isinstance(self.ground, bool | np.bool_):
+            raise InputError(f"ground must be true or false, got {self.ground!r}")
 
     @property
     def total_mass(self) -> float:
@@ -111,10 +126,13 @@ class PlantArrays(NamedTuple):
     I_com: np.ndarray  # about the composite CoM, body axes
     I_com_inv: np.ndarray
     c_B: np.ndarray  # CoM position from the body origin, FRD
-    arm_length: np.ndarray
+    r_contact_B: np.ndarray  # the second ground contact point (the payload), FRD from the body origin
+    rotor_pos_B: np.ndarray  # (..., n, 3) true rotor positions, FRD from the body origin
+    spins: np.ndarray  # (..., n)
     drag_factor: np.ndarray
-    f_max: np.ndarray
-    f_min: np.ndarray
+    E: np.ndarray  # (..., 4, n) true effectiveness (for the compiled kernels)
+    f_max: np.ndarray  # (..., n)
+    f_min: np.ndarray  # (..., n)
     tau_up: np.ndarray
     tau_down: np.ndarray
     rotor_drag: np.ndarray
@@ -141,15 +159,21 @@ def compile_plant_one(P: PlantParams) -> dict[str, np.ndarray]:
     scale = np.broadcast_to(np.asarray(P.inertia_scale, dtype=float), (3,))
     I_bare = v.inertia * np.sqrt(np.outer(scale, scale))  # scales the diagonal by `scale`
     I_com = I_bare + _point_inertia(m_b, -c) + _point_inertia(m_p, r_p - c)
+    g = v.geometry
+    pos = g.positions_B * P.arm_length_scale
+    cq = v.drag_factor * P.drag_factor_scale
     return {
         "mass": m,
         "I_com": I_com,
         "I_com_inv": np.linalg.inv(I_com),
         "c_B": c,
-        "arm_length": v.arm_length * P.arm_length_scale,
-        "drag_factor": v.drag_factor * P.drag_factor_scale,
-        "f_max": v.f_max,
-        "f_min": v.f_min,
+        "r_contact_B": r_p if m_p > 0 else np.zeros(3),
+        "rotor_pos_B": pos,
+        "spins": g.spins,
+        "drag_factor": cq,
+        "E": effectiveness(pos, g.spins, cq),
+        "f_max": g.f_max,
+        "f_min": g.f_min,
         "tau_up": P.rotor_tau_up,
         "tau_down": P.rotor_tau_down,
         "rotor_drag": P.rotor_drag,
@@ -163,9 +187,13 @@ def compile_plant_one(P: PlantParams) -> dict[str, np.ndarray]:
 def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
     """Arrays for one plant (batch shape ``()``) or a list of plants (batch shape ``(B,)``)."""
     single = isinstance(params, PlantParams)
-    dicts = [compile_plant_one(p) for p in ([params] if single else params)]
-    if not dicts:
-        raise InputError("no plant given")
+    plist = [params] if single else list(params)
+    if not plist or not all(isinstance(p, PlantParams) for p in plist):
+        raise InputError("give one PlantParams or a non-empty list of them")
+    nr = {p.vehicle.n_rotors for p in plist}
+    if len(nr) > 1:
+        raise InputError(f"plants in one batch must have the same number of rotors, got {sorted(nr)}")
+    dicts = [compile_plant_one(p) for p in plist]
     out = {k: np.array([d[k] for d in dicts], dtype=float) for k in PlantArrays._fields}
     if single:
         out = {k: v[0] for k, v in out.items()}
@@ -177,30 +205,56 @@ def initial_state(
 ) -> np.ndarray:
     """State at rest with the body origin at ``p_origin_W`` and attitude ``eta`` (default level).
 
-    Rotor forces start at the thrust that holds the true weight (``hover_rotors``) or at zero.
+    Rotor forces start at the thrust that holds the true weight (``hover_rotors``, shared by the thrust
+    shares of the pseudo-inverse) or at zero.
     """
     bs = P.batch_shape
+    n = P.spins.shape[-1]
     eta = np.zeros(3) if eta is None else np.asarray(eta, dtype=float)
-    x = np.zeros(bs + (N_STATE,))
+    x = np.zeros(bs + (state_size(n),))
     q = np.broadcast_to(quat_from_euler(eta), bs + (4,))
     R = quat_to_rotation(q)
     x[..., P_COM] = np.asarray(p_origin_W, dtype=float) + matvec(R, P.c_B)
     x[..., QUAT] = q
     if hover_rotors:
-        x[..., ROTOR] = np.clip(P.mass * G / 4.0, P.f_min, P.f_max)[..., None]
+        x[..., ROTOR] = np.clip((P.mass * G)[..., None] / n, P.f_min, P.f_max)
     return x
 
 
 def origin_kinematics(P: PlantArrays, x: np.ndarray, R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Position and velocity of the body origin (where motion capture markers sit)."""
+    return point_kinematics(P, x, np.zeros(3), R)
+
+
+def point_kinematics(
+    P: PlantArrays, x: np.ndarray, r_B: np.ndarray, R: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """World position and velocity of the body point ``r_B`` (FRD, from the body origin)."""
     R = quat_to_rotation(x[..., QUAT]) if R is None else R
     w = x[..., OMEGA]
-    p_o = x[..., P_COM] - matvec(R, P.c_B)
-    v_o = x[..., V_COM] - matvec(R, cross(w, P.c_B))
-    return p_o, v_o
+    d = np.asarray(r_B, dtype=float) - P.c_B  # from the CoM
+    return x[..., P_COM] + matvec(R, d), x[..., V_COM] + matvec(R, cross(w, d))
+
+
+def lowest_contact_depth(P: PlantArrays, x: np.ndarray) -> np.ndarray:
+    """Depth below the ground plane (m, > 0 underground) of the lower of the two contact points."""
+    R = quat_to_rotation(x[..., QUAT])
+    z_o = point_kinematics(P, x, np.zeros(3), R)[0][..., 2]
+    z_p = point_kinematics(P, x, P.r_contact_B, R)[0][..., 2]
+    return np.maximum(z_o, z_p)
 
 
 DisturbanceFn = Callable[[float, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def _ground_force(P: PlantArrays, p_W: np.ndarray, v_W: np.ndarray) -> np.ndarray:
+    """Spring-damper ground with viscous friction at one contact point: pushes, never pulls."""
+    pen = p_W[..., 2]  # > 0 means below the ground plane
+    in_contact = (pen > 0.0) & (P.ground > 0.0)
+    fz = -(P.k_ground * pen + P.c_ground * v_W[..., 2])
+    fz = np.where(in_contact, np.minimum(fz, 0.0), 0.0)
+    fxy = np.where(in_contact[..., None], -P.b_ground[..., None] * v_W[..., :2], 0.0)
+    return np.concatenate([fxy, fz[..., None]], -1)
 
 
 def environment_wrench(
@@ -208,42 +262,48 @@ def environment_wrench(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Total external force (world, at the body origin) and moment (body, about the origin).
 
-    Disturbances ``dist(t, p_o_W, v_o_W, R_WB)`` plus rotor drag plus ground contact: everything
-    except gravity and the rotors.
+    Disturbances ``dist(t, p_o_W, v_o_W, R_WB)`` plus rotor drag plus ground contact at the body origin and
+    at the payload: everything except gravity and the rotors.
     """
     p_o, v_o = origin_kinematics(P, x, R)
     if dist is None:
         f_d, tau = np.zeros(p_o.shape), np.zeros(p_o.shape)
     else:
         f_d, tau = dist(t, p_o, v_o, R)
-    f = f_d - P.rotor_drag[..., None] * v_o
-    pen = p_o[..., 2]  # > 0 means below the ground plane
-    in_contact = (pen > 0.0) & (P.ground > 0.0)
-    fz = -(P.k_ground * pen + P.c_ground * v_o[..., 2])
-    fz = np.where(in_contact, np.minimum(fz, 0.0), 0.0)  # the ground pushes, never pulls
-    fxy = np.where(in_contact[..., None], -P.b_ground[..., None] * v_o[..., :2], 0.0)
-    f = f + np.concatenate([fxy, fz[..., None]], -1)
-    return f, np.broadcast_to(tau, f.shape)
+    f = f_d - P.rotor_drag[..., None] * v_o + _ground_force(P, p_o, v_o)
+    p_c, v_c = point_kinematics(P, x, P.r_contact_B, R)
+    f_c = _ground_force(P, p_c, v_c)
+    tau = tau + cross(P.r_contact_B, matvec(transpose(R), f_c))
+    return f + f_c, np.broadcast_to(tau, f.shape)
+
+
+def rotor_wrench(P: PlantArrays, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Total thrust ``u`` and moment about the body origin (body frame) of rotor forces ``f (..., n)``:
+    ``sum_i r_i x (-f_i e3) + s_i c f_i e3``."""
+    F_B = np.zeros(f.shape + (3,))
+    F_B[..., 2] = -f
+    yaw = (P.spins * f * P.drag_factor[..., None])[..., None] * np.array([0.0, 0.0, 1.0])
+    return f.sum(-1), (cross(P.rotor_pos_B, F_B) + yaw).sum(-2)
 
 
 def plant_derivative(
     P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray, t: float = 0.0, dist: DisturbanceFn | None = None
 ) -> np.ndarray:
-    """``x_dot`` of the true plant for held rotor commands ``f_cmd (..., 4)`` and disturbances ``dist``."""
+    """``x_dot`` of the true plant for held rotor commands ``f_cmd (..., n)`` and disturbances ``dist``."""
     q = x[..., QUAT]
     w = x[..., OMEGA]
     f = x[..., ROTOR]
     R = quat_to_rotation(q)
     f_env_W, tau_env_B = environment_wrench(P, t, x, R, dist)
-    u, tau_mix_B = mix(f, P.arm_length, P.drag_factor)
+    u, tau_rot_B = rotor_wrench(P, f)
     z_B = R[..., :, 2]
     F_W = -u[..., None] * z_B + f_env_W  # everything applied at the body origin
     a = GRAVITY_W + F_W / P.mass[..., None]
     F_B = matvec(transpose(R), F_W)
-    tau_com = tau_mix_B + tau_env_B - cross(P.c_B, F_B)
+    tau_com = tau_rot_B + tau_env_B - cross(P.c_B, F_B)
     Iw = matvec(P.I_com, w)
     w_dot = matvec(P.I_com_inv, tau_com - cross(w, Iw))
-    target = np.clip(f_cmd, P.f_min[..., None], P.f_max[..., None])
+    target = np.clip(f_cmd, P.f_min, P.f_max)
     tau = np.where(target > f, P.tau_up[..., None], P.tau_down[..., None])
     f_dot = np.where(tau > 0, (target - f) / np.maximum(tau, 1e-12), 0.0)
     return np.concatenate([x[..., V_COM], a, quat_derivative(q, w), w_dot, f_dot], -1)
@@ -255,7 +315,7 @@ def apply_instant_rotors(P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray) -> np
     if not np.any(lagless):
         return x
     x = x.copy()
-    target = np.clip(f_cmd, P.f_min[..., None], P.f_max[..., None])
+    target = np.clip(f_cmd, P.f_min, P.f_max)
     x[..., ROTOR] = np.where(np.asarray(lagless)[..., None], target, x[..., ROTOR])
     return x
 

@@ -13,9 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..control.signals import Measurement
-from ..errors import positive
+from ..errors import scalar
 from ..model.kinematics import euler_from_rotation, euler_rate_matrix_Q, quat_to_rotation
 from .plant import OMEGA, QUAT, PlantArrays, origin_kinematics
+
+#: Longest sensor latency accepted, s.
+MAX_DELAY_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -23,7 +26,7 @@ class SensorParams:
     """Noise standard deviations and latencies. Defaults: OptiTrack over WiFi and a MEMS IMU.
 
     ``pos_noise`` [m], ``vel_noise`` [m/s], ``mocap_delay`` [s]; ``att_noise`` [rad] per Euler angle,
-    ``gyro_noise`` [rad/s] per axis, ``imu_delay`` [s].
+    ``gyro_noise`` [rad/s] per axis, ``imu_delay`` [s]. Delays are at most :data:`MAX_DELAY_S`.
     """
 
     pos_noise: float = 3e-4
@@ -34,8 +37,10 @@ class SensorParams:
     imu_delay: float = 0.002
 
     def __post_init__(self) -> None:
-        for name in ("pos_noise", "vel_noise", "mocap_delay", "att_noise", "gyro_noise", "imu_delay"):
-            positive(name, getattr(self, name), allow_zero=True)
+        for name in ("pos_noise", "vel_noise", "att_noise", "gyro_noise"):
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0))
+        for name in ("mocap_delay", "imu_delay"):  # bounded: the loop keeps that much state history
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, hi=MAX_DELAY_S))
 
     @classmethod
     def ideal(cls) -> SensorParams:
