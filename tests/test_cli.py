@@ -90,8 +90,8 @@ def test_run_and_compare_with_overrides(tmp_path, capsys):
 def test_scenario_file(tmp_path):
     f = tmp_path / "mine.toml"
     f.write_text('base = "case-a-payload"\nname = "mine-v1"\nduration = 0.3\n[payload]\nmass = 0.3\n')
-    assert main(["run", str(f), "--no-plots", "--quiet", "--out", str(tmp_path)]) == 0
-    assert Result.load(tmp_path / "mine-v1.npz").config["scenario"]["payload"]["mass"] == 0.3
+    assert main(["run", str(f), "--no-plots", "--quiet", "--out", str(tmp_path / "r")]) == 0
+    assert Result.load(tmp_path / "r" / "mine-v1.npz").config["scenario"]["payload"]["mass"] == 0.3
 
 
 @pytest.mark.parametrize(

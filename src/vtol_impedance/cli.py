@@ -43,11 +43,14 @@ class _Progress:
 
 
 def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
+    from .errors import InputError
     from .scenarios import apply_overrides, get, load_toml, set_value
 
     spec = load_toml(name) if name.endswith(".toml") else get(name)
     spec = apply_overrides(spec, sets or [])
     if duration is not None:
+        if not duration > 0 or duration != duration or duration == float("inf"):
+            raise InputError(f"--duration must be a positive number of seconds, got {duration}")
         spec = set_value(spec, "duration", float(duration))
     if ideal:
         spec = set_value(spec, "ideal", True)
@@ -76,40 +79,76 @@ def _run_case_job(args: tuple[Any, list[str], int | None, bool, str]) -> Any:
     return _run_case(*args)
 
 
-def _write_case(result: Any, out: Path, stem: str, plots: bool) -> list[Path]:
+def _die_with_parent() -> None:
+    """In a worker process: be killed when the parent dies, however it dies (Linux ``PR_SET_PDEATHSIG``)."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        pass
+
+
+def _run_parallel(jobs_args: list[tuple[Any, ...]], jobs: int) -> list[Any]:
+    from concurrent.futures import ProcessPoolExecutor
+
+    ex = ProcessPoolExecutor(max_workers=jobs, initializer=_die_with_parent)
+    try:
+        results = list(ex.map(_run_case_job, jobs_args))
+    except BaseException:
+        for proc in list(getattr(ex, "_processes", {}).values()):
+            proc.terminate()
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    ex.shutdown()
+    return results
+
+
+def _write_case(result: Any, folder: Any, stem: str, plots: bool) -> list[Path]:
     from .io import write_text
 
-    files = [result.save(out / f"{stem}.npz")]
-    files.append(write_text(out / f"{stem}.config.json", json.dumps(result.config, indent=1)))
+    files = [result.save(folder.path(f"{stem}.npz"))]
+    files.append(write_text(folder.path(f"{stem}.config.json"), json.dumps(result.config, indent=1)))
     if plots:
         from .analysis.plots import plot_case
 
-        files += plot_case(result, out, stem)
+        files += plot_case(result, folder.staging, stem)
     return files
 
 
-def _finish(out: Path, title: str, results: dict[str, Any], figures: dict[str, list[Path]], quiet: bool) -> None:
+def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str, list[Path]], quiet: bool) -> None:
     from .analysis.metrics import compute_metrics
     from .analysis.report import text_table, write_html, write_tables
 
     metrics = {name: compute_metrics(r) for name, r in results.items()}
-    write_tables(metrics, out)
+    write_tables(metrics, folder.staging)
     notes = [
         "Errors are over each case's task window (hover after take-off for A and B, the two circle laps for C).",
         "Gains as printed in the paper: Kp = 16, Dp = 12 (they do not follow from the stated wn = 4 rad/s, "
         "zeta = 1 with m = 1.2 kg), attitude wn = 8 rad/s, zeta = 1, estimator wn = 10 rad/s, zeta = 1, "
         "PID Ki = 0.5, control at 100 Hz.",
         "Estimation error compares the estimate with everything the nominal model misses (payload, mismatch, "
-        "rotor lag, drag, disturbances), computed from the true motion.",
+        "rotor lag, drag, disturbances), computed from the true motion. 'limited' is the share of the time in "
+        "which the rotor allocation or the tilt limit gave something up.",
     ]
-    write_html(out, title, metrics, figures, notes, {k: r.config for k, r in results.items()})
-    table = text_table(metrics)
-    print(table)
+    configs = {k: r.config for k, r in results.items()}
+    write_html(folder.staging, title, metrics, figures, notes, configs)
+    final = folder.commit(configs, seed=[r.config.get("seed") for r in results.values()])
+    print(text_table(metrics))
     failed = [f"{c}/{r['controller']}" for c, rs in metrics.items() for r in rs if r["failure"]]
     if failed:
         print(f"warning: vehicles stopped early: {', '.join(failed)} (see the failure column)", file=sys.stderr)
     if not quiet:
-        print(f"results written to {out.resolve()}", file=sys.stderr)
+        print(f"results written to {final}", file=sys.stderr)
+
+
+def _seed(args: argparse.Namespace) -> int | None:
+    from .errors import InputError
+
+    if args.seed is not None and not 0 <= args.seed < 2**63:
+        raise InputError(f"--seed must be a whole number in [0, 2^63), got {args.seed}")
+    return args.seed
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -126,50 +165,60 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
+    from .errors import InputError
+    from .io import RunFolder
+    from .scenarios import check
+
     spec = _load_spec(args.scenario, args.set, args.duration, args.ideal)
-    out = Path(args.out)
+    bad = [v for v in variants if v not in ("pd", "pid", "pdc")]
+    if bad or not variants:
+        raise InputError(f"unknown controller(s) {bad or variants}; choose from pd, pid, pdc")
+    seed = _seed(args)
+    check(spec, variants)
     t0 = time.perf_counter()
-    _announce_compile(args.backend, args.quiet)
-    result = _run_case(spec, variants, args.seed, args.quiet, args.backend)
-    stem = spec.name
-    figs = _write_case(result, out, stem, not args.no_plots)
-    _finish(
-        out,
-        f"vtol-impedance: {spec.name}",
-        {spec.name: result},
-        {spec.name: [p for p in figs if p.suffix == ".png"]},
-        args.quiet,
-    )
+    with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / spec.name) as folder:
+        _announce_compile(args.backend, args.quiet)
+        result = _run_case(spec, variants, seed, args.quiet, args.backend)
+        figs = _write_case(result, folder, spec.name, not args.no_plots)
+        _finish(
+            folder,
+            f"vtol-impedance: {spec.name}",
+            {spec.name: result},
+            {spec.name: [p for p in figs if p.suffix == ".png"]},
+            args.quiet,
+        )
     if not args.quiet:
         print(f"wall time {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
 
 
 def cmd_paper(args: argparse.Namespace) -> int:
-    from .scenarios import PAPER_CASES
+    from .errors import InputError
+    from .io import RunFolder
+    from .scenarios import PAPER_CASES, check
 
+    if args.jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {args.jobs}")
     specs = [_load_spec(n, args.set, args.duration, args.ideal) for n in PAPER_CASES]
-    out = Path(args.out)
     variants = ["pd", "pid", "pdc"]
+    seed = _seed(args)
+    for spec in specs:
+        check(spec, variants)
     t0 = time.perf_counter()
-    if not args.quiet:
-        print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
-    _announce_compile(args.backend, args.quiet)
-    jobs = max(1, min(args.jobs, len(specs)))
-    jobs_args = [(s, variants, args.seed, args.quiet, args.backend) for s in specs]
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=jobs) as ex:
-            results_list = list(ex.map(_run_case_job, jobs_args))
-    else:
-        results_list = [_run_case_job(a) for a in jobs_args]
-    results: dict[str, Any] = {}
-    figures: dict[str, list[Path]] = {}
-    for spec, res in zip(specs, results_list, strict=True):
-        results[spec.name] = res
-        figures[spec.name] = [p for p in _write_case(res, out, spec.name, not args.no_plots) if p.suffix == ".png"]
-    _finish(out, "Ruggiero et al. (ICRA 2014) case studies, simulated", results, figures, args.quiet)
+    with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / "paper") as folder:
+        if not args.quiet:
+            print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
+        _announce_compile(args.backend, args.quiet)
+        jobs = min(args.jobs, len(specs))
+        jobs_args = [(s, variants, seed, args.quiet, args.backend) for s in specs]
+        results_list = _run_parallel(jobs_args, jobs) if jobs > 1 else [_run_case_job(a) for a in jobs_args]
+        results: dict[str, Any] = {}
+        figures: dict[str, list[Path]] = {}
+        for spec, res in zip(specs, results_list, strict=True):
+            results[spec.name] = res
+            figs = _write_case(res, folder, spec.name, not args.no_plots)
+            figures[spec.name] = [p for p in figs if p.suffix == ".png"]
+        _finish(folder, "Ruggiero et al. (ICRA 2014) case studies, simulated", results, figures, args.quiet)
     if not args.quiet:
         print(f"wall time {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
@@ -191,7 +240,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:
-        sp.add_argument("--out", default=DEFAULT_OUT, help=f"results folder (default: {DEFAULT_OUT})")
+        sp.add_argument(
+            "--out",
+            default=None,
+            help=f"results folder, replaced as a whole by each run (default: {DEFAULT_OUT}/paper for 'paper', "
+            f"{DEFAULT_OUT}/<scenario name> otherwise)",
+        )
         sp.add_argument(
             "--set",
             action="append",
@@ -235,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=lambda a: cmd_run(a, [c.strip() for c in a.controllers.split(",") if c.strip()]))
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
-    sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help="JSON file (default: results/bench.json)")
+    sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help=f"JSON file (default: {DEFAULT_OUT}/bench.json)")
     sp.add_argument("--quick", action="store_true", help="small sizes and short runs (a smoke test)")
     sp.add_argument("--quiet", action="store_true", help="only the table")
     sp.set_defaults(func=cmd_bench)
@@ -245,18 +299,53 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _terminate(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt  # unwind: staging folders are removed, workers stopped
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Entry point. Exit codes: 0 done, 1 the run failed (an I/O or internal error), 2 a usage error
+    (a bad value, named in the message), 130 interrupted. No traceback is printed unless the environment
+    variable ``VTOL_IMPEDANCE_DEBUG`` is set."""
+    import os
+    import signal
+
     args = build_parser().parse_args(argv)
     from .errors import VtolImpedanceError
 
+    previous = signal.getsignal(signal.SIGTERM)
+    if threading_main():
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args.func(args))
     except VtolImpedanceError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted; no results were written", file=sys.stderr)
         return 130
+    except OSError as exc:
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"error: cannot write or read a file{where}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # the CLI never shows a traceback unless asked
+        if os.environ.get("VTOL_IMPEDANCE_DEBUG"):
+            raise
+        print(
+            f"error: internal error ({type(exc).__name__}: {exc}); please report it with the command line "
+            "(set VTOL_IMPEDANCE_DEBUG=1 to see the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+    finally:
+        if threading_main():
+            signal.signal(signal.SIGTERM, previous)
+
+
+def threading_main() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
 
 
 if __name__ == "__main__":

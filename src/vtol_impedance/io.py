@@ -7,7 +7,7 @@ import os
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 
 def _default_mode() -> int:
@@ -15,6 +15,13 @@ def _default_mode() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return 0o666 & ~mask
+
+
+def _default_dir_mode() -> int:
+    """The mode a plain ``mkdir`` would give (mkdtemp makes folders private)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o777 & ~mask
 
 
 @contextlib.contextmanager
@@ -47,3 +54,211 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]
         fh.flush()
         os.fsync(fh.fileno())
     return Path(path)
+
+
+# --------------------------------------------------------------------------- run folders
+
+MANIFEST = "manifest.json"
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two directory entries atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False if unsupported."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    rc = fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    import errno
+
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def sha256_of(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def check_output_folder(final: Path) -> Path:
+    """Refuse, before any work, an output folder that cannot hold a run: a path through or onto a regular
+    file, or an existing folder with files that no run of this tool wrote (no ``manifest.json``)."""
+    from .errors import InputError
+
+    final = Path(final)
+    for parent in [final, *final.parents]:
+        if parent.exists() and not parent.is_dir():
+            where = "is" if parent == final else f"has {parent} in its path, which is"
+            raise InputError(f"output folder {final} {where} a regular file, not a folder; choose another --out")
+    if final.exists() and any(final.iterdir()) and not (final / MANIFEST).exists():
+        raise InputError(
+            f"output folder {final} already holds files that no vtol-impedance run wrote (no {MANIFEST}); "
+            "a run replaces its whole folder, so choose an empty or new --out"
+        )
+    return final
+
+
+class RunFolder:
+    """All files of one run, bound together and swapped in at once.
+
+    Files are written into a fresh hidden staging folder beside ``final``; :meth:`commit` adds a
+    ``manifest.json`` (config hash, seed, versions, the SHA-256 of every file) and then exchanges the
+    staging folder with ``final`` in one atomic ``renameat2(RENAME_EXCHANGE)`` (Linux), so whatever instant
+    the process dies, ``final`` holds either the previous complete run or the new one. Elsewhere, or on a
+    file system without the exchange, the old folder is renamed aside first and put back on the next run
+    if the process died in between. A lock file beside the folder makes a second concurrent run into the
+    same folder fail at once with a clear error; stale staging folders of killed runs are removed.
+    """
+
+    def __init__(self, final: str | os.PathLike[str]) -> None:
+        import fcntl
+
+        from .errors import InputError
+
+        self.final = check_output_folder(Path(final)).absolute()
+        parent = self.final.parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+            self._lock = open(parent / f".{self.final.name}.lock", "a+")  # noqa: SIM115 (held until close)
+        except OSError as exc:
+            raise InputError(f"cannot create the output folder {self.final}: {exc.strerror}") from None
+        try:
+            fcntl.flock(self._lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._lock.close()
+            raise InputError(
+                f"another run is writing to {self.final} right now; wait for it to finish or choose another --out"
+            ) from None
+        self._recover()
+        self.staging = Path(tempfile.mkdtemp(prefix=f".{self.final.name}.staging-", dir=parent))
+        os.chmod(self.staging, _default_dir_mode())
+        self.done = False
+
+    def _recover(self) -> None:
+        import shutil
+
+        parent, name = self.final.parent, self.final.name
+        olds = sorted(parent.glob(f".{name}.old-*"))
+        if olds and not self.final.exists():  # died between the two renames of the fallback: put it back
+            os.rename(olds[-1], self.final)
+            olds = olds[:-1]
+        for stale in [*olds, *parent.glob(f".{name}.staging-*")]:
+            shutil.rmtree(stale, ignore_errors=True)
+
+    def path(self, name: str) -> Path:
+        return self.staging / name
+
+    def commit(self, config: dict[str, Any], seed: Any = None) -> Path:
+        """Write the manifest and swap the new run in; returns the final folder."""
+        import hashlib
+        import json
+        import shutil
+        import sys
+
+        from . import __version__
+
+        files = sorted(p for p in self.staging.rglob("*") if p.is_file())
+        cfg_text = json.dumps(config, sort_keys=True, default=str)
+        manifest = {
+            "tool": "vtol-impedance",
+            "version": __version__,
+            "python": sys.version.split()[0],
+            "versions": _versions(),
+            "seed": seed,
+            "config_sha256": hashlib.sha256(cfg_text.encode()).hexdigest(),
+            "files": {
+                str(p.relative_to(self.staging)): {"sha256": sha256_of(p), "bytes": p.stat().st_size} for p in files
+            },
+        }
+        write_text(self.staging / MANIFEST, json.dumps(manifest, indent=1))
+        _fsync_dir(self.staging)
+        if not self.final.exists():
+            os.rename(self.staging, self.final)
+        elif _exchange(self.staging, self.final):
+            shutil.rmtree(self.staging, ignore_errors=True)  # it now holds the previous run
+        else:
+            old = Path(tempfile.mkdtemp(prefix=f".{self.final.name}.old-", dir=self.final.parent))
+            os.rmdir(old)
+            os.rename(self.final, old)
+            os.rename(self.staging, self.final)
+            shutil.rmtree(old, ignore_errors=True)
+        _fsync_dir(self.final.parent)
+        self.done = True
+        return self.final
+
+    def close(self) -> None:
+        import shutil
+
+        if not self.done:
+            shutil.rmtree(self.staging, ignore_errors=True)
+        self._lock.close()
+
+    def __enter__(self) -> RunFolder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _versions() -> dict[str, str]:
+    from importlib import metadata
+
+    out = {}
+    for pkg in ("numpy", "scipy", "numba", "matplotlib"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def verify_run_folder(folder: str | os.PathLike[str]) -> dict[str, Any]:
+    """Check that ``folder`` holds exactly the files its manifest lists, with their hashes; returns the
+    manifest or raises :class:`~vtol_impedance.errors.InputError` naming what differs."""
+    import json
+
+    from .errors import InputError
+
+    folder = Path(folder)
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{folder} has no readable {MANIFEST}: {exc}") from None
+    listed = manifest.get("files", {})
+    present = {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()} - {MANIFEST}
+    if present != set(listed):
+        raise InputError(
+            f"{folder}: files differ from the manifest: extra {sorted(present - set(listed))}, "
+            f"missing {sorted(set(listed) - present)}"
+        )
+    for name, meta in listed.items():
+        if sha256_of(folder / name) != meta["sha256"]:
+            raise InputError(f"{folder}: {name} does not match its hash in the manifest")
+    return manifest

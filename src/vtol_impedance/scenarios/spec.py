@@ -9,6 +9,7 @@ against analytic numbers.
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -17,10 +18,11 @@ from typing import Any
 import numpy as np
 
 from ..control.gains import ImpedanceGains
-from ..control.impedance import PAPER_KI, ControllerParams
+from ..control.impedance import PAPER_KI, ControllerParams, compile_controllers
 from ..control.reference import Circle, Hold, MinJerk, Trajectory
 from ..errors import InputError, ScenarioError
 from ..estimator.momentum import EstimatorParams
+from ..model.mixer import THRUST_SHIFT_MAX
 from ..model.vehicle import load_preset
 from ..sim.disturbances import Disturbance, from_dict
 from ..sim.plant import PlantParams
@@ -95,6 +97,7 @@ class ControlSpec:
     attitude_filter_wn: float = 20.0
     tilt_max_deg: float = 35.0
     integral_limit: float = 3.0
+    thrust_shift_max: float = THRUST_SHIFT_MAX
 
 
 @dataclass(frozen=True)
@@ -114,6 +117,9 @@ class ScenarioSpec:
     disturbances: tuple[dict[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
+        check_name(self.name)
+        if not all(isinstance(d, dict) for d in self.disturbances):
+            raise ScenarioError("disturbances must be a list of tables with a 'kind'")
         object.__setattr__(self, "disturbances", tuple(dict(d) for d in self.disturbances))
         for d in self.disturbances:
             from_dict(d)  # validates kinds and keys now, not mid-run
@@ -224,10 +230,113 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
         tilt_max=float(np.radians(c.tilt_max_deg)),
         attitude_filter_wn=c.attitude_filter_wn,
         integral_limit=c.integral_limit,
+        thrust_shift_max=c.thrust_shift_max,
     )
 
 
+def check(spec: ScenarioSpec, variants: tuple[str, ...] | list[str] = ("pdc",)) -> Built:
+    """Every check that needs more than one value, before any work: rates, duration, the controllers."""
+    if not isinstance(spec, ScenarioSpec):
+        raise ScenarioError(f"expected a ScenarioSpec or a registered name, got {type(spec).__name__}")
+    rate, plant_rate = spec.control.rate, spec.plant_rate
+    ratio = plant_rate / rate
+    if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise ScenarioError(
+            f"plant_rate ({plant_rate:g} Hz) must be a whole multiple of control.rate ({rate:g} Hz), at least 1x"
+        )
+    b = build(spec)
+    if b.duration < 1.0 / rate:
+        raise ScenarioError(f"duration {b.duration:g} s is shorter than one control period (1/{rate:g} Hz)")
+    compile_controllers([controller_params(spec, v) for v in variants])
+    return b
+
+
 # --------------------------------------------------------------------------- overrides and TOML
+
+
+#: Allowed ranges of scenario values: dotted key -> (low, high, low excluded). Keys not listed here are
+#: only checked for type (and finiteness); vectors are checked element by element.
+RANGES: dict[str, tuple[float, float, bool]] = {
+    "duration": (0.0, 1e6, False),  # 0: the trajectory's own length
+    "plant_rate": (0.0, 1e6, True),
+    "seed": (0, 2**63 - 1, False),
+    "trajectory.altitude": (0.0, 1e4, True),
+    "trajectory.takeoff_at": (0.0, 1e6, False),
+    "trajectory.takeoff_duration": (0.0, 1e6, True),
+    "trajectory.hover_duration": (0.0, 1e6, False),
+    "trajectory.circle_radius": (0.0, 1e4, True),
+    "trajectory.circle_speed": (0.0, 100.0, True),
+    "trajectory.circle_laps": (0.0, 1e4, True),
+    "trajectory.circle_ramp": (0.0, 1e6, False),
+    "trajectory.settle_duration": (0.0, 1e6, False),
+    "trajectory.land_duration": (0.0, 1e6, True),
+    "trajectory.land_hold": (0.0, 1e6, False),
+    "trajectory.yaw": (-100.0, 100.0, False),
+    "trajectory.yaw_step_time": (-1e6, 1e6, False),
+    "trajectory.yaw_step_angle": (-100.0, 100.0, False),
+    "payload.mass": (0.0, 1e3, False),
+    "payload.offset_B": (-10.0, 10.0, False),
+    "plant.inertia_scale": (0.0, 100.0, True),
+    "plant.arm_length_scale": (0.0, 100.0, True),
+    "plant.drag_factor_scale": (0.0, 100.0, True),
+    "plant.rotor_tau_up": (0.0, 10.0, False),
+    "plant.rotor_tau_down": (0.0, 10.0, False),
+    "plant.rotor_drag": (0.0, 1e3, False),
+    "sensors.pos_noise": (0.0, 1e3, False),
+    "sensors.vel_noise": (0.0, 1e3, False),
+    "sensors.att_noise": (0.0, 10.0, False),
+    "sensors.gyro_noise": (0.0, 1e3, False),
+    "sensors.mocap_delay": (0.0, 1.0, False),
+    "sensors.imu_delay": (0.0, 1.0, False),
+    "control.rate": (0.0, 1e5, True),
+    "control.Kp": (0.0, 1e6, True),
+    "control.Dp": (0.0, 1e6, True),
+    "control.Ki": (0.0, 1e6, False),
+    "control.wn_o": (0.0, 1e4, True),
+    "control.zeta_o": (0.0, 100.0, True),
+    "control.estimator_wn": (0.0, 1e5, True),
+    "control.estimator_zeta": (0.0, 100.0, True),
+    "control.estimator_order": (1, 8, False),
+    "control.attitude_filter_wn": (0.0, 1e5, True),
+    "control.tilt_max_deg": (0.0, 89.0, True),
+    "control.integral_limit": (0.0, 1e6, True),
+    "control.thrust_shift_max": (0.0, 1.0, False),
+}
+_GAIN_KEYS = ("control.Kp", "control.Dp", "control.Ki")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,99}$")
+
+
+def check_name(name: Any) -> str:
+    """A scenario name is also a file name: letters, digits and ``. _ + -``, at most 100 characters."""
+    if not isinstance(name, str) or not _NAME.match(name) or ".." in name:
+        raise ScenarioError(
+            f"scenario name must be 1-100 letters, digits or '._+-' (it names the result files), got {name!r}"
+        )
+    return name
+
+
+def _check_range(path: str, value: Any) -> None:
+    key = re.sub(r"\[\d+\]$", "", path)
+    if key not in RANGES:
+        return
+    lo, hi, lo_open = RANGES[key]
+    for v in value if isinstance(value, tuple) else (value,):
+        if v < lo or v > hi or (lo_open and v == lo):
+            rng = f"{'(' if lo_open else '['}{lo}, {hi}]"
+            raise ScenarioError(f"{path} must be in {rng}, got {v!r}")
+
+
+def _gain_value(path: str, value: Any) -> Any:
+    """A gain may be a scalar, 3 values, or a diagonal 3x3 matrix (as eq. (18) writes it)."""
+    if isinstance(value, list) and len(value) == 3 and all(isinstance(r, list) for r in value):
+        try:
+            mat = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ScenarioError(f"{path} must be numbers, got {value!r}") from None
+        if mat.shape != (3, 3) or np.any(mat - np.diag(np.diag(mat))):
+            raise ScenarioError(f"{path} must be a scalar, 3 values or a diagonal 3x3 matrix, got {value!r}")
+        return [float(v) for v in np.diag(mat)]
+    return value
 
 
 def _coerce(path: str, current: Any, value: Any) -> Any:
@@ -243,8 +352,8 @@ def _coerce(path: str, current: Any, value: Any) -> Any:
             return int(value)
         raise ScenarioError(f"{path} expects an integer, got {value!r}")
     if isinstance(current, float):
-        if isinstance(value, list | tuple) and len(value) == 3:
-            return tuple(float(_coerce(path, 0.0, v)) for v in value)
+        if path in _GAIN_KEYS and isinstance(value, list | tuple) and len(value) == 3:
+            return tuple(float(_coerce(f"{path}[{i}]", 0.0, v)) for i, v in enumerate(value))
         if isinstance(value, int | float) and not isinstance(value, bool):
             if not np.isfinite(value):
                 raise ScenarioError(f"{path} must be finite, got {value!r}")
@@ -280,6 +389,10 @@ def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
             i = int(head)
             item = obj[i]
         except (ValueError, IndexError):
+            if not obj:
+                raise ScenarioError(
+                    f"{full}: this scenario has no disturbances; add them as [[disturbances]] tables in a scenario file"
+                ) from None
             raise ScenarioError(f"{full}: there are {len(obj)} disturbances; use an index 0..{len(obj) - 1}") from None
         if not rest:
             raise ScenarioError(f"{full}: name a field of disturbance {i}, e.g. disturbances.{i}.kind")
@@ -303,8 +416,18 @@ def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
         if not isinstance(value, list | tuple) or not all(isinstance(d, dict) for d in value):
             raise ScenarioError("disturbances must be a list of tables with a 'kind'")
         return replace(obj, disturbances=tuple(value))
+    if full in _GAIN_KEYS or (isinstance(current, tuple) and full.startswith("control.")):
+        value = _gain_value(full, value)
+    if head == "name":
+        value = check_name(value)
+    if head == "vehicle":
+        if not isinstance(value, str):
+            raise ScenarioError(f"vehicle expects a preset name or a .toml path, got {value!r}")
+        load_preset(value)  # validates now
+    coerced = _coerce(full, current, value)
+    _check_range(full, coerced)
     try:
-        return replace(obj, **{head: _coerce(full, current, value)})
+        return replace(obj, **{head: coerced})
     except InputError as exc:
         raise ScenarioError(f"{full}: {exc}") from exc
 

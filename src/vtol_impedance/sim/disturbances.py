@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 import scipy.signal
 
-from ..errors import InputError, as_finite, positive
+from ..errors import InputError, as_finite, positive, scalar
 from ..model.kinematics import cross
 
 Vec3 = tuple[float, float, float]
@@ -326,7 +326,10 @@ KINDS: dict[str, type[Disturbance]] = {
 
 
 def from_dict(d: dict[str, Any]) -> Disturbance:
-    """Build a disturbance from ``{"kind": ..., field: value}``, with clear errors on unknown kinds/keys."""
+    """Build a disturbance from ``{"kind": ..., field: value}``, with clear errors on unknown kinds, keys and
+    values of the wrong type or shape."""
+    if not isinstance(d, dict):
+        raise InputError(f"a disturbance is a table with a 'kind', got {d!r}")
     d = dict(d)
     kind = d.pop("kind", None)
     if kind not in KINDS:
@@ -336,7 +339,22 @@ def from_dict(d: dict[str, Any]) -> Disturbance:
     unknown = sorted(set(d) - set(valid))
     if unknown:
         raise InputError(f"unknown key(s) {unknown} for disturbance {kind!r}; valid keys: {', '.join(valid)}")
-    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+    defaults = {f.name: f.default for f in fields(cls) if f.init}  # type: ignore[arg-type]
+    values = {}
+    for k, v in d.items():
+        where, default = f"disturbance {kind!r} {k}", defaults[k]
+        if isinstance(default, float) and default == float("inf") and v == default:
+            values[k] = v  # "never", as the default says
+        elif isinstance(default, float):
+            values[k] = scalar(where, v)
+        elif isinstance(default, tuple):
+            arr = as_finite(where, v)
+            if arr.shape != (len(default),):
+                raise InputError(f"{where} must be {len(default)} numbers, got {v!r}")
+            values[k] = tuple(float(a) for a in arr)
+        else:
+            values[k] = v
+    return cls(**values)
 
 
 class DisturbanceSet:

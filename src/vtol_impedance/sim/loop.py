@@ -85,6 +85,70 @@ BLOCK_TICKS = 200
 
 BACKENDS = ("compiled", "numpy")
 
+
+@dataclass(frozen=True)
+class Limits:
+    """Bounds on one run, checked before it starts; a run beyond them is refused with the estimate.
+
+    ``max_memory_gb``: memory the run's buffers may take (traces, state history, noise, disturbance
+    series); ``max_plant_steps``: vehicles x plant steps (about 1e7 per second per core compiled).
+    Defaults come from the environment variables ``VTOL_IMPEDANCE_MAX_MEMORY_GB`` (4) and
+    ``VTOL_IMPEDANCE_MAX_PLANT_STEPS`` (2e10); pass ``limits=Limits(...)`` to override one run.
+    """
+
+    max_memory_gb: float = 4.0
+    max_plant_steps: float = 2e10
+
+    @classmethod
+    def from_env(cls) -> Limits:
+        import os
+
+        out = {}
+        for field_name, var in (
+            ("max_memory_gb", "VTOL_IMPEDANCE_MAX_MEMORY_GB"),
+            ("max_plant_steps", "VTOL_IMPEDANCE_MAX_PLANT_STEPS"),
+        ):
+            if var in os.environ:
+                try:
+                    out[field_name] = scalar(var, float(os.environ[var]), lo=0.0, lo_open=True)
+                except ValueError:
+                    raise InputError(f"{var} must be a positive number, got {os.environ[var]!r}") from None
+        return cls(**out)
+
+
+def estimate_run(
+    B: int, N: int, n_sub: int, n_rotors: int, dec: int, history: int, n_dist: int, backend: str
+) -> dict[str, float]:
+    """Bytes and plant steps a run will need (the numbers :class:`Limits` are checked against)."""
+    width = row_width(n_rotors)
+    n_log = N if backend == "numpy" else ((N + dec - 1) // dec if dec else 0)
+    mem = 8.0 * (
+        B * n_log * width  # traces
+        + B * history * (13 + n_rotors)  # sensor history
+        + N * 12  # reference samples
+        + n_dist * (N * n_sub + 2) * 6  # disturbance series at the plant rate
+    ) + min(BLOCK_BYTES, 8.0 * B * N * 12)  # noise blocks
+    if backend == "numpy":
+        mem *= 2.0  # temporaries of the batched NumPy arithmetic
+    return {"memory_bytes": mem, "plant_steps": float(B) * N * n_sub}
+
+
+def check_limits(estimate: dict[str, float], limits: Limits) -> None:
+    gb = estimate["memory_bytes"] / 1e9
+    if gb > limits.max_memory_gb:
+        raise InputError(
+            f"this run would need about {gb:.1f} GB of memory, above the limit of {limits.max_memory_gb:g} GB; "
+            "shorten it, log less (log='metrics' or 'decimate:K'), fly fewer vehicles, or raise the limit "
+            "(VTOL_IMPEDANCE_MAX_MEMORY_GB or Limits(max_memory_gb=...))"
+        )
+    if estimate["plant_steps"] > limits.max_plant_steps:
+        raise InputError(
+            f"this run would take {estimate['plant_steps']:.3g} vehicle plant steps, above the limit of "
+            f"{limits.max_plant_steps:.3g} (about {limits.max_plant_steps / 1e7 / 60:.0f} min on one core); shorten "
+            "it, lower plant_rate, or raise the limit (VTOL_IMPEDANCE_MAX_PLANT_STEPS or Limits(max_plant_steps=...))"
+        )
+
+
 ProgressFn = Callable[[float], None]
 
 
@@ -177,6 +241,7 @@ def run_closed_loop(
     backend: str = "compiled",
     log: str | int = "full",
     window: tuple[float, float] | None = None,
+    limits: Limits | None = None,
 ) -> Result:
     """Fly ``B = len(controllers)`` vehicles through the same trajectory.
 
@@ -195,20 +260,38 @@ def run_closed_loop(
     log : ``"full"`` (every control tick), ``"decimate:K"`` (every K-th), or ``"metrics"`` (no traces,
         only the per-vehicle metrics of ``window``; for large batches).
     window : task window for the metrics (default: the whole run).
+    limits : bounds on memory and work checked before the run (default :meth:`Limits.from_env`).
     """
+    if isinstance(controllers, ControllerParams):
+        controllers = [controllers]
     controllers = list(controllers)
     B = len(controllers)
-    if B == 0:
-        raise InputError("no controller given")
+    if B == 0 or not all(isinstance(c, ControllerParams) for c in controllers):
+        raise InputError("controllers must be a non-empty sequence of ControllerParams")
     plants = [plant] * B if isinstance(plant, PlantParams) else list(plant)
-    if len(plants) != B:
-        raise InputError(f"{len(plants)} plants given for {B} controllers")
+    if len(plants) != B or not all(isinstance(p, PlantParams) for p in plants):
+        raise InputError(f"plant must be one PlantParams or one per controller ({B}), got {len(plants)} items")
+    if not isinstance(trajectory, Trajectory):
+        raise InputError(f"trajectory must be a Trajectory, got {type(trajectory).__name__}")
+    disturbances = list(disturbances)
+    if not all(isinstance(d, Disturbance) for d in disturbances):
+        raise InputError("disturbances must be Disturbance objects (see sim.disturbances.from_dict)")
+    if sensors is not None and not isinstance(sensors, SensorParams):
+        raise InputError(f"sensors must be a SensorParams, got {type(sensors).__name__}")
     labels = list(labels) if labels is not None else [c.variant for c in controllers]
-    if len(labels) != B:
-        raise InputError(f"{len(labels)} labels given for {B} controllers")
-    seeds = [int(seed)] * B if np.ndim(seed) == 0 else [int(s) for s in seed]  # type: ignore[arg-type]
+    if len(labels) != B or not all(isinstance(x, str) for x in labels):
+        raise InputError(f"labels must be {B} strings, one per controller, got {labels!r}")
+    if n_rotors := {c.vehicle.n_rotors for c in controllers} | {p.vehicle.n_rotors for p in plants}:
+        if len(n_rotors) > 1:
+            raise InputError(f"controllers and plants must have the same number of rotors, got {sorted(n_rotors)}")
+    seed_list = [seed] * B if np.ndim(seed) == 0 else list(seed)  # type: ignore[arg-type]
+    seeds = [scalar("seed", s, lo=0, hi=2**63 - 1, integer=True) for s in seed_list]
     if len(seeds) != B:
         raise InputError(f"{len(seeds)} seeds given for {B} vehicles")
+    if window is not None:
+        w = as_finite("window", window)
+        if w.shape != (2,) or w[1] < w[0]:
+            raise InputError(f"window must be (t0, t1) with t0 <= t1, got {window!r}")
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
     duration = scalar("duration", duration, lo=0.0, lo_open=True)
@@ -223,6 +306,14 @@ def run_closed_loop(
     if n_sub < 1 or abs(n_sub * dt - Ts) > 1e-9 * Ts:
         raise InputError(f"plant_rate * Ts must be a whole number >= 1, got {plant_rate} Hz * {Ts} s")
     N = int(round(duration / Ts))
+    if N < 1:
+        raise InputError(f"duration {duration:g} s is shorter than one control period ({Ts:g} s)")
+    history = int(round(max(sensors.mocap_delay, sensors.imu_delay) / dt)) + 1
+    n_rotors = controllers[0].vehicle.n_rotors
+    check_limits(
+        estimate_run(B, N, n_sub, n_rotors, dec, history, len(disturbances), backend),
+        Limits.from_env() if limits is None else limits,
+    )
     t_grid = np.arange(N) * Ts
 
     PA = compile_plants(plants)
