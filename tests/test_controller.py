@@ -21,6 +21,12 @@ from vtol_impedance.model import load_preset, mix
 VEH = load_preset("pelican")
 
 
+@pytest.fixture(params=["numpy", "compiled"])
+def backend(request):
+    """The controller's physics tests run on both backends."""
+    return request.param
+
+
 @given(
     st.floats(2.0, 30.0),
     st.floats(-0.55, 0.55),
@@ -65,8 +71,8 @@ REF = Reference(np.array([0, 0, -1.0]), np.zeros(3), np.zeros(3), np.array(0.0),
 
 
 @pytest.mark.parametrize("variant", ["pd", "pid", "pdc"])
-def test_equilibrium_gives_weight_and_no_torque(variant):
-    ctrl = Controller(ControllerParams.paper(variant))
+def test_equilibrium_gives_weight_and_no_torque(variant, backend):
+    ctrl = Controller(ControllerParams.paper(variant), backend=backend)
     for _ in range(5):
         out = ctrl.step(_hover_meas(), REF)
     assert out.thrust == pytest.approx(VEH.mass * G, rel=1e-12)
@@ -76,17 +82,17 @@ def test_equilibrium_gives_weight_and_no_torque(variant):
     assert u == pytest.approx(out.thrust)
 
 
-def test_position_error_gives_the_pd_force():
+def test_position_error_gives_the_pd_force(backend):
     # 1 cm low (z + 0.01 in NED): the extra thrust is Kp * 0.01 (eq. 18a), level attitude
-    ctrl = Controller(ControllerParams.paper("pd"))
+    ctrl = Controller(ControllerParams.paper("pd"), backend=backend)
     out = ctrl.step(_hover_meas(p=(0, 0, -0.99)), REF)
     assert out.thrust == pytest.approx(VEH.mass * G + 16 * 0.01, rel=1e-9)
 
 
-def test_attitude_error_gives_the_impedance_torque():
+def test_attitude_error_gives_the_impedance_torque(backend):
     # roll error e at rest, eta_d = 0 after filtering: tau_B ~ -Ko e about x (eq. 18b + 14, M(0)=I_B, C=0)
     p = ControllerParams.paper("pd")
-    ctrl = Controller(p)
+    ctrl = Controller(p, backend=backend)
     e = 0.05
     out = ctrl.step(_hover_meas(eta=(e, 0, 0)), REF)
     Ko = p.gains.Ko[0]
@@ -116,8 +122,8 @@ def test_batch_of_variants_equals_single_controllers(rng):
             np.testing.assert_allclose(ob.f_hat_W[b], o.f_hat_W, rtol=1e-12, atol=1e-12)
 
 
-def test_bad_measurements_are_refused():
-    ctrl = Controller(ControllerParams.paper("pdc"))
+def test_bad_measurements_are_refused(backend):
+    ctrl = Controller(ControllerParams.paper("pdc"), backend=backend)
     with pytest.raises(InputError, match="non-finite"):
         ctrl.step(_hover_meas(p=(0, np.nan, -1)), REF)
     with pytest.raises(InputError, match="shape"):
