@@ -45,20 +45,20 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
         (["--set", "seed=-3"], "seed must be in"),
         (["--set", "name=../../escape-v1"], "scenario name"),
         (["--set", "name=a/b"], "scenario name"),
-        (["--set", "payload.offset_B=\"abc\""], "payload.offset_B expects 3 values"),
+        (["--set", 'payload.offset_B="abc"'], "payload.offset_B expects 3 values"),
         (["--set", "payload.offset_B=[1,2]"], "payload.offset_B expects 3 values"),
         (["--set", "payload.mass=true"], "payload.mass expects a number"),
         (["--set", "control.Kp=[[16,1,0],[0,16,0],[0,0,16]]"], "diagonal"),
         (["--set", "control.Kp=-1"], "control.Kp must be in"),
         (["--set", "control.estimator_order=2.5"], "integer"),
-        (["--set", "control.estimator_prototype=\"bessel\""], "prototype"),
+        (["--set", 'control.estimator_prototype="bessel"'], "prototype"),
         (["--set", "control.tilt_max_deg=95"], "tilt_max_deg"),
         (["--set", "sensors.mocap_delay=100"], "sensors.mocap_delay must be in"),
-        (["--set", "vehicle=\"mavic\""], "unknown vehicle preset"),
+        (["--set", 'vehicle="mavic"'], "unknown vehicle preset"),
         (["--set", "vehicle=3"], "vehicle expects"),
         (["--set", "duration=1e6"], "GB of memory"),
-        (["--set", "disturbances.0.kind=\"fan\""], "no disturbances"),
-        (["--set", "trajectory.kind=\"spiral\""], "trajectory.kind"),
+        (["--set", 'disturbances.0.kind="fan"'], "no disturbances"),
+        (["--set", 'trajectory.kind="spiral"'], "trajectory.kind"),
         (["--controller", "lqr"], "invalid choice"),
     ],
 )
@@ -115,6 +115,7 @@ def test_output_location_is_checked_before_the_work(tmp_path, capsys):
 
 
 def test_full_disk_is_an_error_not_a_traceback(tmp_path, capsys, monkeypatch):
+    import vtol_impedance.analysis.report  # noqa: F401  (imported before io is patched, so it keeps the real one)
     import vtol_impedance.io as vio
 
     def boom(*a, **k):
@@ -155,8 +156,14 @@ def test_a_rerun_killed_at_any_instant_leaves_one_complete_run(tmp_path):
         assert m["seed"] in (before["seed"], [7])
         seen_new |= m["seed"] == [7]
     # a later run cleans what the killed ones left
-    assert subprocess.run(_cli("run", "case-a-payload", "--duration", "0.5", "--quiet", "--no-plots", "--out",
-                               str(out)), env=ENV, timeout=300).returncode == 0
+    assert (
+        subprocess.run(
+            _cli("run", "case-a-payload", "--duration", "0.5", "--quiet", "--no-plots", "--out", str(out)),
+            env=ENV,
+            timeout=300,
+        ).returncode
+        == 0
+    )
     verify_run_folder(out)
     assert not [p for p in tmp_path.iterdir() if ".staging-" in p.name or ".old-" in p.name]
 
@@ -166,7 +173,10 @@ def test_concurrent_runs_into_one_folder_never_interleave(tmp_path):
     with RunFolder(out):  # a run in progress holds the folder
         p = subprocess.run(
             _cli("run", "case-a-payload", "--duration", "0.2", "--quiet", "--out", str(out)),
-            env=ENV, capture_output=True, text=True, timeout=300,
+            env=ENV,
+            capture_output=True,
+            text=True,
+            timeout=300,
         )
     assert p.returncode == 2 and "another run is writing" in p.stderr
     assert not out.exists()
@@ -177,8 +187,13 @@ def test_manifest_binds_the_files(tmp_path):
     assert main(["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.3", "--out", str(out)]) == 0
     m = verify_run_folder(out)
     assert m["seed"] == [0] and len(m["config_sha256"]) == 64 and "numba" in m["versions"]
-    assert set(m["files"]) == {"case-a-payload-v1.npz", "case-a-payload-v1.config.json", "metrics.csv",
-                               "metrics.md", "report.html"}
+    assert set(m["files"]) == {
+        "case-a-payload-v1.npz",
+        "case-a-payload-v1.config.json",
+        "metrics.csv",
+        "metrics.md",
+        "report.html",
+    }
     (out / "metrics.csv").write_text("tampered")
     with pytest.raises(InputError, match="metrics.csv"):
         verify_run_folder(out)
@@ -198,8 +213,9 @@ def test_paper_workers_die_with_their_parent(tmp_path):
     p.send_signal(signal.SIGKILL)
     p.wait()
     time.sleep(2.0)
-    alive = [c for c in children if Path(f"/proc/{c}").exists() and "Z" not in Path(f"/proc/{c}/stat").read_text()
-             .split()[2]]
+    alive = [
+        c for c in children if Path(f"/proc/{c}").exists() and "Z" not in Path(f"/proc/{c}/stat").read_text().split()[2]
+    ]
     assert not alive, f"workers {alive} outlived their parent"
 
 
@@ -270,8 +286,9 @@ def test_unbounded_work_is_refused_up_front_with_the_estimate():
     with pytest.raises(InputError, match=r"about [\d.]+ GB of memory"):
         run_closed_loop(PlantParams(veh), ctrls, traj, 1e6)
     with pytest.raises(InputError, match="plant steps"):
-        run_closed_loop(PlantParams(veh), ctrls, traj, 100.0, plant_rate=1e5, log="metrics",
-                        limits=Limits(max_plant_steps=1e6))
+        run_closed_loop(
+            PlantParams(veh), ctrls, traj, 100.0, plant_rate=1e5, log="metrics", limits=Limits(max_plant_steps=1e6)
+        )
     # 100,000 vehicles with full traces over 30 s: refused, not allocated
     many = [ControllerParams.paper()] * 100_000
     with pytest.raises(InputError, match="GB of memory"):
@@ -395,7 +412,7 @@ def test_a_vehicle_file_describes_a_custom_multirotor(tmp_path):
     assert r.failures == [None]
     assert r.config["controllers"][0]["vehicle"]["rotors"][0]["f_max"] == pytest.approx(1e-5 * 800.0**2)
     bad = tmp_path / "bad.toml"
-    bad.write_text('mass = 1.0\ninertia_diag = [1e-3, 1e-3, 1e-3]\n[[rotors]]\nposition_B = [0.1, 0, 0]\n')
+    bad.write_text("mass = 1.0\ninertia_diag = [1e-3, 1e-3, 1e-3]\n[[rotors]]\nposition_B = [0.1, 0, 0]\n")
     with pytest.raises(InputError, match="spin"):
         load_toml_vehicle(bad)
 

@@ -270,7 +270,9 @@ def run_closed_loop(
         raise InputError("controllers must be a non-empty sequence of ControllerParams")
     plants = [plant] * B if isinstance(plant, PlantParams) else list(plant)
     if len(plants) != B or not all(isinstance(p, PlantParams) for p in plants):
-        raise InputError(f"plant must be one PlantParams or one per controller: {len(plants)} plants for {B} controllers")
+        raise InputError(
+            f"plant must be one PlantParams or one per controller: {len(plants)} plants for {B} controllers"
+        )
     if not isinstance(trajectory, Trajectory):
         raise InputError(f"trajectory must be a Trajectory, got {type(trajectory).__name__}")
     disturbances = list(disturbances)
