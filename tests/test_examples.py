@@ -21,3 +21,9 @@ def test_ci_runs_the_readme_test_command():
     ci = (ROOT / ".ci" / "run").read_text()
     cmd = 'python3 -m venv .venv && .venv/bin/pip install ".[test]" && .venv/bin/python -m pytest'
     assert cmd in readme and cmd in ci
+
+
+def test_attitude_filter_measurement_example_runs():
+    mod = runpy.run_path(str(ROOT / "examples" / "attitude_filter_bandwidth.py"))
+    rows = mod["measure"](bandwidths=(20.0,), cases=("case-c-circle",), seeds=(0,))
+    assert rows[0]["rms_ep_cm"] < 2.0 and rows[0]["limited_pct"] == 0.0

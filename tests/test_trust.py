@@ -199,6 +199,25 @@ def test_manifest_binds_the_files(tmp_path):
         verify_run_folder(out)
 
 
+def _children(pid: int) -> set[int]:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def test_paper_workers_die_with_their_parent(tmp_path):
     p = subprocess.Popen(
         _cli("paper", "--jobs", "2", "--out", str(tmp_path / "p"), "--quiet"), env=ENV, start_new_session=True
@@ -207,15 +226,12 @@ def test_paper_workers_die_with_their_parent(tmp_path):
     deadline = time.time() + 120
     while time.time() < deadline and not children:
         time.sleep(0.3)
-        ps = subprocess.run(["ps", "-o", "pid=", "--ppid", str(p.pid)], capture_output=True, text=True)
-        children = {int(x) for x in ps.stdout.split()}
+        children = _children(p.pid)
     assert children, "the pool never started"
     p.send_signal(signal.SIGKILL)
     p.wait()
     time.sleep(2.0)
-    alive = [
-        c for c in children if Path(f"/proc/{c}").exists() and "Z" not in Path(f"/proc/{c}/stat").read_text().split()[2]
-    ]
+    alive = [c for c in children if _running(c)]
     assert not alive, f"workers {alive} outlived their parent"
 
 

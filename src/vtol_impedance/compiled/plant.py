@@ -142,6 +142,15 @@ def origin_kinematics(pp, x, R, p_o, v_o):
         v_o[i] = o[3 + i]
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _moment_B(R, r0, r1, r2, f0, f1, f2):
+    """Body-frame moment ``r_B x (R^T f_W)`` of a world force ``f_W`` acting at the body point ``r_B``."""
+    b0 = R[0] * f0 + R[3] * f1 + R[6] * f2
+    b1 = R[1] * f0 + R[4] * f1 + R[7] * f2
+    b2 = R[2] * f0 + R[5] * f1 + R[8] * f2
+    return r1 * b2 - r2 * b1, r2 * b0 - r0 * b2, r0 * b1 - r1 * b0
+
+
 @njit(cache=True, error_model="numpy")
 def add_disturbances(t, p0, p1, p2, R, codes, dparams, series, env):
     """Write the sum of the encoded disturbances into ``env = [f_W, tau_B]``, as
@@ -189,12 +198,10 @@ def add_disturbances(t, p0, p1, p2, R, codes, dparams, series, env):
             f0 += a0
             f1 += a1
             f2 += a2
-            b0 = R[0] * a0 + R[3] * a1 + R[6] * a2
-            b1 = R[1] * a0 + R[4] * a1 + R[7] * a2
-            b2 = R[2] * a0 + R[5] * a1 + R[8] * a2
-            t0 += P[10] * b2 - P[11] * b1
-            t1 += P[11] * b0 - P[9] * b2
-            t2 += P[9] * b1 - P[10] * b0
+            m0, m1, m2 = _moment_B(R, P[9], P[10], P[11], a0, a1, a2)
+            t0 += m0
+            t1 += m1
+            t2 += m2
     env[0] = f0
     env[1] = f1
     env[2] = f2
@@ -253,12 +260,10 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
         fe0 += h0
         fe1 += h1
         fe2 += h2
-        b0 = R[0] * h0 + R[3] * h1 + R[6] * h2
-        b1 = R[1] * h0 + R[4] * h1 + R[7] * h2
-        b2 = R[2] * h0 + R[5] * h1 + R[8] * h2
-        te0 += r1 * b2 - r2 * b1
-        te1 += r2 * b0 - r0 * b2
-        te2 += r0 * b1 - r1 * b0
+        m0, m1, m2 = _moment_B(R, r0, r1, r2, h0, h1, h2)
+        te0 += m0
+        te1 += m1
+        te2 += m2
     n = int(pp[PP_NR])
     e = PP_ROT
     u = 0.0

@@ -145,7 +145,8 @@ def quat_to_rotation(q: np.ndarray) -> np.ndarray:
 
 
 def quat_from_euler(eta: np.ndarray) -> np.ndarray:
-    """Unit quaternion ``[w, x, y, z]`` of the ZYX Euler angles ``eta``."""
+    """Unit quaternion ``[w, x, y, z]`` (scalar first, rotating body to world, like ``R_WB``) of the ZYX
+    Euler angles ``eta``."""
     eta = np.asarray(eta, dtype=float)
     h = 0.5 * eta
     cf, sf = np.cos(h[..., 0]), np.sin(h[..., 0])
@@ -163,7 +164,7 @@ def quat_from_euler(eta: np.ndarray) -> np.ndarray:
 
 
 def quat_derivative(q: np.ndarray, omega_B: np.ndarray) -> np.ndarray:
-    """``q_dot = 0.5 q (x) [0, omega_B]`` for a body-to-world quaternion."""
+    """``q_dot = 0.5 q (x) [0, omega_B]`` for a body-to-world quaternion ``[w, x, y, z]``."""
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     p, r_, s = omega_B[..., 0], omega_B[..., 1], omega_B[..., 2]
     return 0.5 * np.stack(

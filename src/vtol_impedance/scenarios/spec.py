@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..control.gains import ImpedanceGains
-from ..control.impedance import PAPER_KI, ControllerParams, compile_controllers
+from ..control.impedance import ATTITUDE_FILTER_WN, PAPER_KI, ControllerParams, compile_controllers
 from ..control.reference import Circle, Hold, MinJerk, Trajectory
 from ..errors import InputError, ScenarioError
 from ..estimator.momentum import EstimatorParams
@@ -94,7 +94,7 @@ class ControlSpec:
     estimator_zeta: float = 1.0
     estimator_order: int = 2
     estimator_prototype: str = "zeta"
-    attitude_filter_wn: float = 20.0
+    attitude_filter_wn: float = ATTITUDE_FILTER_WN
     tilt_max_deg: float = 35.0
     integral_limit: float = 3.0
     thrust_shift_max: float = THRUST_SHIFT_MAX
