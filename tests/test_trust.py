@@ -246,11 +246,13 @@ def test_step_arrays_checks_type_shape_and_dtype():
     r[2] = -1.0
     ctrl.step_arrays(y, r)
     for bad, msg in (
-        (np.zeros(6), "shape"),
-        (np.zeros(13), "shape"),
-        (np.zeros(12, dtype=np.float32), "float64"),
+        (np.zeros(6), r"float64 array of shape \(6,\)"),
+        (np.zeros(13), r"float64 array of shape \(13,\)"),
+        (np.zeros((12, 1)), r"float64 array of shape \(12, 1\)"),
+        (np.zeros(12, dtype=np.float32), "float32 array"),
+        (np.zeros(12, dtype=np.int64), "int64 array"),
         (list(np.zeros(12)), "list"),
-        (np.zeros((12, 2))[:, 0], "C-contiguous"),
+        (np.zeros((12, 2))[:, 0], "non-contiguous float64"),
     ):
         with pytest.raises(InputError, match=msg):
             ctrl.step_arrays(y, bad)

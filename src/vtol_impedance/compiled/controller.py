@@ -449,10 +449,17 @@ def controller_step(cp, sh, cs, y, r, o):
     o[O_YAW] = yaw_scale
 
 
-@njit(cache=True)
+_ROW = "float64[::1]"
+
+
+@njit(f"int64({_ROW}, {_ROW}, {_ROW}, {_ROW}, {_ROW}, {_ROW})", cache=True)
 def checked_step(cp, sh, cs, y, r, o):
     """:func:`controller_step` after input checks; returns 0, or 1 for a non-finite input, 2 at the
-    Euler singularity (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`)."""
+    Euler singularity (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`), 3 for a
+    wrong length. The explicit signature refuses anything but C-contiguous float64 arrays at dispatch
+    (a float32 or strided input would otherwise compile a new, silently different specialisation)."""
+    if y.shape[0] != 12 or r.shape[0] != 12:
+        return 3
     for i in range(12):
         if not (math.isfinite(y[i]) and math.isfinite(r[i])):
             return 1

@@ -315,6 +315,13 @@ def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _describe(a: object) -> str:
+    if type(a) is not np.ndarray:
+        return type(a).__name__
+    layout = "" if a.flags.c_contiguous else "non-contiguous "
+    return f"{layout}{a.dtype} array of shape {a.shape}"
+
+
 class Controller:
     """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
@@ -377,17 +384,19 @@ class Controller:
         """
         if self.backend != "compiled":
             raise InputError("step_arrays needs backend='compiled'")
-        for name, a in (("y", y), ("r", r)):
-            if type(a) is not np.ndarray or a.dtype != np.float64 or a.shape != (12,) or not a.flags.c_contiguous:
-                raise InputError(
-                    f"step_arrays: {name} must be a C-contiguous float64 array of shape (12,), got "
-                    + (f"{type(a).__name__}" if type(a) is not np.ndarray else f"{a.dtype} array of shape {a.shape}")
-                )
         if type(vehicle) is not int or not 0 <= vehicle < self._cp.shape[0]:
             raise InputError(f"step_arrays: vehicle must be an int in [0, {self._cp.shape[0]}), got {vehicle!r}")
         out = self._out[vehicle]
-        status = self._k.checked_step(self._cp[vehicle], self._sh, self._cs[vehicle], y, r, out)
+        try:  # the kernel's signature checks type, dtype and layout at dispatch, at no cost when right
+            status = self._k.checked_step(self._cp[vehicle], self._sh, self._cs[vehicle], y, r, out)
+        except TypeError:
+            status = 3
         if status:
+            if status == 3:
+                raise InputError(
+                    "step_arrays: y and r must be C-contiguous float64 arrays of shape (12,), got "
+                    f"{_describe(y)} and {_describe(r)}"
+                )
             if status == 2:
                 raise SingularityError(f"pitch theta = {np.degrees(y[7]):.3f} deg is at the Euler singularity")
             raise InputError(f"non-finite measurement or reference: y = {y}, r = {r}")
