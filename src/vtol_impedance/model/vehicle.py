@@ -15,6 +15,7 @@ body nose-right (positive yaw about the FRD ``z`` axis, which points down).
 
 from __future__ import annotations
 
+import functools
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -378,6 +379,12 @@ def load_preset(name: str = "pelican") -> VehicleParams:
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
             raise InputError(f"cannot read vehicle file {path}: {exc}") from None
         return vehicle_from_dict(data, str(path))
+    return _shipped_preset(name)
+
+
+@functools.lru_cache(maxsize=32)
+def _shipped_preset(name: str) -> VehicleParams:
+    """Shipped presets are read once per process (a VehicleParams is immutable)."""
     available = preset_names()
     if name not in available:
         raise InputError(f"unknown vehicle preset {name!r}; available: {', '.join(available)} (or a .toml path)")

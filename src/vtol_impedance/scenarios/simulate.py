@@ -9,7 +9,7 @@ from ..errors import InputError, scalar
 from ..sim.loop import ProgressFn, run_closed_loop
 from ..sim.result import Result
 from .registry import get
-from .spec import ScenarioSpec, check, controller_params
+from .spec import ScenarioSpec, checked
 
 
 def simulate(
@@ -32,9 +32,8 @@ def simulate(
     bad = [v for v in variants if v not in VARIANTS]
     if bad or not variants:
         raise InputError(f"unknown controller variant(s) {bad}; choose from {sorted(VARIANTS)}")
-    b = check(spec, variants)
+    b, ctrls = checked(spec, variants)
     seed = spec.seed if seed is None else scalar("seed", seed, lo=0, hi=2**63 - 1, integer=True)
-    ctrls = [controller_params(spec, v) for v in variants]
     return run_closed_loop(
         b.plant,
         ctrls,

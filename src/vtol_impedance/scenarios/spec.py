@@ -236,6 +236,14 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
 
 def check(spec: ScenarioSpec, variants: tuple[str, ...] | list[str] = ("pdc",)) -> Built:
     """Every check that needs more than one value, before any work: rates, duration, the controllers."""
+    built, ctrls = checked(spec, variants)
+    compile_controllers(ctrls)  # the estimator's bandwidth against the control period
+    return built
+
+
+def checked(spec: ScenarioSpec, variants: tuple[str, ...] | list[str]) -> tuple[Built, list[ControllerParams]]:
+    """:func:`check` without the controller design, returning what a run needs: the built scenario and one
+    controller per variant (the run designs them once)."""
     if not isinstance(spec, ScenarioSpec):
         raise ScenarioError(f"expected a ScenarioSpec or a registered name, got {type(spec).__name__}")
     rate, plant_rate = spec.control.rate, spec.plant_rate
@@ -247,8 +255,7 @@ def check(spec: ScenarioSpec, variants: tuple[str, ...] | list[str] = ("pdc",)) 
     b = build(spec)
     if b.duration < 1.0 / rate:
         raise ScenarioError(f"duration {b.duration:g} s is shorter than one control period (1/{rate:g} Hz)")
-    compile_controllers([controller_params(spec, v) for v in variants])
-    return b
+    return b, [controller_params(spec, v) for v in variants]
 
 
 # --------------------------------------------------------------------------- overrides and TOML
