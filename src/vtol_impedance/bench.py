@@ -137,7 +137,7 @@ def _latency(calls: int) -> dict[str, float]:
 def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -> dict[str, Any]:
     """Measure everything, print a table, write JSON to ``out``; returns the numbers.
 
-    ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes half a minute).
+    ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes up to a minute).
     """
     res: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "processor": platform.processor()},

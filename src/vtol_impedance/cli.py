@@ -64,7 +64,7 @@ def _announce_compile(backend: str, quiet: bool) -> None:
 
     if not kernels_cached():
         print(
-            "compiling the simulation kernels (first run only, about half a minute; cached afterwards) ...",
+            "compiling the simulation kernels (first run only, up to a minute; cached afterwards) ...",
             file=sys.stderr,
         )
 

@@ -48,7 +48,7 @@ _refresh_cache()
 
 
 def kernels_cached() -> bool:
-    """Whether the closed-loop kernel is in the on-disk cache (else the first run compiles, about half a minute)."""
+    """Whether the closed-loop kernel is in the on-disk cache (else the first run compiles, up to a minute)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return True  # unknown layout: assume the user manages it
     return any((_HERE / "__pycache__").glob("engine.run_block-*.nbi"))
