@@ -165,14 +165,15 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
+    from .control.impedance import VARIANTS
     from .errors import InputError
     from .io import RunFolder
     from .scenarios import check
 
     spec = _load_spec(args.scenario, args.set, args.duration, args.ideal)
-    bad = [v for v in variants if v not in ("pd", "pid", "pdc")]
+    bad = [v for v in variants if v not in VARIANTS]
     if bad or not variants:
-        raise InputError(f"unknown controller(s) {bad or variants}; choose from pd, pid, pdc")
+        raise InputError(f"unknown controller(s) {bad or variants}; choose from {', '.join(VARIANTS)}")
     seed = _seed(args)
     check(spec, variants)
     t0 = time.perf_counter()
