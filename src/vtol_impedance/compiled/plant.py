@@ -219,6 +219,30 @@ def _ground(pp, pz, v0, v1, v2):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _rotor_sums(pp, x, n):
+    """``E f``: thrust and the three body moments of the rotor forces ``x[13:13+n]``."""
+    e = PP_ROT
+    u = tm0 = tm1 = tm2 = 0.0
+    for i in range(n):
+        fr = x[13 + i]
+        u += pp[e + i] * fr
+        tm0 += pp[e + n + i] * fr
+        tm1 += pp[e + 2 * n + i] * fr
+        tm2 += pp[e + 3 * n + i] * fr
+    return u, tm0, tm1, tm2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rotor_lag(pp, x, f_cmd, xd, n, kup, kdn):
+    """First-order rotor lag towards the clipped commands, faster up than down."""
+    lo = PP_ROT + 4 * n
+    for i in range(n):
+        g = min(max(f_cmd[i], pp[lo + i]), pp[lo + n + i])
+        fr = x[13 + i]
+        xd[13 + i] = (g - fr) * (kup if g > fr else kdn)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def plant_derivative(pp, x, f_cmd, dist, xd, env):
     """``x_dot`` of the true plant into ``xd``, as :func:`vtol_impedance.sim.plant.plant_derivative`, and the
     external wrench into ``env = [f_ext_W (at the body origin), tau_ext_B]``, as
@@ -265,17 +289,10 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
         te1 += m1
         te2 += m2
     n = int(pp[PP_NR])
-    e = PP_ROT
-    u = 0.0
-    tm0 = 0.0
-    tm1 = 0.0
-    tm2 = 0.0
-    for i in range(n):
-        fr = x[13 + i]
-        u += pp[e + i] * fr
-        tm0 += pp[e + n + i] * fr
-        tm1 += pp[e + 2 * n + i] * fr
-        tm2 += pp[e + 3 * n + i] * fr
+    if n == 4:  # a literal count lets the compiler unroll the quadrotor's sums
+        u, tm0, tm1, tm2 = _rotor_sums(pp, x, 4)
+    else:
+        u, tm0, tm1, tm2 = _rotor_sums(pp, x, n)
     im = pp[PP_INV_M]
     F0 = -u * R[2] + fe0
     F1 = -u * R[5] + fe1
@@ -306,11 +323,10 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     xd[8] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
     xd[9] = 0.5 * (qw * w2 + qx * w1 - qy * w0)
     xd[10], xd[11], xd[12] = wd0, wd1, wd2
-    lo = e + 4 * n
-    for i in range(n):
-        g = min(max(f_cmd[i], pp[lo + i]), pp[lo + n + i])
-        fr = x[13 + i]
-        xd[13 + i] = (g - fr) * (kup if g > fr else kdn)
+    if n == 4:
+        _rotor_lag(pp, x, f_cmd, xd, 4, kup, kdn)
+    else:
+        _rotor_lag(pp, x, f_cmd, xd, n, kup, kdn)
     env[0], env[1], env[2], env[3], env[4], env[5] = fe0, fe1, fe2, te0, te1, te2
 
 
