@@ -10,18 +10,20 @@ from pathlib import Path
 from typing import IO, Any
 
 
-def _default_mode() -> int:
-    """The mode a plain ``open(..., "w")`` would give (mkstemp makes files private)."""
+def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
+
+
+def _default_mode() -> int:
+    """The mode a plain ``open(..., "w")`` would give (mkstemp makes files private)."""
+    return 0o666 & ~_umask()
 
 
 def _default_dir_mode() -> int:
     """The mode a plain ``mkdir`` would give (mkdtemp makes folders private)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o777 & ~mask
+    return 0o777 & ~_umask()
 
 
 @contextlib.contextmanager

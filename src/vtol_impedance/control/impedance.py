@@ -21,6 +21,7 @@ variants) run as one batch.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -450,8 +451,6 @@ class Controller:
         return out
 
     def _warn_once(self, out: ControlOutput) -> None:
-        import warnings
-
         causes = (
             (
                 "saturated",

@@ -214,11 +214,6 @@ class VehicleParams:
         """Maximum total thrust over nominal weight."""
         return float(self.geometry.f_max.sum() / (self.mass * G))
 
-    @property
-    def hover_authority(self) -> float:
-        """Largest collective thrust (N) at which every rotor can still be equal: ``n * min f_max``."""
-        return float(self.geometry.n * self.geometry.f_max.min())
-
     def with_rotor_limits(self, f_max: float | None = None, f_min: float | None = None) -> VehicleParams:
         """A copy with every rotor's limits replaced (``None`` keeps them)."""
         rotors = [

@@ -99,6 +99,10 @@ class Limits:
     max_memory_gb: float = 4.0
     max_plant_steps: float = 2e10
 
+    def __post_init__(self) -> None:
+        for name in ("max_memory_gb", "max_plant_steps"):
+            object.__setattr__(self, name, scalar(f"Limits.{name}", getattr(self, name), lo=0.0, lo_open=True))
+
     @classmethod
     def from_env(cls) -> Limits:
         import os
@@ -283,9 +287,9 @@ def run_closed_loop(
     labels = list(labels) if labels is not None else [c.variant for c in controllers]
     if len(labels) != B or not all(isinstance(x, str) for x in labels):
         raise InputError(f"labels must be {B} strings, one per controller, got {labels!r}")
-    if n_rotors := {c.vehicle.n_rotors for c in controllers} | {p.vehicle.n_rotors for p in plants}:
-        if len(n_rotors) > 1:
-            raise InputError(f"controllers and plants must have the same number of rotors, got {sorted(n_rotors)}")
+    counts = {c.vehicle.n_rotors for c in controllers} | {p.vehicle.n_rotors for p in plants}
+    if len(counts) > 1:
+        raise InputError(f"controllers and plants must have the same number of rotors, got {sorted(counts)}")
     seed_list = [seed] * B if np.ndim(seed) == 0 else list(seed)  # type: ignore[arg-type]
     seeds = [scalar("seed", s, lo=0, hi=2**63 - 1, integer=True) for s in seed_list]
     if len(seeds) != B:
@@ -430,7 +434,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     fail_time = np.zeros(B)
     fail_code = np.zeros(B, dtype=np.int64)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    logs = np.full((B, n_log, row_width(s.x0.shape[1] - 13)), np.nan)
+    logs = np.full((B, n_log, row_width(s.PA.spins.shape[-1])), np.nan)
     acc = np.zeros((B, N_ACC))
     win = np.array(s.window)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
