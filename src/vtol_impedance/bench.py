@@ -134,6 +134,40 @@ def _latency(calls: int) -> dict[str, float]:
     }
 
 
+def _log_estimation(samples: int) -> dict[str, float]:
+    """The compiled estimator over a synthetic log of ``samples`` samples at 100 Hz on one core (the loop
+    that ``vtol-impedance estimate`` runs), and the NumPy/SciPy path on the same data."""
+    from .compiled.estimator import estimate_log, pack_design
+    from .estimator.momentum import EstimatorParams, design
+    from .estimator.series import causal, momentum_residual
+    from .model.kinematics import euler_rate_matrix_Q
+
+    rng = np.random.default_rng(0)
+    t = np.arange(samples) * 0.01
+    eta = np.stack([0.05 * np.sin(1.3 * t), 0.04 * np.sin(0.9 * t), 0.3 * np.sin(0.2 * t)], -1)
+    omega = rng.normal(0, 0.05, (samples, 3))
+    eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega[..., None])[..., 0]
+    v = rng.normal(0, 0.1, (samples, 3))
+    thrust = 11.8 + rng.normal(0, 0.1, samples)
+    tau = rng.normal(0, 0.01, (samples, 3))
+    inertia = np.diag([0.0135, 0.0137, 0.0247])
+    restart = np.zeros(samples, bool)
+    restart[0] = True
+    des = design(EstimatorParams(), 0.01)
+    sh = pack_design(des)
+    out = np.empty((samples, 9))
+    estimate_log(sh, 1.2, inertia, v[:100], eta[:100], eta_dot[:100], thrust[:100], tau[:100], restart[:100], out)
+    wall = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        estimate_log(sh, 1.2, inertia, v, eta, eta_dot, thrust, tau, restart, out)
+        wall = min(wall, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    causal(des, momentum_residual(v, eta, eta_dot, thrust, tau, 1.2, inertia, 0.01), restart)
+    wall_np = time.perf_counter() - t0
+    return {"samples": samples, "wall": wall, "samples_per_s": samples / wall, "numpy_samples_per_s": samples / wall_np}
+
+
 def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -> dict[str, Any]:
     """Measure everything, print a table, write JSON to ``out``; returns the numbers.
 
@@ -157,6 +191,8 @@ def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -
     res["single_numpy"] = _single("numpy", 1.0 if quick else 5.0)
     log("controller + estimator step latency ...")
     res["latency"] = _latency(2000 if quick else 50000)
+    log("wrench estimation on a flight log ...")
+    res["log_estimation"] = _log_estimation(100_000 if quick else 2_000_000)
     res["batched"] = []
     sizes = (1, 10) if quick else SIZES
     for n in sizes:
@@ -182,6 +218,12 @@ def table(res: dict[str, Any]) -> str:
         f"{lat['step_arrays_p99_us']:.2f} us",
         f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us",
     ]
+    le = res.get("log_estimation")
+    if le:
+        lines.append(f"log estimation, compiled, one core               {le['samples_per_s'] / 1e6:10.2f} M samples/s")
+        lines.append(
+            f"log estimation, NumPy/SciPy                      {le['numpy_samples_per_s'] / 1e6:10.2f} M samples/s"
+        )
     if res["compile_first_s"] is not None:
         lines.append(
             f"compile, first use / cached                      {res['compile_first_s']:6.1f} / "

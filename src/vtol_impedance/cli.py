@@ -1,4 +1,4 @@
-"""Command-line interface: ``vtol-impedance {paper,run,compare,bench,list}``.
+"""Command-line interface: ``vtol-impedance {paper,run,compare,estimate,bench,list}``.
 
 Heavy modules are imported inside the commands so that ``--help`` answers at once.
 """
@@ -119,7 +119,7 @@ def _write_case(result: Any, folder: Any, stem: str, plots: bool) -> list[Path]:
 
 def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str, list[Path]], quiet: bool) -> None:
     from .analysis.metrics import compute_metrics
-    from .analysis.report import text_table, write_html, write_tables
+    from .analysis.report import table_rows, text_table, write_html, write_tables
 
     metrics = {name: compute_metrics(r) for name, r in results.items()}
     write_tables(metrics, folder.staging)
@@ -133,8 +133,11 @@ def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str,
         "which the rotor allocation or the tilt limit gave something up.",
     ]
     configs = {k: r.config for k, r in results.items()}
-    write_html(folder.staging, title, metrics, figures, notes, configs)
-    final = folder.commit(configs, seed=[r.config.get("seed") for r in results.values()])
+    seeds = [r.config.get("seed") for r in results.values()]
+    head, rows = table_rows(metrics)
+    table = ("Metrics", head, rows)
+    write_html(folder.staging, title, tables=[table], figures=figures, notes=notes, config=configs, seed=seeds)
+    final = folder.commit(configs, seed=seeds)
     print(text_table(metrics))
     failed = [f"{c}/{r['controller']}" for c, rs in metrics.items() for r in rs if r["failure"]]
     if failed:
@@ -225,6 +228,121 @@ def cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def _floats(name: str, text: str | None, n: int | tuple[int, ...]) -> list[float] | None:
+    from .errors import InputError
+
+    if text is None:
+        return None
+    try:
+        vals = [float(x) for x in text.replace(" ", "").split(",") if x != ""]
+    except ValueError:
+        raise InputError(f"{name} must be comma-separated numbers, got {text!r}") from None
+    counts = (n,) if isinstance(n, int) else n
+    if len(vals) not in counts or not all(v == v and abs(v) != float("inf") for v in vals):
+        raise InputError(f"{name} must be {' or '.join(map(str, counts))} finite numbers, got {text!r}")
+    return vals
+
+
+def _estimate_tables(est: Any, s: dict[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
+    tables = []
+    for name, st in s["stats"].items():
+        rows = [[k] + [f"{v:.4g}" for v in vals] for k, vals in st.items()]
+        tables.append((f"Estimate {name} over the log", [name, "x", "y", "z"], rows))
+    if est.bias is not None:
+        rows = [[k] + [f"{v:.4g}" for v in est.bias[k]] for k in ("f_W_N", "tau_B_Nm") if k in est.bias]
+        a, b = est.bias["segment_s"]
+        tables.append((f"Bias: mean estimate over the quiet segment {a:g}-{b:g} s", ["", "x", "y", "z"], rows))
+    info_rows = [[k, str(v)] for k, v in est.info.items() if k not in ("estimator", "inertia_kg_m2")]
+    tables.append(("How the log was read", ["item", "value"], info_rows))
+    return tables
+
+
+def cmd_estimate(args: argparse.Namespace) -> int:
+    """Estimate the external wrench along a flight log (CSV or PX4 ULog)."""
+    from .errors import InputError
+    from .estimator import EstimatorParams
+    from .io import RunFolder
+    from .logs import estimate, read_log, resample
+
+    log = Path(args.log)
+    if not log.is_file():
+        raise InputError(f"log file {log} does not exist")
+    mass = args.mass
+    inertia: Any = _floats("--inertia", args.inertia, (3, 9))
+    if args.vehicle:
+        from .model import load_preset
+
+        veh = load_preset(args.vehicle)
+        mass = veh.mass if mass is None else mass
+        inertia = veh.inertia if inertia is None else inertia
+    if mass is None or inertia is None:
+        raise InputError(
+            "the estimator needs the nominal mass and inertia: give --vehicle NAME|FILE.toml or --mass and --inertia"
+        )
+    if len(inertia) == 9:
+        inertia = [inertia[0:3], inertia[3:6], inertia[6:9]]
+    columns = {}
+    for item in args.column:
+        role, sep, name = item.partition("=")
+        if not sep or not role or not name:
+            raise InputError(f"--column takes ROLE=NAME, got {item!r}")
+        columns[role.strip()] = name.strip()
+    is_ulog = log.suffix.lower() == ".ulg"
+    if is_ulog and (columns or args.world != "ned" or args.body != "frd"):
+        raise InputError("--column, --world and --body apply to CSV logs; a ULog is always NED/FRD")
+    csv_options = dict(
+        world=args.world, body=args.body, angle_unit=args.angle_unit, quat_order=args.quat_order,
+        quat_direction=args.quat_direction, columns=columns,
+    )  # fmt: skip
+    raw = read_log(log, **({} if is_ulog else csv_options))
+    flight = resample(raw, args.rate, args.max_gap, args.start, args.end)
+    params = EstimatorParams(wn=args.wn, zeta=args.zeta, order=args.order, prototype=args.prototype)
+    est = estimate(
+        flight, mass, inertia, params,
+        zero_phase_too=args.zero_phase,
+        quiet_segment=_floats("--quiet-segment", args.quiet_segment, 2),
+        remove_bias=args.remove_bias,
+        hover_thrust=args.hover_thrust,
+        hover_segment=_floats("--hover-segment", args.hover_segment, 2),
+        torque_scale=_floats("--torque-scale", args.torque_scale, (1, 3)),
+        backend=args.backend,
+    )  # fmt: skip
+    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"estimate-{log.stem}"
+    with RunFolder(out) as folder:
+        from .analysis.report import write_html
+        from .logs.output import summary, write_estimate
+
+        write_estimate(est, folder.staging)
+        figs = []
+        if not args.no_plots:
+            from .analysis.log_plots import plot_log_inputs, plot_log_wrench
+
+            figs = [
+                plot_log_wrench(est, folder.path("wrench.png"), f"{log.name}: estimated external wrench"),
+                plot_log_inputs(est, folder.path("inputs.png"), f"{log.name}: inputs at {flight.rate_hz:g} Hz"),
+            ]
+        s = summary(est)
+        notes = [
+            "Force in world NED, moment in body FRD. The estimate contains everything the nominal model misses: "
+            "a thrust-map or mass error appears as a constant force along the thrust axis (see the bias).",
+            *est.notes,
+        ]
+        write_html(folder.staging, f"Wrench estimate: {log.name}", tables=_estimate_tables(est, s),
+                   figures={"Figures": figs}, notes=notes, config=s["info"])  # fmt: skip
+        final = folder.commit(s["info"])
+    if not args.quiet:
+        for n in est.notes:
+            print(f"note: {n}", file=sys.stderr)
+        st = s["stats"]["f_W_N"]
+        print(f"{len(est.t)} samples at {flight.rate_hz:g} Hz, {est.info['segments']} segment(s)")
+        print("force, world NED [N]  mean " + " ".join(f"{v:+.3f}" for v in st["mean"]) + "   max |.| "
+              + " ".join(f"{v:.3f}" for v in st["max_abs"]))  # fmt: skip
+        if est.bias is not None:
+            print("bias over the quiet segment [N]: " + " ".join(f"{v:+.4f}" for v in est.bias["f_W_N"]))
+        print(f"results written to {final}", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run
 
@@ -288,6 +406,49 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--controllers", default="pd,pid,pdc", help="comma-separated (default: pd,pid,pdc)")
     common(sp)
     sp.set_defaults(func=lambda a: cmd_run(a, [c.strip() for c in a.controllers.split(",") if c.strip()]))
+
+    sp = sub.add_parser(
+        "estimate",
+        help="estimate the external wrench along a flight log (CSV or PX4 .ulg): series, figures, report",
+        description="Runs the momentum-based estimator (eqs. (6)-(13)) on a flight log. CSV columns: t_s, "
+        "vx, vy, vz, roll, pitch, yaw (or q0..q3), wx, wy, wz, thrust_n (or thrust_norm), optional tx, ty, tz; "
+        "see the README, section 'Estimating from flight logs'.",
+    )
+    sp.add_argument("log", help="a .ulg (PX4) or .csv file")
+    sp.add_argument("--vehicle", default=None, help="preset name or vehicle .toml for the nominal mass and inertia")
+    sp.add_argument("--mass", type=float, default=None, help="nominal mass, kg (overrides --vehicle)")
+    sp.add_argument("--inertia", default=None, help="nominal inertia Ixx,Iyy,Izz or 9 values, kg m^2")
+    g = sp.add_argument_group("CSV conventions")
+    g.add_argument("--world", default="ned", choices=["ned", "enu"], help="world frame of the velocity")
+    g.add_argument("--body", default="frd", choices=["frd", "flu"], help="body frame of rates, torques, attitude")
+    g.add_argument("--angle-unit", default="rad", choices=["rad", "deg"], help="Euler angles and body rates")
+    g.add_argument("--quat-order", default="wxyz", choices=["wxyz", "xyzw"], help="order of q0..q3")
+    g.add_argument("--quat-direction", default="body-to-world", choices=["body-to-world", "world-to-body"])
+    g.add_argument("--column", action="append", default=[], metavar="ROLE=NAME",
+                   help="read role ROLE (e.g. vx) from column NAME (repeatable)")  # fmt: skip
+    g = sp.add_argument_group("time base")
+    g.add_argument("--rate", type=float, default=100.0, help="resampling rate, Hz (default 100)")
+    g.add_argument("--max-gap", type=float, default=0.25, help="longer gaps in any signal restart the estimator, s")
+    g.add_argument("--start", type=float, default=None, help="estimate from this time on, s")
+    g.add_argument("--end", type=float, default=None, help="estimate up to this time, s")
+    g = sp.add_argument_group("commands")
+    g.add_argument("--hover-thrust", type=float, default=None, help="normalised hover thrust (0..1)")
+    g.add_argument("--hover-segment", default=None, metavar="T0,T1", help="fit the hover thrust on this hover")
+    g.add_argument("--torque-scale", default=None, metavar="KX,KY,KZ",
+                   help="N m per unit normalised torque (else from the log's rotor geometry)")  # fmt: skip
+    g = sp.add_argument_group("estimator")
+    g.add_argument("--wn", type=float, default=10.0, help="bandwidth, rad/s (paper: 10)")
+    g.add_argument("--zeta", type=float, default=1.0, help="damping of eq. (10) (paper: 1)")
+    g.add_argument("--order", type=int, default=2, help="filter order (2: eq. (10))")
+    g.add_argument("--prototype", default="zeta", choices=["zeta", "binomial", "butterworth"])
+    g.add_argument("--zero-phase", action="store_true", help="also the offline forward-backward estimate")
+    g.add_argument("--quiet-segment", default=None, metavar="T0,T1", help="report the mean estimate here (bias)")
+    g.add_argument("--remove-bias", action="store_true", help="subtract the quiet-segment bias")
+    sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
+    sp.add_argument("--out", default=None, help=f"results folder (default: {DEFAULT_OUT}/estimate-<log name>)")
+    sp.add_argument("--no-plots", action="store_true", help="skip figures")
+    sp.add_argument("--quiet", action="store_true", help="no notes or progress")
+    sp.set_defaults(func=cmd_estimate)
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
     sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help=f"JSON file (default: {DEFAULT_OUT}/bench.json)")

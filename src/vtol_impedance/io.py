@@ -233,7 +233,7 @@ def _versions() -> dict[str, str]:
     from importlib import metadata
 
     out = {}
-    for pkg in ("numpy", "scipy", "numba", "matplotlib"):
+    for pkg in ("numpy", "scipy", "numba", "matplotlib", "pyarrow", "pyulog"):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

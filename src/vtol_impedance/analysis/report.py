@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import csv
 import html
 import io
@@ -68,30 +69,55 @@ def write_tables(metrics: dict[str, list[dict[str, Any]]], folder: Path, stem: s
     ]
 
 
+def _img(path: Path) -> str:
+    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    mime = "image/gif" if Path(path).suffix.lower() == ".gif" else "image/png"
+    name = html.escape(Path(path).stem)
+    return f"<figure><img src='data:{mime};base64,{data}' alt='{name}'><figcaption>{name}</figcaption></figure>"
+
+
+def html_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    out = ["<table><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows]
+    return "\n".join(out) + "</table>"
+
+
 def write_html(
     folder: Path,
     title: str,
-    metrics: dict[str, list[dict[str, Any]]],
-    figures: dict[str, Sequence[Path]],
+    *,
+    tables: Sequence[tuple[str, Sequence[str], Sequence[Sequence[str]]]] = (),
+    figures: dict[str, Sequence[Path]] | None = None,
     notes: Sequence[str] = (),
     config: dict[str, Any] | None = None,
+    seed: Any = None,
 ) -> Path:
-    head, rows = table_rows(metrics)
+    """One self-contained ``report.html``: figures embedded (base64), tables, notes, the configuration,
+    the tool and library versions and the seed, so that the single file can be mailed."""
+    from .. import __version__
+    from ..io import _versions
+
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title>",
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
-        "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto;padding:0 1em}"
+        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;"
+        "text-align:right}img{max-width:100%}figure{margin:1em 0}figcaption{color:#555;font-size:90%}"
+        "pre{background:#f6f6f6;padding:0.5em;overflow:auto;max-height:30em}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
     ]
-    parts += [f"<p>{html.escape(n)}</p>" for n in notes]
-    parts.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>")
-    parts += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows]
-    parts.append("</table>")
-    for case, figs in figures.items():
+    parts += [f"<p class='note'>{html.escape(n)}</p>" for n in notes]
+    for caption, head, rows in tables:
+        parts.append(f"<h2>{html.escape(caption)}</h2>")
+        parts.append(html_table(head, rows))
+    for case, figs in (figures or {}).items():
         parts.append(f"<h2>{html.escape(case)}</h2>")
-        parts += [f"<p><img src='{html.escape(p.name)}' alt='{html.escape(p.stem)}'></p>" for p in figs]
+        parts += [_img(p) for p in figs]
+    versions = {"vtol-impedance": __version__, **_versions()}
+    parts.append("<h2>Versions and seed</h2>")
+    parts.append(html_table(["package", "version"], [[k, v] for k, v in versions.items()] + [["seed", str(seed)]]))
     if config is not None:
-        parts.append("<h2>Configuration</h2><pre>" + html.escape(json.dumps(config, indent=1)[:200000]) + "</pre>")
+        text = json.dumps(config, indent=1, default=str)
+        parts.append("<h2>Configuration</h2><pre>" + html.escape(text[:500000]) + "</pre>")
     parts.append("</body></html>")
     return write_text(folder / "report.html", "\n".join(parts))

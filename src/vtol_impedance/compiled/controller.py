@@ -24,6 +24,8 @@ from numba import njit
 from ..control.impedance import ControllerArrays
 from ..conventions import SINGULARITY_COS_EPS, G
 from ..model.vehicle import MAX_ROTORS
+from .algebra import _mm9, _mv9, _solve9, _t9
+from .estimator import estimator_update, state_length
 
 # controller parameter row: fixed part, then per rotor i: E_pinv row i (4) at CP_ROT + 4 i, then
 # E (4 x n, row-major) at CP_ROT + 4 n, f_min (n) at CP_ROT + 8 n, f_max (n) at CP_ROT + 9 n
@@ -51,7 +53,7 @@ def out_size(n_rotors: int) -> int:
 
 def state_size(n: int) -> int:
     """Controller state length for an order-``n`` estimator (including ``n + 6`` scratch slots)."""
-    return 7 * n + 31
+    return state_length(n)
 
 
 def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
@@ -119,105 +121,6 @@ def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):
 @njit(cache=True)
 def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-# ------------------------------------------------------------------ tuple math (no heap allocation)
-
-
-@njit(cache=True, inline="always")
-def _Q9(f, t):
-    cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
-    return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)
-
-
-@njit(cache=True, inline="always")
-def _Qd9(f, t, df, dt):
-    cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
-    return (0.0, 0.0, -ct * dt, 0.0, -sf * df, cf * ct * df - sf * st * dt, 0.0, -cf * df, -sf * ct * df - cf * st * dt)
-
-
-@njit(cache=True, inline="always")
-def _mm9(A, B):
-    return (
-        A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
-        A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
-        A[0] * B[2] + A[1] * B[5] + A[2] * B[8],
-        A[3] * B[0] + A[4] * B[3] + A[5] * B[6],
-        A[3] * B[1] + A[4] * B[4] + A[5] * B[7],
-        A[3] * B[2] + A[4] * B[5] + A[5] * B[8],
-        A[6] * B[0] + A[7] * B[3] + A[8] * B[6],
-        A[6] * B[1] + A[7] * B[4] + A[8] * B[7],
-        A[6] * B[2] + A[7] * B[5] + A[8] * B[8],
-    )
-
-
-@njit(cache=True, inline="always")
-def _t9(A):
-    return (A[0], A[3], A[6], A[1], A[4], A[7], A[2], A[5], A[8])
-
-
-@njit(cache=True, inline="always")
-def _mv9(A, x0, x1, x2):
-    return (
-        A[0] * x0 + A[1] * x1 + A[2] * x2,
-        A[3] * x0 + A[4] * x1 + A[5] * x2,
-        A[6] * x0 + A[7] * x1 + A[8] * x2,
-    )
-
-
-@njit(cache=True, inline="always")
-def _solve9(A, b0, b1, b2):
-    """``A^{-1} b`` for a 3x3 ``A`` (row-major 9-tuple) by the adjugate: no LAPACK call on the hot path."""
-    c00 = A[4] * A[8] - A[5] * A[7]
-    c01 = A[5] * A[6] - A[3] * A[8]
-    c02 = A[3] * A[7] - A[4] * A[6]
-    inv = 1.0 / (A[0] * c00 + A[1] * c01 + A[2] * c02)
-    x0 = c00 * b0 + (A[2] * A[7] - A[1] * A[8]) * b1 + (A[1] * A[5] - A[2] * A[4]) * b2
-    x1 = c01 * b0 + (A[0] * A[8] - A[2] * A[6]) * b1 + (A[2] * A[3] - A[0] * A[5]) * b2
-    x2 = c02 * b0 + (A[1] * A[6] - A[0] * A[7]) * b1 + (A[0] * A[4] - A[1] * A[3]) * b2
-    return x0 * inv, x1 * inv, x2 * inv
-
-
-@njit(cache=True, inline="always")
-def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
-    """``Q``, ``M = Q^T I Q``, ``C = Q^T S(I Q eta_dot)^T Q + Q^T I Q_dot`` as 9-tuples (eq. (3b), (7))."""
-    Q = _Q9(e0, e1)
-    Qt = _t9(Q)
-    M = _mm9(Qt, _mm9(I, Q))
-    w0, w1, w2 = _mv9(Q, d0, d1, d2)
-    h0, h1, h2 = _mv9(I, w0, w1, w2)
-    ST = (0.0, h2, -h1, -h2, 0.0, h0, h1, -h0, 0.0)
-    C1 = _mm9(Qt, _mm9(ST, Q))
-    C2 = _mm9(Qt, _mm9(I, _Qd9(e0, e1, d0, d1)))
-    C = (
-        C1[0] + C2[0],
-        C1[1] + C2[1],
-        C1[2] + C2[2],
-        C1[3] + C2[3],
-        C1[4] + C2[4],
-        C1[5] + C2[5],
-        C1[6] + C2[6],
-        C1[7] + C2[7],
-        C1[8] + C2[8],
-    )
-    return Q, M, C
-
-
-@njit(cache=True, inline="always")
-def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
-    """Angular part of eq. (8): ``Q^T tau_B + C^T eta_dot``."""
-    a = _mv9(_t9(Q), t0, t1, t2)
-    b = _mv9(_t9(C), d0, d1, d2)
-    return a[0] + b[0], a[1] + b[1], a[2] + b[2]
-
-
-@njit(cache=True, inline="always")
-def _beta_lin(e0, e1, e2, u, m):
-    """Linear part of eq. (8): ``-u R(eta) e3 + m g``."""
-    cf, sf = math.cos(e0), math.sin(e0)
-    ct, st = math.cos(e1), math.sin(e1)
-    cp, sp = math.cos(e2), math.sin(e2)
-    return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G
 
 
 @njit(cache=True)
@@ -328,57 +231,18 @@ def controller_step(cp, sh, cs, y, r, o):
     :func:`vtol_impedance.control.impedance.controller_step`, with no heap allocation."""
     Ts, fwn, fz = sh[0], sh[1], sh[2]
     n = int(sh[9])
-    nn = 6 * n * n
-    iB = 10 + nn
-    iC = iB + 6 * n
     m = cp[CP_MASS]
     I = (cp[1], cp[2], cp[3], cp[4], cp[5], cp[6], cp[7], cp[8], cp[9])  # noqa: E741
     comp = cp[CP_COMP]
     o_q = 6 * n  # state layout: x (6n), q_prev (6), eta_prev (3), eta_dot_prev (3), started, filter (5),
-    iw = o_q + 25  # integral (3), thrust_prev, tau_prev (3), scratch: x_new (n), w_hat (6)
+    # integral (3), thrust_prev, tau_prev (3), scratch: x_new (n), w_hat (6)
 
     p0, p1, p2, v0, v1, v2 = y[0], y[1], y[2], y[3], y[4], y[5]
     e0, e1, e2, d0, d1, d2 = y[6], y[7], y[8], y[9], y[10], y[11]
 
     # estimator, eqs. (6)-(13)
-    Q, M, C = _QMC(e0, e1, d0, d1, d2, I)
-    qa = _mv9(M, d0, d1, d2)
-    q = (m * v0, m * v1, m * v2, qa[0], qa[1], qa[2])
-    for ch in range(6):
-        cs[iw + n + ch] = 0.0
-    if cs[o_q + 12] > 0.5:
-        u_prev = cs[o_q + 21]
-        tp0, tp1, tp2 = cs[o_q + 22], cs[o_q + 23], cs[o_q + 24]
-        pe0, pe1, pe2 = cs[o_q + 6], cs[o_q + 7], cs[o_q + 8]
-        pd0, pd1, pd2 = cs[o_q + 9], cs[o_q + 10], cs[o_q + 11]
-        Qp, Mp, Cp = _QMC(pe0, pe1, pd0, pd1, pd2, I)
-        la = _beta_lin(pe0, pe1, pe2, u_prev, m)
-        lb = _beta_lin(e0, e1, e2, u_prev, m)
-        aa = _beta_ang(Qp, Cp, tp0, tp1, tp2, pd0, pd1, pd2)
-        ab = _beta_ang(Q, C, tp0, tp1, tp2, d0, d1, d2)
-        beta = (la[0] + lb[0], la[1] + lb[1], la[2] + lb[2], aa[0] + ab[0], aa[1] + ab[1], aa[2] + ab[2])
-        for ch in range(6):
-            wbar = (q[ch] - cs[o_q + ch]) / Ts - 0.5 * beta[ch]
-            base = ch * n
-            for i in range(n):
-                s = sh[iB + base + i] * wbar
-                row = 10 + (ch * n + i) * n
-                for j in range(n):
-                    s += sh[row + j] * cs[base + j]
-                cs[iw + i] = s
-            acc = 0.0
-            for i in range(n):
-                cs[base + i] = cs[iw + i]
-                acc += sh[iC + base + i] * cs[iw + i]
-            cs[iw + n + ch] = acc
-    cs[o_q + 12] = 1.0
-    for ch in range(6):
-        cs[o_q + ch] = q[ch]
-    cs[o_q + 6], cs[o_q + 7], cs[o_q + 8] = e0, e1, e2
-    cs[o_q + 9], cs[o_q + 10], cs[o_q + 11] = d0, d1, d2
-    wh = iw + n
-    fh0, fh1, fh2 = cs[wh], cs[wh + 1], cs[wh + 2]
-    th0, th1, th2 = cs[wh + 3], cs[wh + 4], cs[wh + 5]
+    Q, M, C, w = estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2)
+    fh0, fh1, fh2, th0, th1, th2 = w
 
     # position impedance (18a), compensation, eq. (16)
     ig = o_q + 18

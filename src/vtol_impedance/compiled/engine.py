@@ -17,8 +17,8 @@ from numba import njit, prange
 from ..sim.loop import CRASH_DEPTH_M
 from ..sim.result import ROW_BASE
 from ..sim.result import SIGNAL_OFFSETS as _OFF
+from .algebra import _Q9, _solve9
 from .controller import (
-    _Q9,
     O_ETA_D,
     O_F,
     O_FHAT,
@@ -33,7 +33,6 @@ from .controller import (
     O_TILT,
     O_YAW,
     OUT_SIZE,
-    _solve9,
     controller_step,
 )
 from .plant import (

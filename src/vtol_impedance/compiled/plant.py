@@ -17,7 +17,7 @@ from numba import njit
 from ..conventions import G
 from ..sim.disturbances import ENC_PARAMS, Disturbance
 from ..sim.plant import PlantArrays
-from .controller import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
+from .algebra import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
 
 # plant parameter row: fixed part, then E (4 x n, row-major) at PP_ROT, f_min (n), f_max (n)
 PP_MASS, PP_I, PP_IINV, PP_C, PP_CONTACT = 0, 1, 10, 19, 22

@@ -1,0 +1,67 @@
+"""Figures of a wrench estimate on a flight log (Agg backend, written atomically)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .plots import AXES, AXIS_COLORS, _save, plt
+
+if TYPE_CHECKING:
+    from ..logs.estimate import LogEstimate
+
+
+def _gaps(ax, est: LogEstimate) -> None:
+    for t0 in est.t[est.flight.restart][1:]:
+        ax.axvline(t0, color="gray", lw=0.8, ls=":")
+
+
+def plot_log_wrench(est: LogEstimate, path: Path, title: str = "") -> Path:
+    """Estimated force (world NED) and moment (body FRD); zero-phase dashed where computed."""
+    rows = 2 if est.tau_B is not None else 1
+    fig, ax = plt.subplots(rows, 1, figsize=(9, 3.2 * rows + 0.6), sharex=True, squeeze=False)
+    ax = ax[:, 0]
+    for i in range(3):
+        ax[0].plot(est.t, est.f_W[:, i], color=AXIS_COLORS[i], lw=1.0, label=f"f_{AXES[i]} causal")
+        if est.f_W_zp is not None:
+            ax[0].plot(est.t, est.f_W_zp[:, i], color=AXIS_COLORS[i], lw=0.9, ls="--", label=f"f_{AXES[i]} zero-phase")
+        if rows == 2:
+            ax[1].plot(est.t, 1000 * est.tau_B[:, i], color=AXIS_COLORS[i], lw=1.0, label=f"tau_{AXES[i]} causal")
+            if est.tau_B_zp is not None:
+                ax[1].plot(est.t, 1000 * est.tau_B_zp[:, i], color=AXIS_COLORS[i], lw=0.9, ls="--")
+    ax[0].set_ylabel("external force, world NED [N]")
+    if rows == 2:
+        ax[1].set_ylabel("external moment, body FRD [mN m]")
+    ax[-1].set_xlabel("time [s]")
+    if est.bias is not None:
+        a, b = est.bias["segment_s"]
+        for x in ax:
+            x.axvspan(a, b, color="tab:green", alpha=0.08, label=None)
+    for x in ax:
+        _gaps(x, est)
+        x.grid(alpha=0.3)
+        x.legend(loc="upper right", fontsize=7, ncol=3)
+    ax[0].set_title(title or "Estimated external wrench (green: quiet segment; dotted: restart after a gap)")
+    return _save(fig, path)
+
+
+def plot_log_inputs(est: LogEstimate, path: Path, title: str = "") -> Path:
+    """What the estimator was given: velocity, attitude and collective thrust on the common grid."""
+    fl = est.flight
+    fig, ax = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    for i in range(3):
+        ax[0].plot(fl.t, fl.v_W[:, i], color=AXIS_COLORS[i], lw=0.9, label=f"v_{AXES[i]}")
+        ax[1].plot(fl.t, np.degrees(fl.eta[:, i]), color=AXIS_COLORS[i], lw=0.9, label=("roll", "pitch", "yaw")[i])
+    ax[2].plot(est.t, est.thrust_N, color="black", lw=0.9, label="thrust")
+    ax[0].set_ylabel("velocity, NED [m/s]")
+    ax[1].set_ylabel("attitude (ZYX) [deg]")
+    ax[2].set_ylabel("collective thrust [N]")
+    ax[2].set_xlabel("time [s]")
+    for x in ax:
+        _gaps(x, est)
+        x.grid(alpha=0.3)
+        x.legend(loc="upper right", fontsize=7, ncol=3)
+    ax[0].set_title(title or f"Inputs resampled at {fl.rate_hz:g} Hz")
+    return _save(fig, path)

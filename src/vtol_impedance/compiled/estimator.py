@@ -1,0 +1,117 @@
+"""Compiled (numba) momentum-based estimator, eqs. (6)-(13): one update shared by the closed loop
+(:func:`vtol_impedance.compiled.controller.controller_step`) and a time loop over a flight log.
+
+Mirrors :func:`vtol_impedance.estimator.momentum.estimator_step` (the NumPy definition); the parity tests
+in ``tests/test_compiled.py`` and ``tests/test_logs.py`` tie the two.
+
+Layouts: the shared design ``sh`` is ``[Ts, filter wn, filter zeta, filter Ad (4), filter Bd (2), n,
+Ad (6 n n), Bd (6 n), C (6 n)]`` (the attitude-filter slots are unused here); the state ``cs`` holds
+``x (6 n), q_prev (6), eta_prev (3), eta_dot_prev (3), started`` from index 0, the held thrust and
+torque at ``6 n + 21 .. 6 n + 24`` and scratch ``x_new (n), w_hat (6)`` from ``6 n + 25``
+(:func:`vtol_impedance.compiled.controller.state_size`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..estimator.momentum import EstimatorDesign
+from .algebra import _QMC, _beta_ang, _beta_lin, _mv9, _solve9, _t9
+
+SH_N = 9  # where the order n sits in ``sh``; the estimator matrices follow it
+
+
+def pack_design(des: EstimatorDesign) -> np.ndarray:
+    """``sh`` for an estimator alone (attitude-filter slots zero)."""
+    n = des.Ad.shape[-1]
+    return np.concatenate([[des.Ts], np.zeros(8), [float(n)], des.Ad.ravel(), des.Bd.ravel(), des.C.ravel()])
+
+
+def state_length(n: int) -> int:
+    """State length of the estimator alone (the controller state has the same prefix)."""
+    return 7 * n + 31
+
+
+@njit(cache=True, inline="always")
+def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa: E741
+    """One sample of eqs. (8)-(11) (see :mod:`vtol_impedance.estimator.momentum` for the discretisation).
+
+    ``I`` is the nominal inertia as a row-major 9-tuple, ``v`` the world-frame velocity (NED),
+    ``e`` the ZYX Euler angles and ``d`` their rates. The command held over the period that just ended is
+    read from ``cs[6 n + 21 .. 6 n + 24]``. Returns ``Q, M, C`` at this sample (9-tuples) and the estimate
+    ``[f_hat_ext_W; tau_hat_ext_eta]`` (zero at the first sample), also left in ``cs[6 n + 25 + n ..]``.
+    """
+    Ts = sh[0]
+    n = int(sh[SH_N])
+    iA = SH_N + 1
+    iB = iA + 6 * n * n
+    iC = iB + 6 * n
+    o_q = 6 * n
+    iw = o_q + 25
+    Q, M, C = _QMC(e0, e1, d0, d1, d2, I)
+    qa = _mv9(M, d0, d1, d2)
+    q = (m * v0, m * v1, m * v2, qa[0], qa[1], qa[2])
+    for ch in range(6):
+        cs[iw + n + ch] = 0.0
+    if cs[o_q + 12] > 0.5:
+        u_prev = cs[o_q + 21]
+        tp0, tp1, tp2 = cs[o_q + 22], cs[o_q + 23], cs[o_q + 24]
+        pe0, pe1, pe2 = cs[o_q + 6], cs[o_q + 7], cs[o_q + 8]
+        pd0, pd1, pd2 = cs[o_q + 9], cs[o_q + 10], cs[o_q + 11]
+        Qp, Mp, Cp = _QMC(pe0, pe1, pd0, pd1, pd2, I)
+        la = _beta_lin(pe0, pe1, pe2, u_prev, m)
+        lb = _beta_lin(e0, e1, e2, u_prev, m)
+        aa = _beta_ang(Qp, Cp, tp0, tp1, tp2, pd0, pd1, pd2)
+        ab = _beta_ang(Q, C, tp0, tp1, tp2, d0, d1, d2)
+        beta = (la[0] + lb[0], la[1] + lb[1], la[2] + lb[2], aa[0] + ab[0], aa[1] + ab[1], aa[2] + ab[2])
+        for ch in range(6):
+            wbar = (q[ch] - cs[o_q + ch]) / Ts - 0.5 * beta[ch]
+            base = ch * n
+            for i in range(n):
+                s = sh[iB + base + i] * wbar
+                row = iA + (ch * n + i) * n
+                for j in range(n):
+                    s += sh[row + j] * cs[base + j]
+                cs[iw + i] = s
+            acc = 0.0
+            for i in range(n):
+                cs[base + i] = cs[iw + i]
+                acc += sh[iC + base + i] * cs[iw + i]
+            cs[iw + n + ch] = acc
+    cs[o_q + 12] = 1.0
+    for ch in range(6):
+        cs[o_q + ch] = q[ch]
+    cs[o_q + 6], cs[o_q + 7], cs[o_q + 8] = e0, e1, e2
+    cs[o_q + 9], cs[o_q + 10], cs[o_q + 11] = d0, d1, d2
+    wh = iw + n
+    return Q, M, C, (cs[wh], cs[wh + 1], cs[wh + 2], cs[wh + 3], cs[wh + 4], cs[wh + 5])
+
+
+@njit(cache=True)
+def estimate_log(sh, m, I_B, v_W, eta, eta_dot, thrust, tau_B, restart, out):  # noqa: N803
+    """The estimator over a uniformly sampled log: ``out[k] = [f_hat_ext_W; tau_hat_ext_eta; tau_hat_ext_B]``.
+
+    ``thrust[k]``, ``tau_B[k]`` are the commands issued at sample ``k`` and held until ``k + 1``. Where
+    ``restart[k]`` is true the estimator starts afresh (after a gap), as at ``k = 0``.
+    """
+    n = int(sh[SH_N])
+    cs = np.zeros(7 * n + 31)  # state_length(n)
+    I = (I_B[0, 0], I_B[0, 1], I_B[0, 2], I_B[1, 0], I_B[1, 1], I_B[1, 2], I_B[2, 0], I_B[2, 1], I_B[2, 2])  # noqa: E741
+    o_q = 6 * n
+    for k in range(v_W.shape[0]):
+        if restart[k]:
+            for i in range(cs.shape[0]):
+                cs[i] = 0.0
+        elif k > 0:
+            cs[o_q + 21] = thrust[k]
+            cs[o_q + 22], cs[o_q + 23], cs[o_q + 24] = tau_B[k - 1, 0], tau_B[k - 1, 1], tau_B[k - 1, 2]
+        Q, M, C, w = estimator_update(
+            sh, cs, m, I, v_W[k, 0], v_W[k, 1], v_W[k, 2], eta[k, 0], eta[k, 1], eta[k, 2],
+            eta_dot[k, 0], eta_dot[k, 1], eta_dot[k, 2],
+        )  # fmt: skip
+        for c in range(6):
+            out[k, c] = w[c]
+        # tau_B = Q^{-T} tau_eta: Q^T x = tau_eta
+        x0, x1, x2 = _solve9(_t9(Q), w[3], w[4], w[5])
+        out[k, 6], out[k, 7], out[k, 8] = x0, x1, x2
