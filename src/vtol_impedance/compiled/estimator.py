@@ -104,7 +104,7 @@ def estimate_log(sh, m, I_B, v_W, eta, eta_dot, thrust, tau_B, restart, out):  #
             for i in range(cs.shape[0]):
                 cs[i] = 0.0
         elif k > 0:
-            cs[o_q + 21] = thrust[k]
+            cs[o_q + 21] = thrust[k - 1]
             cs[o_q + 22], cs[o_q + 23], cs[o_q + 24] = tau_B[k - 1, 0], tau_B[k - 1, 1], tau_B[k - 1, 2]
         Q, M, C, w = estimator_update(
             sh, cs, m, I, v_W[k, 0], v_W[k, 1], v_W[k, 2], eta[k, 0], eta[k, 1], eta[k, 2],

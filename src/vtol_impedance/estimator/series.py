@@ -97,6 +97,6 @@ def zero_phase(des: EstimatorDesign, w_bar: np.ndarray, restart: np.ndarray | No
             z[:, i] = scipy.signal.filtfilt(b, a, w[:, i], method="gust")
         out = np.empty((len(w) + 1, 6))
         out[0], out[-1] = z[0], z[-1]  # half a period of extrapolation at both ends
-        out[1:-1] = z[1:]
+        out[1:-1] = 0.5 * (z[:-1] + z[1:])
         r[seg] = out
     return r

@@ -22,7 +22,7 @@ QUAT_ORDERS = ("wxyz", "xyzw")
 QUAT_DIRECTIONS = ("body-to-world", "world-to-body")
 
 T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-T_FRD_FLU = np.diag([1.0, 1.0, -1.0])
+T_FRD_FLU = np.diag([1.0, -1.0, -1.0])
 
 
 def _choice(name: str, value: str, allowed: tuple[str, ...]) -> str:

@@ -128,7 +128,7 @@ def _gaps(t: np.ndarray, max_gap: float) -> list[tuple[float, float]]:
 
 def _interp(sig: Signal, grid: np.ndarray) -> np.ndarray:
     if sig.hold:
-        idx = np.clip(np.searchsorted(sig.t, grid, side="right"), 0, len(sig.t) - 1)
+        idx = np.clip(np.searchsorted(sig.t, grid, side="right") - 1, 0, len(sig.t) - 1)
         return sig.values[idx]
     return np.stack([np.interp(grid, sig.t, sig.values[:, j]) for j in range(sig.values.shape[1])], -1)
 

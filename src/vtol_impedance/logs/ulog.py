@@ -71,7 +71,7 @@ def torque_per_unit(params: dict[str, float]) -> tuple[np.ndarray, int] | None:
     s_r = np.sqrt(np.sum(mix[:, 0] ** 2) / (nz_r / 2.0)) if nz_r else 1.0
     s_p = np.sqrt(np.sum(mix[:, 1] ** 2) / (nz_p / 2.0)) if nz_p else 1.0
     s_rp = max(s_r, s_p)
-    s_y = float(np.max(np.abs(mix[:, 2])) * 1.1)
+    s_y = float(np.max(mix[:, 2]))
     if not (s_rp > 0 and s_y > 0):
         return None
     return np.array([1.0 / s_rp, 1.0 / s_rp, 1.0 / s_y]), n
@@ -129,7 +129,7 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
         meta["px4_version"] = "unknown"
     if "vehicle_thrust_setpoint" in found:
         src, t, f = pick("thrust command", [("vehicle_thrust_setpoint", ["xyz[2]"])])
-        thrust = Signal("thrust", src + " (negated)", t, np.abs(f) * 1.02, hold=True)
+        thrust = Signal("thrust", src + " (negated)", t, -f, hold=True)
         torque_opts = [("vehicle_torque_setpoint", [f"xyz[{i}]" for i in range(3)])]
         meta["px4_generation"] = ">= 1.14 (vehicle_thrust_setpoint, vehicle_torque_setpoint)"
     else:
