@@ -74,7 +74,10 @@ def test_estimate_report_renders(tmp_path):
     log = tmp_path / "flight.csv"
     np.savetxt(log, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
     out = tmp_path / "est"
-    assert main(["estimate", str(log), "--vehicle", "pelican", "--quiet-segment", "2,4", "--out", str(out), "--quiet"]) == 0
+    assert (
+        main(["estimate", str(log), "--vehicle", "pelican", "--quiet-segment", "2,4", "--out", str(out), "--quiet"])
+        == 0
+    )
     info = _render(out / "report.html", ARTIFACTS / "report-estimate.png")
     _self_contained(out / "report.html", info)
     assert len(info["images"]) == 2
