@@ -27,3 +27,14 @@ def test_attitude_filter_measurement_example_runs():
     mod = runpy.run_path(str(ROOT / "examples" / "attitude_filter_bandwidth.py"))
     rows = mod["measure"](bandwidths=(20.0,), cases=("case-c-circle",), seeds=(0,))
     assert rows[0]["rms_ep_cm"] < 2.0 and rows[0]["limited_pct"] == 0.0
+
+
+def test_estimate_from_a_log_example(tmp_path):
+    """A simulated flight logged the ROS way (ENU, FLU, xyzw, degrees, normalised thrust) and read back:
+    the estimate is the in-flight one and follows the simulator's true wrench through G(s)."""
+    mod = runpy.run_path(str(ROOT / "examples" / "estimate_from_a_log.py"))
+    out = mod["run"](tmp_path, duration=12.0)
+    late = out["t"] > 1.0
+    np.testing.assert_allclose(out["f_est"][late], out["f_flight"][late], atol=0.02)
+    steady = out["t"] > 5.0  # the payload's weight and the fan's mean push, after G has settled
+    np.testing.assert_allclose(out["f_est"][steady].mean(0), out["f_true"][steady].mean(0), atol=0.02)

@@ -42,7 +42,7 @@ def plot_log_wrench(est: LogEstimate, path: Path, title: str = "") -> Path:
     for x in ax:
         _gaps(x, est)
         x.grid(alpha=0.3)
-        x.legend(loc="upper right", fontsize=7, ncol=3)
+        x.legend(loc="best", fontsize=7, ncol=3)
     ax[0].set_title(title or "Estimated external wrench (green: quiet segment; dotted: restart after a gap)")
     return _save(fig, path)
 
@@ -62,6 +62,6 @@ def plot_log_inputs(est: LogEstimate, path: Path, title: str = "") -> Path:
     for x in ax:
         _gaps(x, est)
         x.grid(alpha=0.3)
-        x.legend(loc="upper right", fontsize=7, ncol=3)
+        x.legend(loc="best", fontsize=7, ncol=3)
     ax[0].set_title(title or f"Inputs resampled at {fl.rate_hz:g} Hz")
     return _save(fig, path)
