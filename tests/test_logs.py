@@ -505,6 +505,9 @@ def test_cli_estimate_writes_series_figures_report(fl, tmp_path, capsys):
         (["--vehicle", "pelican", "--column", "vx"], "ROLE=NAME"),
         (["--vehicle", "pelican", "--column", "speed=vx"], "unknown column role"),
         (["--vehicle", "no-such-vehicle"], "no-such-vehicle"),
+        (["--vehicle", "pelican", "--hover-thrust", "0.5"], "already in newtons"),
+        (["--vehicle", "pelican", "--torque-scale", "1"], "already in N m"),
+        (["--vehicle", "pelican", "--start", "50"], "window 50.0 to None"),
     ],
 )
 def test_cli_estimate_bad_input_exits_2(fl, tmp_path, capsys, args, message):

@@ -266,7 +266,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
 
     log = Path(args.log)
     if not log.is_file():
-        raise InputError(f"log file {log} does not exist")
+        raise InputError(f"log file {log} {'is not a file' if log.exists() else 'does not exist'}")
     mass = args.mass
     inertia: Any = _floats("--inertia", args.inertia, (3, 9))
     if args.vehicle:

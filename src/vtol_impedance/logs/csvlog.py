@@ -95,7 +95,7 @@ def read_csv(
     """Read a CSV log (see the module docstring for the columns) into world NED / body FRD signals."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} does not exist")
+        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
     if angle_unit not in ANGLE_UNITS:
         raise InputError(f"angle unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     notes: list[str] = []

@@ -104,6 +104,10 @@ def commands_in_si(
     notes: list[str] = []
     weight = mass * G
     u = flight.thrust
+    if raw.thrust_unit == "N" and (hover_thrust is not None or hover_segment is not None):
+        raise InputError("a hover thrust converts normalised thrust; this log's thrust is already in newtons")
+    if raw.torque_unit == "N m" and torque_scale is not None:
+        raise InputError("a torque scale converts normalised torque; this log's torques are already in N m")
     if raw.thrust_unit == "N":
         if np.max(u) < 0.2 * weight:
             raise InputError(

@@ -165,7 +165,8 @@ def resample(
         hi = min(hi, t_end)
     if not hi - lo >= 2.0 / rate_hz:
         spans = ", ".join(f"{s.name} {s.t[0]:.3f}-{s.t[-1]:.3f} s" for s in sigs)
-        raise InputError(f"the signals share no common time span to estimate over (they cover: {spans})")
+        window = "" if t_start is None and t_end is None else f" inside the window {t_start} to {t_end} s"
+        raise InputError(f"the signals share no common time span{window} to estimate over (they cover: {spans})")
     grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / rate_hz
     keep = np.ones(len(grid), bool)
     restart = np.zeros(len(grid), bool)

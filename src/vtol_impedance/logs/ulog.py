@@ -81,7 +81,7 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
     """Read a PX4 ULog into world NED / body FRD signals (see the module docstring for the topics)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} does not exist")
+        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
     ULog = _pyulog()
     try:
         ulog = ULog(str(path), TOPICS)
