@@ -1,4 +1,4 @@
-"""Command-line interface: ``vtol-impedance {paper,run,compare,estimate,bench,list}``.
+"""Command-line interface: ``vtol-impedance {paper,run,compare,estimate,sweep,sweep-report,tune,bench,list}``.
 
 Heavy modules are imported inside the commands so that ``--help`` answers at once.
 """
@@ -343,6 +343,46 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sweep_out(args: argparse.Namespace, name: str) -> Path:
+    return Path(args.out) if args.out else Path(DEFAULT_OUT) / f"sweep-{name}"
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Run or resume a sweep, then write its summary."""
+    from .sweeps import load, run_sweep, write_report
+
+    sweep = load(args.spec)
+    where = Path(args.spec) if Path(args.spec).suffix else None
+    if sweep.fast_estimator_points and not args.quiet:
+        print(
+            f"note: {len(sweep.fast_estimator_points)} of {len(sweep.points)} points put the estimator bandwidth "
+            "near the sampling rate (|p| Ts > 0.5): measurement noise is barely filtered there",
+            file=sys.stderr,
+        )
+    t0 = time.perf_counter()
+    folder, computed = run_sweep(
+        sweep, _sweep_out(args, sweep.name), args.workers, args.scheduler, args.backend, args.restart, where,
+        show_progress=not args.quiet,
+    )  # fmt: skip
+    wall = time.perf_counter() - t0
+    if not args.no_report:
+        write_report(folder, args.metric)
+    if not args.quiet:
+        flights = computed * sweep.chunk * len(sweep.controllers)
+        print(f"{computed} chunk(s) computed in {wall:.1f} s (about {flights / max(wall, 1e-9):.1f} flights/s); "
+              f"results in {folder}", file=sys.stderr)  # fmt: skip
+    return 0
+
+
+def cmd_sweep_report(args: argparse.Namespace) -> int:
+    from .sweeps import write_report
+
+    files = write_report(Path(args.folder), args.metric, args.x, args.y)
+    if not args.quiet:
+        print(f"wrote {len(files)} files to {args.folder}", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run
 
@@ -449,6 +489,32 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-plots", action="store_true", help="skip figures")
     sp.add_argument("--quiet", action="store_true", help="no notes or progress")
     sp.set_defaults(func=cmd_estimate)
+
+    sp = sub.add_parser(
+        "sweep",
+        help="a parameter study or Monte-Carlo over any scenario value (resumable; optional Dask)",
+        description="Runs a sweep file (or a built-in study: rate-vs-bandwidth, payload-vs-offset) on the "
+        "compiled batch engine, writes one Parquet file per chunk and a summary. Running the same command "
+        "again after an interruption computes only the missing chunks.",
+    )
+    sp.add_argument("spec", help="a sweep .toml file or the name of a built-in study")
+    sp.add_argument("--out", default=None, help=f"sweep folder (default: {DEFAULT_OUT}/sweep-<name>)")
+    sp.add_argument("--workers", type=int, default=None, help="start a local Dask cluster with N worker processes")
+    sp.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask cluster")
+    sp.add_argument("--restart", action="store_true", help="discard a different sweep found in the folder")
+    sp.add_argument("--metric", default="rms_ep_cm", help="metric of the summary figures (default rms_ep_cm)")
+    sp.add_argument("--no-report", action="store_true", help="only the data, no summary")
+    sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
+    sp.add_argument("--quiet", action="store_true", help="no progress output")
+    sp.set_defaults(func=cmd_sweep)
+
+    sp = sub.add_parser("sweep-report", help="summary figures, table and HTML report of a finished sweep folder")
+    sp.add_argument("folder", help="a sweep folder")
+    sp.add_argument("--metric", default="rms_ep_cm", help="metric (default rms_ep_cm)")
+    sp.add_argument("--x", default=None, help="axis along x of the heat maps (default: the first axis)")
+    sp.add_argument("--y", default=None, help="axis along y of the heat maps (default: the second axis)")
+    sp.add_argument("--quiet", action="store_true")
+    sp.set_defaults(func=cmd_sweep_report)
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
     sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help=f"JSON file (default: {DEFAULT_OUT}/bench.json)")

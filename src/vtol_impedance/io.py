@@ -127,6 +127,33 @@ def check_output_folder(final: Path) -> Path:
     return final
 
 
+class FolderLock:
+    """An exclusive lock on an output folder (``flock`` on a hidden file beside it), taken at once or
+    refused: a second run into the same folder fails with a clear error instead of mixing files."""
+
+    def __init__(self, folder: Path) -> None:
+        import fcntl
+
+        from .errors import InputError
+
+        folder = Path(folder).absolute()
+        try:
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(folder.parent / f".{folder.name}.lock", "a+")  # noqa: SIM115 (held until close)
+        except OSError as exc:
+            raise InputError(f"cannot create the output folder {folder}: {exc.strerror}") from None
+        try:
+            fcntl.flock(self._fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._fh.close()
+            raise InputError(
+                f"another run is writing to {folder} right now; wait for it to finish or choose another --out"
+            ) from None
+
+    def close(self) -> None:
+        self._fh.close()
+
+
 class RunFolder:
     """All files of one run, bound together and swapped in at once.
 
@@ -140,24 +167,9 @@ class RunFolder:
     """
 
     def __init__(self, final: str | os.PathLike[str]) -> None:
-        import fcntl
-
-        from .errors import InputError
-
         self.final = check_output_folder(Path(final)).absolute()
         parent = self.final.parent
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-            self._lock = open(parent / f".{self.final.name}.lock", "a+")  # noqa: SIM115 (held until close)
-        except OSError as exc:
-            raise InputError(f"cannot create the output folder {self.final}: {exc.strerror}") from None
-        try:
-            fcntl.flock(self._lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self._lock.close()
-            raise InputError(
-                f"another run is writing to {self.final} right now; wait for it to finish or choose another --out"
-            ) from None
+        self._lock = FolderLock(self.final)
         self._recover()
         self.staging = Path(tempfile.mkdtemp(prefix=f".{self.final.name}.staging-", dir=parent))
         os.chmod(self.staging, _default_dir_mode())

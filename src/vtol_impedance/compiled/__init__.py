@@ -28,18 +28,30 @@ _SOURCES = (
 
 
 def _refresh_cache() -> None:
+    """Clear the cached kernels when their sources changed. Safe when many processes import at once
+    (sweep workers): the check-and-clear runs under an exclusive ``flock``, the stamp is written
+    atomically, and processes of the same installation agree on the digest, so only the first one to
+    see a new digest clears the cache, before anyone has loaded from it."""
     if os.environ.get("NUMBA_CACHE_DIR"):  # a user-managed cache: leave it alone
         return
+    import fcntl
+
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in _SOURCES if p.exists())).hexdigest()
     cache = _HERE / "__pycache__"
     stamp = cache / "kernels.stamp"
     try:
         if stamp.exists() and stamp.read_text() == digest:
             return
-        for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
-            f.unlink(missing_ok=True)
         cache.mkdir(exist_ok=True)
-        stamp.write_text(digest)
+        with open(cache / "kernels.lock", "a+") as lock:
+            fcntl.flock(lock.fileno(), fcntl.LOCK_EX)
+            if stamp.exists() and stamp.read_text() == digest:
+                return  # another process refreshed it while we waited
+            for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+                f.unlink(missing_ok=True)
+            tmp = cache / f"kernels.stamp.{os.getpid()}"
+            tmp.write_text(digest)
+            os.replace(tmp, stamp)
     except OSError:  # read-only install: numba falls back to its own cache location
         pass
 

@@ -1,0 +1,251 @@
+"""Summary of a sweep: statistics per point and controller, heat maps over two axes, error against each
+axis with its spread, failure regions marked, and the self-contained HTML report."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import MANIFEST, sha256_of, write_text
+from .run import METRICS, SWEEP_FILE, read_dataset
+
+LABELS = {"pd": "PD", "pid": "PID", "pdc": "PD+C"}
+METRIC_LABELS = {
+    "rms_ep_cm": "RMS |e_p| [cm]",
+    "max_ep_cm": "max |e_p| [cm]",
+    "ss_ep_cm": "steady |e_p| [cm]",
+    "rms_ev_cms": "RMS |de_p| [cm/s]",
+    "rms_f_err_N": "RMS |f_hat - f| [N]",
+    "rms_tau_err_mNm": "RMS |tau_hat - tau| [mN m]",
+    "sat_pct": "limited [%]",
+}
+
+
+def _columns(table) -> dict[str, np.ndarray]:
+    return {name: np.asarray(table[name].to_pylist(), dtype=object) for name in table.column_names}
+
+
+def summarise(folder: Path, metric: str = "rms_ep_cm") -> dict[str, Any]:
+    """Per point and controller: the axis values, mean, std, min and max of ``metric`` over the seeds, and
+    the share of failed flights (failed flights are left out of the statistics)."""
+    if metric not in METRICS:
+        raise InputError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
+    desc = json.loads((Path(folder) / SWEEP_FILE).read_text(encoding="utf-8"))
+    sw = desc["sweep"]
+    cols = _columns(read_dataset(folder))
+    n_expected = len(sw["points"]) * sw["seeds"] * len(sw["controllers"])
+    rows = []
+    for i, point in enumerate(sw["points"]):
+        for c in sw["controllers"]:
+            sel = (cols["point"] == i) & (cols["controller"] == c)
+            vals = cols[metric][sel].astype(float)
+            failed = cols["diverged"][sel].astype(bool)
+            ok = vals[~failed & np.isfinite(vals)]
+            rows.append({
+                "point": i, "controller": c, **point, "n": int(sel.sum()),
+                "mean": float(ok.mean()) if ok.size else float("nan"),
+                "std": float(ok.std()) if ok.size else float("nan"),
+                "min": float(ok.min()) if ok.size else float("nan"),
+                "max": float(ok.max()) if ok.size else float("nan"),
+                "failed_share": float(failed.mean()) if sel.any() else float("nan"),
+            })  # fmt: skip
+    return {"metric": metric, "axes": sw["axes"], "controllers": sw["controllers"], "rows": rows,
+            "flights": int(len(cols["unit"])), "expected": n_expected, "sweep": sw, "cols": cols}  # fmt: skip
+
+
+def _axis_values(rows: list[dict], key: str) -> list:
+    vals = sorted({json.dumps(r[key]) for r in rows}, key=lambda s: json.loads(s) if not s.startswith("[") else s)
+    return [json.loads(v) for v in vals]
+
+
+def plot_heatmaps(s: dict[str, Any], path: Path, x: str, y: str) -> Path:
+    """Mean metric over ``x`` and ``y`` (averaged over any other axis), one panel per controller; cells
+    with failed flights crossed out."""
+    from matplotlib.colors import LogNorm
+
+    from ..analysis.plots import _save, plt
+
+    xs, ys = _axis_values(s["rows"], x), _axis_values(s["rows"], y)
+    ctrls = s["controllers"]
+    grids = {}
+    for c in ctrls:
+        m = np.full((len(ys), len(xs)), np.nan)
+        f = np.zeros((len(ys), len(xs)))
+        for r in s["rows"]:
+            if r["controller"] != c:
+                continue
+            i, j = ys.index(r[y]), xs.index(r[x])
+            m[i, j] = np.nanmean([m[i, j], r["mean"]]) if np.isfinite(m[i, j]) else r["mean"]
+            f[i, j] = max(f[i, j], r["failed_share"])
+        grids[c] = (m, f)
+    finite = np.concatenate([g[0][np.isfinite(g[0])] for g in grids.values()] + [np.array([1.0])])
+    pos = finite[finite > 0]
+    norm = LogNorm(vmin=max(pos.min(), 1e-3), vmax=max(pos.max(), pos.min() * 1.01))
+    fig, axs = plt.subplots(1, len(ctrls), figsize=(4.6 * len(ctrls) + 1.2, 4.2), squeeze=False)
+    for ax, c in zip(axs[0], ctrls, strict=True):
+        m, f = grids[c]
+        im = ax.imshow(m, origin="lower", aspect="auto", norm=norm, cmap="viridis")
+        for i in range(len(ys)):
+            for j in range(len(xs)):
+                if f[i, j] > 0:
+                    ax.text(j, i, "x", ha="center", va="center", color="red", fontsize=12, fontweight="bold")
+                elif np.isfinite(m[i, j]) and len(xs) * len(ys) <= 120:
+                    ax.text(j, i, f"{m[i, j]:.2g}", ha="center", va="center", color="white", fontsize=6)
+        ax.set_xticks(range(len(xs)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in xs], rotation=45)
+        ax.set_yticks(range(len(ys)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in ys])
+        ax.set_xlabel(x)
+        ax.set_ylabel(y)
+        ax.set_title(LABELS.get(c, c))
+    fig.colorbar(im, ax=axs[0].tolist(), label=METRIC_LABELS[s["metric"]] + " (mean over seeds)")
+    fig.suptitle(f"{s['sweep']['name']}: red x = at least one flight failed")
+    return _save(fig, path)
+
+
+def plot_compensation(s: dict[str, Any], path: Path, x: str, y: str) -> Path | None:
+    """PD+C over PD at every point (below 1: compensation helps); the contour 1 is where it stops helping."""
+    if not {"pd", "pdc"} <= set(s["controllers"]):
+        return None
+    from matplotlib.colors import LogNorm
+
+    from ..analysis.plots import _save, plt
+
+    xs, ys = _axis_values(s["rows"], x), _axis_values(s["rows"], y)
+    val = {(r["controller"], json.dumps(r[x]), json.dumps(r[y])): r for r in s["rows"]}
+    ratio = np.full((len(ys), len(xs)), np.nan)
+    failed = np.zeros_like(ratio, dtype=bool)
+    for i, vy in enumerate(ys):
+        for j, vx in enumerate(xs):
+            a, b = val.get(("pdc", json.dumps(vx), json.dumps(vy))), val.get(("pd", json.dumps(vx), json.dumps(vy)))
+            if a and b:
+                ratio[i, j] = a["mean"] / b["mean"] if b["mean"] > 0 else np.nan
+                failed[i, j] = a["failed_share"] > 0 or b["failed_share"] > 0
+    fig, ax = plt.subplots(figsize=(6.5, 4.8))
+    r = ratio[np.isfinite(ratio) & (ratio > 0)]
+    lim = max(float(np.max(np.abs(np.log10(r)))) if r.size else 1.0, 0.1)
+    im = ax.imshow(ratio, origin="lower", aspect="auto", cmap="RdBu_r", norm=LogNorm(10**-lim, 10**lim))
+    if np.isfinite(ratio).sum() > 3 and len(xs) > 1 and len(ys) > 1:
+        ax.contour(np.log10(np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1e3)), levels=[0.0], colors="black")
+    for i in range(len(ys)):
+        for j in range(len(xs)):
+            if failed[i, j]:
+                ax.text(j, i, "x", ha="center", va="center", color="red", fontsize=12, fontweight="bold")
+    ax.set_xticks(range(len(xs)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in xs], rotation=45)
+    ax.set_yticks(range(len(ys)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in ys])
+    ax.set_xlabel(x)
+    ax.set_ylabel(y)
+    fig.colorbar(im, ax=ax, label=f"{METRIC_LABELS[s['metric']]}: PD+C / PD")
+    ax.set_title("Where compensation helps (blue) and where it stops (red); black: ratio 1")
+    return _save(fig, path)
+
+
+def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
+    """The metric against one axis for each controller: median over seeds and the other axes, with the
+    10-90 % band, failures as red crosses at the top."""
+    from ..analysis.plots import COLORS, _save, plt
+
+    cols = s["cols"]
+    xs = _axis_values(s["rows"], axis)
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    key = np.array([json.dumps(v) for v in cols[axis]])
+    vals = cols[s["metric"]].astype(float)
+    failed = cols["diverged"].astype(bool)
+    top = np.nanmax(np.where(failed, np.nan, vals)) if np.any(~failed) else 1.0
+    numeric = all(isinstance(v, int | float) for v in xs)
+    xpos = np.array(xs, dtype=float) if numeric else np.arange(len(xs), dtype=float)
+    for c in s["controllers"]:
+        med, lo, hi, nfail = [], [], [], []
+        for v in xs:
+            sel = (key == json.dumps(v)) & (cols["controller"] == c)
+            ok = vals[sel & ~failed]
+            ok = ok[np.isfinite(ok)]
+            med.append(np.median(ok) if ok.size else np.nan)
+            lo.append(np.percentile(ok, 10) if ok.size else np.nan)
+            hi.append(np.percentile(ok, 90) if ok.size else np.nan)
+            nfail.append(int((sel & failed).sum()))
+        color = COLORS.get(c)
+        ax.plot(xpos, med, "o-", color=color, label=LABELS.get(c, c), ms=3)
+        ax.fill_between(xpos, lo, hi, color=color or "gray", alpha=0.15)
+        bad = np.array(nfail) > 0
+        if bad.any():
+            ax.plot(xpos[bad], np.full(bad.sum(), top * 1.15), "x", color="red", ms=8)
+    if numeric and np.all(xpos > 0) and xpos.max() / max(xpos.min(), 1e-300) > 20:
+        ax.set_xscale("log")
+    if not numeric:
+        ax.set_xticks(xpos, [str(v) for v in xs])
+    ax.set_yscale("log")
+    ax.set_xlabel(axis)
+    ax.set_ylabel(METRIC_LABELS[s["metric"]])
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{s['sweep']['name']}: median and 10-90 % band; red x: failed flights")
+    return _save(fig, path)
+
+
+def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, y: str | None = None) -> list[Path]:
+    """Summary CSV, figures, ``report.html`` and ``manifest.json`` into the sweep folder."""
+    from ..analysis.report import write_html
+
+    folder = Path(folder)
+    s = summarise(folder, metric)
+    axes = s["axes"]
+    for a in (x, y):
+        if a is not None and a not in axes:
+            raise InputError(f"{a!r} is not an axis of this sweep; its axes are {', '.join(axes)}")
+    if s["flights"] < s["expected"]:
+        raise InputError(
+            f"{folder} holds {s['flights']} of {s['expected']} flights: the sweep is not finished; run the same "
+            "sweep command again to compute the missing chunks"
+        )
+    buf = io.StringIO()
+    head = ["point", "controller", *axes, "n", "mean", "std", "min", "max", "failed_share"]
+    w = csv.writer(buf)
+    w.writerow(head)
+    for r in s["rows"]:
+        w.writerow([json.dumps(r[h]) if isinstance(r[h], list) else r[h] for h in head])
+    files = [write_text(folder / "summary.csv", buf.getvalue())]
+    figs = []
+    if len(axes) >= 2:
+        xa, ya = x or axes[0], y or next(a for a in axes if a != (x or axes[0]))
+        figs.append(plot_heatmaps(s, folder / "heatmap.png", xa, ya))
+        comp = plot_compensation(s, folder / "compensation.png", xa, ya)
+        if comp is not None:
+            figs.append(comp)
+    for i, a in enumerate(axes):
+        figs.append(plot_against(s, folder / f"against-axis{i}.png", a))
+    files += figs
+    table_rows = [
+        [str(r["point"]), LABELS.get(r["controller"], r["controller"])]
+        + [f"{r[a]:.4g}" if isinstance(r[a], float) else str(r[a]) for a in axes]
+        + [f"{r['mean']:.3g}", f"{r['std']:.2g}", f"{100 * r['failed_share']:.0f}"]
+        for r in s["rows"][:2000]
+    ]
+    fails = sum(r["failed_share"] > 0 for r in s["rows"])
+    notes = [
+        f"{s['flights']} flights: {len(s['sweep']['points'])} points x {s['sweep']['seeds']} seeds x "
+        f"{len(s['controllers'])} controllers; metric {METRIC_LABELS[metric]} over each scenario's task window.",
+        f"{fails} point/controller pairs had failed flights (red x in the figures); they are left out of the means.",
+    ]
+    files.append(
+        write_html(
+            folder, f"Sweep {s['sweep']['name']}",
+            tables=[("Per point and controller", [*head[:2], *axes, "mean", "std", "failed %"], table_rows)],
+            figures={"Figures": figs}, notes=notes, config=s["sweep"], seed=s["sweep"]["seed"],
+        )
+    )  # fmt: skip
+    manifest = {
+        "tool": "vtol-impedance sweep",
+        "sweep_digest": json.loads((folder / SWEEP_FILE).read_text())["digest"],
+        "files": {
+            str(p.relative_to(folder)): {"sha256": sha256_of(p), "bytes": p.stat().st_size}
+            for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != MANIFEST
+        },
+    }
+    files.append(write_text(folder / MANIFEST, json.dumps(manifest, indent=1)))
+    return files

@@ -1,0 +1,350 @@
+"""Running a sweep: chunks of units on the compiled batch engine, in this process or on Dask.
+
+Layout of a sweep folder (``results/sweep-<name>`` or ``--out``)::
+
+    sweep.json                 the resolved sweep (every point and seed) and its SHA-256: what resuming checks
+    chunks/chunk-000000.parquet   one file per chunk, one row per flight, written atomically
+    traces/chunk-000000.parquet   decimated traces, when the sweep keeps them
+    summary files              written by the report once every chunk is there, with manifest.json
+
+A chunk is written once, complete (temporary name, then rename), and never appended to. Running the same
+command again after an interruption (Ctrl-C, a killed worker, a killed process) computes only the
+chunks whose files are missing; since every unit's seed depends only on the sweep seed and its indices,
+the dataset is the same as an uninterrupted run's. A folder holding another sweep is refused.
+
+On Dask (``workers=N`` starts a loopback ``LocalCluster``, ``scheduler=ADDRESS`` joins an existing one)
+the client writes the files: workers only compute and return rows, so they need no shared disk. The
+kernels are compiled once, in this process, before any worker starts; every task pins numba to one
+thread (Dask does not limit numba's threads in its workers).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+import warnings
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..estimator.momentum import EstimatorBandwidthWarning
+from ..io import FolderLock, write_text, write_with
+from .spec import Sweep, Unit
+
+METRICS = ("rms_ep_cm", "max_ep_cm", "ss_ep_cm", "rms_ev_cms", "rms_f_err_N", "rms_tau_err_mNm", "sat_pct")
+SWEEP_FILE = "sweep.json"
+
+
+def _numba_one_thread() -> None:
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
+
+
+def run_units(sweep: Sweep, units: Iterable[Unit], backend: str = "compiled") -> tuple[dict, dict | None]:
+    """Fly ``units`` and return the flight rows and (when kept) the decimated traces, as column dicts."""
+    from ..analysis.metrics import compute_metrics
+    from ..scenarios import simulate
+
+    rows: dict[str, list] = {k: [] for k in ("unit", "point", "repeat", "seed", "controller")}
+    rows.update({a.key: [] for a in sweep.axes})
+    rows.update({m: [] for m in METRICS})
+    rows.update(diverged=[], failure_reason=[], failure_time_s=[])
+    traces: dict[str, list] | None = None
+    if sweep.traces:
+        traces = {k: [] for k in ("unit", "controller", "t_s", "ep_norm_m", "fx_hat_N", "fy_hat_N", "fz_hat_N",
+                                  "fx_true_N", "fy_true_N", "fz_true_N")}  # fmt: skip
+    for u in units:
+        spec = sweep.point_spec(u.point)
+        log = f"decimate:{sweep.traces}" if sweep.traces else "metrics"
+        with warnings.catch_warnings():  # a study may mean to go near the sampling rate; the spec counts them
+            warnings.simplefilter("ignore", EstimatorBandwidthWarning)
+            r = simulate(spec, sweep.controllers, seed=u.seed, backend=backend, log=log)
+        for b, row in enumerate(compute_metrics(r)):
+            rows["unit"].append(u.index)
+            rows["point"].append(u.point)
+            rows["repeat"].append(u.repeat)
+            rows["seed"].append(u.seed)
+            rows["controller"].append(sweep.controllers[b])
+            for a in sweep.axes:
+                rows[a.key].append(sweep.points[u.point][a.key])
+            for m in METRICS:
+                rows[m].append(float(row[m]))
+            fail = r.failures[b] if b < len(r.failures) else None
+            rows["diverged"].append(fail is not None)
+            rows["failure_reason"].append("" if fail is None else str(fail["reason"]))
+            rows["failure_time_s"].append(float("nan") if fail is None else float(fail["time"]))
+            if traces is not None:
+                n = len(r.t)
+                traces["unit"] += [u.index] * n
+                traces["controller"] += [sweep.controllers[b]] * n
+                traces["t_s"] += r.t.tolist()
+                traces["ep_norm_m"] += np.linalg.norm(r.e_p[b], axis=-1).tolist()
+                for i, a in enumerate("xyz"):
+                    traces[f"f{a}_hat_N"] += r["f_hat_W"][b, :, i].tolist()
+                    traces[f"f{a}_true_N"] += r["f_lumped_W"][b, :, i].tolist()
+    return rows, traces
+
+
+def chunk_task(sweep_dict: dict[str, Any], k: int, backend: str = "compiled") -> tuple[int, dict, dict | None]:
+    """What a Dask worker runs: rebuild the sweep from its description and fly chunk ``k``."""
+    from .spec import from_dict
+
+    _numba_one_thread()
+    sweep = from_dict(
+        sweep_dict["source"], Path(sweep_dict["where"]) if sweep_dict["where"] else None, check_points=False
+    )
+    return (k, *run_units(sweep, sweep.chunk_units(k), backend))
+
+
+def _table(cols: dict[str, list]):
+    import pyarrow as pa
+
+    out = {}
+    for k, v in cols.items():
+        if v and isinstance(v[0], list | tuple):  # vector-valued axes: one string column
+            out[k] = pa.array([json.dumps(x) for x in v])
+        else:
+            out[k] = pa.array(v)
+    return pa.table(out)
+
+
+def chunk_name(k: int) -> str:
+    return f"chunk-{k:06d}.parquet"
+
+
+class SweepFolder:
+    """The folder of one sweep: its description, lock and the chunk files (see the module docstring)."""
+
+    def __init__(self, sweep: Sweep, folder: Path, restart: bool = False, where: Path | None = None) -> None:
+        from ..io import check_output_folder
+
+        self.sweep = sweep
+        self.folder = Path(folder).absolute()
+        if self.folder.exists() and not self.folder.is_dir():
+            raise InputError(f"output {self.folder} is a file, not a folder")
+        if self.folder.exists() and any(self.folder.iterdir()) and not (self.folder / SWEEP_FILE).exists():
+            raise InputError(f"output folder {self.folder} holds files that no sweep wrote; choose another --out")
+        if not (self.folder / SWEEP_FILE).exists():
+            check_output_folder(self.folder)
+        self.lock = FolderLock(self.folder)
+        self.chunks = self.folder / "chunks"
+        self.traces = self.folder / "traces"
+        desc = {"digest": sweep.digest(), "sweep": sweep.to_dict(), "source": sweep.source,
+                "where": str(where) if where else None, "versions": _versions()}  # fmt: skip
+        existing = self.folder / SWEEP_FILE
+        if existing.exists():
+            try:
+                old = json.loads(existing.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                self.lock.close()
+                raise InputError(
+                    f"{existing} is not readable ({exc}); remove the folder or choose another --out"
+                ) from None
+            if old.get("digest") != desc["digest"]:
+                if not restart:
+                    self.lock.close()
+                    raise InputError(
+                        f"{self.folder} holds another sweep (its description differs); use --restart to discard it "
+                        "or choose another --out"
+                    )
+                import shutil
+
+                for sub in (self.chunks, self.traces):
+                    shutil.rmtree(sub, ignore_errors=True)
+                for f in self.folder.iterdir():
+                    if f.is_file():
+                        f.unlink()
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.chunks.mkdir(exist_ok=True)
+        if sweep.traces:
+            self.traces.mkdir(exist_ok=True)
+        write_text(existing, json.dumps(desc, indent=1, default=str))
+        self.description = desc
+
+    def missing(self) -> list[int]:
+        done = {p.name for p in self.chunks.glob("chunk-*.parquet")}
+        need = []
+        for k in range(self.sweep.n_chunks):
+            if chunk_name(k) not in done or (self.sweep.traces and not (self.traces / chunk_name(k)).exists()):
+                need.append(k)
+        return need
+
+    def write_chunk(self, k: int, rows: dict, traces: dict | None) -> None:
+        import pyarrow.parquet as pq
+
+        if traces is not None:  # traces first: a chunk counts as done when its rows exist
+            t = _table(traces)
+            write_with(self.traces / chunk_name(k), lambda fh: pq.write_table(t, fh))
+        table = _table(rows)
+        write_with(self.chunks / chunk_name(k), lambda fh: pq.write_table(table, fh))
+
+    def close(self) -> None:
+        self.lock.close()
+
+
+def _versions() -> dict[str, str]:
+    from .. import __version__
+    from ..io import _versions as lib_versions
+
+    return {"vtol-impedance": __version__, **lib_versions()}
+
+
+class Progress:
+    """Chunks done, flights per second and the time left, on stderr."""
+
+    def __init__(self, total_chunks: int, flights_per_chunk: float, enabled: bool = True) -> None:
+        self.total, self.fpc, self.enabled = total_chunks, flights_per_chunk, enabled
+        self.done = 0
+        self.t0 = time.perf_counter()
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self) -> None:
+        self.done += 1
+        if not self.enabled:
+            return
+        el = time.perf_counter() - self.t0
+        rate = self.done * self.fpc / max(el, 1e-9)
+        left = (self.total - self.done) * self.fpc / max(rate, 1e-9)
+        msg = f"  chunks {self.done}/{self.total}  {rate:7.1f} flights/s  {left:6.0f} s left"
+        if self.tty:
+            sys.stderr.write("\r" + msg + ("\n" if self.done == self.total else ""))
+        elif self.done == self.total or self.done % max(1, self.total // 10) == 0:
+            sys.stderr.write(msg + "\n")
+        sys.stderr.flush()
+
+
+def warm_up(sweep: Sweep, backend: str = "compiled") -> None:
+    """Compile the kernels here, once, before workers start (they then load them from the cache)."""
+    from ..scenarios import set_value, simulate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EstimatorBandwidthWarning)
+        spec = set_value(sweep.point_spec(0), "duration", 0.05)
+        simulate(spec, sweep.controllers[:1], backend=backend, log="metrics")
+
+
+class Executor:
+    """Where chunks are computed: in this process (default), on a loopback ``LocalCluster`` of ``workers``
+    processes, or on the Dask cluster at ``scheduler``. A context manager; the cluster lives as long as it."""
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None) -> None:
+        if workers is not None and scheduler:
+            raise InputError("give --workers (a local cluster) or --scheduler (an existing one), not both")
+        if workers is not None and workers < 1:
+            raise InputError(f"--workers must be at least 1, got {workers}")
+        self.workers, self.scheduler = workers, scheduler
+        self.client = self.cluster = None
+
+    @property
+    def distributed(self) -> bool:
+        return self.workers is not None or bool(self.scheduler)
+
+    def __enter__(self) -> Executor:
+        if not self.distributed:
+            return self
+        try:
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise InputError("--workers and --scheduler need Dask: pip install 'vtol-impedance[dask]'") from None
+        if self.scheduler:
+            try:
+                self.client = Client(self.scheduler, timeout="10s")
+            except (OSError, TimeoutError) as exc:
+                raise InputError(f"cannot reach the Dask scheduler at {self.scheduler}: {exc}") from None
+            return self
+        one = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+        self.cluster = LocalCluster(
+            n_workers=self.workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+            env=one,
+        )  # fmt: skip
+        self.client = Client(self.cluster)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+    def map_chunks(self, sweep: Sweep, payload: dict[str, Any], chunks: list[int], backend: str = "compiled"):
+        """``(k, rows, traces)`` for every chunk, as each completes."""
+        if not self.distributed:
+            for k in chunks:
+                yield (k, *run_units(sweep, sweep.chunk_units(k), backend))
+            return
+        from dask.distributed import as_completed
+
+        futures = [
+            self.client.submit(chunk_task, payload, k, backend, key=f"vtol-chunk-{sweep.digest()[:12]}-{k}", pure=False)
+            for k in chunks
+        ]
+        for fut in as_completed(futures):
+            yield fut.result()
+
+
+def execute(
+    sweep: Sweep,
+    folder: SweepFolder,
+    chunks: list[int],
+    workers: int | None = None,
+    scheduler: str | None = None,
+    backend: str = "compiled",
+    progress: Callable[[], None] | None = None,
+) -> None:
+    """Compute ``chunks`` and write each as it completes (in-process by default, else on Dask)."""
+    if not chunks:
+        return
+    warm_up(sweep, backend)
+    payload = {"source": folder.description["source"], "where": folder.description["where"]}
+    with Executor(workers, scheduler) as ex:
+        for k, rows, traces in ex.map_chunks(sweep, payload, chunks, backend):
+            folder.write_chunk(k, rows, traces)
+            if progress:
+                progress()
+
+
+def read_dataset(folder: Path):
+    """The flights of a sweep folder as one pyarrow table, in unit order."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    files = sorted((Path(folder) / "chunks").glob("chunk-*.parquet"))
+    if not files:
+        raise InputError(f"{folder} has no sweep results (no chunks/chunk-*.parquet)")
+    table = pa.concat_tables([pq.read_table(f) for f in files])
+    return table.sort_by([("unit", "ascending"), ("controller", "ascending")])
+
+
+def run_sweep(
+    sweep: Sweep,
+    out: Path,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    backend: str = "compiled",
+    restart: bool = False,
+    where: Path | None = None,
+    show_progress: bool = True,
+) -> tuple[Path, int]:
+    """Run (or resume) a sweep into ``out``; returns the folder and how many chunks were computed now."""
+    Executor(workers, scheduler)  # validates the choice before touching the folder
+    folder = SweepFolder(sweep, out, restart, where)
+    try:
+        todo = folder.missing()
+        if show_progress:
+            done = sweep.n_chunks - len(todo)
+            msg = f"sweep {sweep.name}: {sweep.n_flights} flights in {sweep.n_chunks} chunks"
+            msg += f" ({done} already done, resuming)" if done else ""
+            print(msg, file=sys.stderr)
+        per_chunk = sweep.n_flights / max(sweep.n_chunks, 1)
+        execute(sweep, folder, todo, workers, scheduler, backend, Progress(len(todo), per_chunk, show_progress))
+    finally:
+        folder.close()
+    return folder.folder, len(todo)

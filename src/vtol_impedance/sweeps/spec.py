@@ -1,0 +1,329 @@
+"""Sweep specifications: a base scenario, fixed overrides, axes over any scenario value, controllers and
+seeds; resolved into a fixed list of flight units before any work starts.
+
+A sweep file (TOML)::
+
+    name = "rate-vs-bandwidth"            # also the default output folder: results/sweep-<name>
+    base = "case-b-fan"                   # a registered scenario or a scenario file (relative to this file)
+    controllers = ["pd", "pdc"]           # every point is flown with each, on the same noise
+    seeds = 3                             # repetitions per point (sensor noise, turbulence)
+    seed = 2026                           # the sweep seed
+    mode = "grid"                         # grid (all combinations), zip (axes side by side), random
+    samples = 40                          # random mode: how many points
+    chunk = 8                             # units (point x seed) per chunk of work
+    traces = 0                            # keep every K-th control tick of |e_p| and the estimate (0: none)
+    [set]                                 # fixed overrides of the base
+    duration = 20.0
+    [axes]
+    "control.rate" = [20, 50, 100, 200, 500]                       # values
+    "control.estimator_wn" = {min = 2.0, max = 40.0, n = 8, log = true}   # a range
+    "payload.offset_B[0]" = {min = 0.0, max = 0.05, n = 6}         # one component of a vector value
+
+A range gives ``n`` values (grid, zip) or the interval to draw from (random, log-uniform with
+``log = true``); a list is used as is (grid, zip) or drawn from (random).
+
+A *unit* is one point flown with every controller under one seed: one batch of the engine, sharing the
+disturbance realisation and the sensor noise, as ``simulate`` does. Its seed is derived from the sweep
+seed and the unit's indices only (``SeedSequence(seed, spawn_key=(point, repeat))``), so the results do
+not depend on how the units are cut into chunks or spread over workers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+from itertools import product
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..control.impedance import VARIANTS
+from ..errors import InputError, ScenarioError, check_keys, scalar
+from ..estimator.momentum import EstimatorBandwidthWarning
+from ..scenarios import get, load_toml, set_value
+from ..scenarios.spec import ScenarioSpec, check, check_name
+
+MODES = ("grid", "zip", "random")
+KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "samples", "chunk", "traces",
+        "max_flights", "set", "axes")  # fmt: skip
+MAX_FLIGHTS = 200_000
+_INDEXED = re.compile(r"^(?P<key>[A-Za-z_][\w.]*)\[(?P<i>\d)\]$")
+
+
+def _get(spec: ScenarioSpec, key: str) -> Any:
+    obj: Any = spec.to_dict()
+    for part in key.split("."):
+        if isinstance(obj, list):
+            obj = obj[int(part)]
+        elif isinstance(obj, dict) and part in obj:
+            obj = obj[part]
+        else:
+            raise ScenarioError(f"unknown key {key!r}")
+    return obj
+
+
+def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
+    """``set_value`` plus one component of a vector value: ``payload.offset_B[0]``."""
+    m = _INDEXED.match(key)
+    if m is None:
+        return set_value(spec, key, value)
+    current = _get(spec, m["key"])
+    if isinstance(current, int | float):
+        current = [current] * 3  # a scalar gain taken per axis
+    if not isinstance(current, list) or int(m["i"]) >= len(current):
+        raise ScenarioError(f"{key}: {m['key']} is not a vector with a component {m['i']}")
+    new = list(current)
+    new[int(m["i"])] = value
+    return set_value(spec, m["key"], new)
+
+
+@dataclass(frozen=True)
+class Axis:
+    key: str
+    values: tuple[Any, ...] | None = None  # explicit values
+    lo: float | None = None
+    hi: float | None = None
+    n: int | None = None
+    log: bool = False
+
+    def grid(self) -> list[Any]:
+        if self.values is not None:
+            return list(self.values)
+        assert self.lo is not None and self.hi is not None and self.n is not None
+        if self.log:
+            return [float(v) for v in np.geomspace(self.lo, self.hi, self.n)]
+        return [float(v) for v in np.linspace(self.lo, self.hi, self.n)]
+
+    def draw(self, rng: np.random.Generator) -> Any:
+        if self.values is not None:
+            return self.values[int(rng.integers(len(self.values)))]
+        assert self.lo is not None and self.hi is not None
+        if self.log:
+            return float(math.exp(rng.uniform(math.log(self.lo), math.log(self.hi))))
+        return float(rng.uniform(self.lo, self.hi))
+
+
+def _axis(key: str, raw: Any, mode: str) -> Axis:
+    if isinstance(raw, list):
+        if not raw:
+            raise InputError(f"axis {key!r} is empty: give at least one value")
+        return Axis(key, values=tuple(raw))
+    if isinstance(raw, dict):
+        check_keys(f"axis {key!r}", raw, ("min", "max", "n", "log"))
+        if "min" not in raw or "max" not in raw:
+            raise InputError(f"axis {key!r}: a range needs min and max, got {raw}")
+        log = raw.get("log", False)
+        if not isinstance(log, bool):
+            raise InputError(f"axis {key!r}: log must be true or false, got {log!r}")
+        lo = scalar(f"axis {key!r} min", raw["min"])
+        hi = scalar(f"axis {key!r} max", raw["max"])
+        if not lo <= hi:
+            raise InputError(f"axis {key!r}: min {lo} is above max {hi}")
+        if log and lo <= 0:
+            raise InputError(f"axis {key!r}: a log range needs min > 0, got {lo}")
+        n = raw.get("n")
+        if mode != "random":
+            if n is None:
+                raise InputError(f"axis {key!r}: a range in {mode} mode needs n (how many values)")
+            n = int(scalar(f"axis {key!r} n", n, lo=1, hi=10_000, integer=True))
+        return Axis(key, lo=float(lo), hi=float(hi), n=n, log=log)
+    raise InputError(f"axis {key!r} must be a list of values or a range table {{min, max, n}}, got {raw!r}")
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One point flown with every controller under one seed."""
+
+    index: int
+    point: int
+    repeat: int
+    seed: int
+
+
+@dataclass
+class Sweep:
+    """A resolved sweep: the base scenario with its fixed overrides, the points, the units."""
+
+    name: str
+    description: str
+    base: ScenarioSpec
+    controllers: list[str]
+    axes: list[Axis]
+    points: list[dict[str, Any]]
+    seeds: int
+    seed: int
+    chunk: int
+    traces: int
+    source: dict[str, Any] = field(default_factory=dict)
+    fast_estimator_points: list[int] = field(default_factory=list)  # |p| Ts > 0.5: noise barely filtered
+
+    @property
+    def units(self) -> list[Unit]:
+        return [
+            Unit(i * self.seeds + r, i, r, unit_seed(self.seed, i, r))
+            for i in range(len(self.points))
+            for r in range(self.seeds)
+        ]
+
+    @property
+    def n_flights(self) -> int:
+        return len(self.points) * self.seeds * len(self.controllers)
+
+    @property
+    def n_chunks(self) -> int:
+        return -(-len(self.points) * self.seeds // self.chunk)
+
+    def chunk_units(self, k: int) -> list[Unit]:
+        return self.units[k * self.chunk : (k + 1) * self.chunk]
+
+    def point_spec(self, i: int) -> ScenarioSpec:
+        spec = self.base
+        for key, value in self.points[i].items():
+            spec = set_param(spec, key, value)
+        return spec
+
+    def to_dict(self) -> dict[str, Any]:
+        """Everything that determines the results (hashed for resuming)."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "base": self.base.to_dict(),
+            "controllers": self.controllers,
+            "axes": [a.key for a in self.axes],
+            "points": self.points,
+            "seeds": self.seeds,
+            "seed": self.seed,
+            "chunk": self.chunk,
+            "traces": self.traces,
+        }
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()
+
+
+def unit_seed(sweep_seed: int, point: int, repeat: int) -> int:
+    """The seed of a unit: from the sweep seed and the unit's indices only."""
+    s = np.random.SeedSequence(int(sweep_seed), spawn_key=(int(point), int(repeat)))
+    hi, lo = (int(x) for x in s.generate_state(2, np.uint32))
+    return ((hi << 32) | lo) & (2**63 - 1)
+
+
+def _base(data: dict[str, Any], where: Path | None) -> ScenarioSpec:
+    base = data.get("base")
+    if not isinstance(base, str) or not base:
+        raise InputError('a sweep needs base = "<registered scenario>" or a scenario .toml path')
+    if base.endswith(".toml"):
+        path = Path(base)
+        if not path.is_absolute() and where is not None:
+            path = where.parent / path
+        return load_toml(path)
+    return get(base)
+
+
+def from_dict(data: dict[str, Any], where: Path | None = None, check_points: bool = True) -> Sweep:
+    """Validate a sweep description and resolve its points (see the module docstring)."""
+    check_keys("sweep", data, KEYS)
+    name = check_name(data.get("name", "sweep"))
+    base = _base(data, where)
+    fixed = data.get("set", {})
+    if not isinstance(fixed, dict):
+        raise InputError(f"[set] must be a table of scenario values, got {fixed!r}")
+    for key, value in _flatten(fixed).items():
+        base = set_param(base, key, value)
+    ctrls = data.get("controllers", ["pdc"])
+    if isinstance(ctrls, str):
+        ctrls = [ctrls]
+    if (
+        not isinstance(ctrls, list)
+        or not ctrls
+        or any(c not in VARIANTS for c in ctrls)
+        or len(set(ctrls)) != len(ctrls)
+    ):
+        raise InputError(f"controllers must be a list of distinct names from {', '.join(VARIANTS)}, got {ctrls!r}")
+    mode = data.get("mode", "grid")
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    seeds = int(scalar("seeds", data.get("seeds", 1), lo=1, hi=10_000, integer=True))
+    seed = int(scalar("seed", data.get("seed", 0), lo=0, hi=2**63 - 1, integer=True))
+    chunk = int(scalar("chunk", data.get("chunk", 8), lo=1, hi=100_000, integer=True))
+    traces = int(scalar("traces", data.get("traces", 0), lo=0, hi=1_000_000, integer=True))
+    max_flights = int(scalar("max_flights", data.get("max_flights", MAX_FLIGHTS), lo=1, integer=True))
+    raw_axes = data.get("axes", {})
+    if not isinstance(raw_axes, dict) or not raw_axes:
+        raise InputError("a sweep needs [axes]: at least one scenario value to vary")
+    axes = [_axis(k, v, mode) for k, v in raw_axes.items()]
+    for a in axes:  # unknown keys fail here, before any flight
+        set_param(base, a.key, a.grid()[0] if mode != "random" else a.draw(np.random.default_rng(0)))
+    if mode == "grid":
+        points = [dict(zip([a.key for a in axes], combo, strict=True)) for combo in product(*(a.grid() for a in axes))]
+    elif mode == "zip":
+        lengths = {a.key: len(a.grid()) for a in axes}
+        if len(set(lengths.values())) != 1:
+            raise InputError(f"zip mode needs axes of equal length, got {lengths}")
+        points = [
+            dict(zip([a.key for a in axes], combo, strict=True))
+            for combo in zip(*(a.grid() for a in axes), strict=True)
+        ]
+    else:
+        n = int(scalar("samples", data.get("samples", 0), lo=1, hi=10_000_000, integer=True))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
+        points = [{a.key: a.draw(rng) for a in axes} for _ in range(n)]
+    sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
+                  source=data)  # fmt: skip
+    if sweep.n_flights > max_flights:
+        raise InputError(
+            f"the sweep has {sweep.n_flights} flights ({len(points)} points x {seeds} seeds x {len(ctrls)} "
+            f"controllers), above max_flights = {max_flights}; raise max_flights in the sweep file if this is meant"
+        )
+    if check_points:
+        for i in range(len(points)):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", EstimatorBandwidthWarning)
+                try:
+                    check(sweep.point_spec(i), ctrls)
+                except InputError as exc:
+                    raise InputError(f"point {i} ({_fmt_point(points[i])}): {exc}") from None
+            if any(issubclass(w.category, EstimatorBandwidthWarning) for w in caught):
+                sweep.fast_estimator_points.append(i)
+    return sweep
+
+
+def _fmt_point(p: dict[str, Any]) -> str:
+    return ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items())
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def load(path_or_name: str | Path) -> Sweep:
+    """A sweep file, or the name of a built-in study (see :func:`builtin_names`)."""
+    path = Path(path_or_name)
+    if not path.suffix and not path.exists():
+        path = _BUILTIN / f"{path_or_name}.toml"
+        if not path.exists():
+            raise InputError(f"unknown sweep {path_or_name!r}; built-in studies: {', '.join(builtin_names())}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read sweep file {path}: {exc}") from None
+    return from_dict(data, where=path)
+
+
+_BUILTIN = Path(__file__).resolve().parent / "studies"
+
+
+def builtin_names() -> list[str]:
+    return sorted(p.stem for p in _BUILTIN.glob("*.toml"))
