@@ -383,6 +383,45 @@ def cmd_sweep_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_tune(args: argparse.Namespace) -> int:
+    """Search gains with optuna over a population of plants; write the best as a scenario file."""
+    from .analysis.plots import _save, plt
+    from .analysis.report import write_html
+    from .io import RunFolder, write_text
+    from .sweeps.tune import best_scenario_toml, load_tuning, trials_csv, tune
+
+    t = load_tuning(args.spec)
+    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"tune-{t.name}"
+    with RunFolder(out) as folder:
+        log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+        res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log)
+        write_text(folder.path("trials.csv"), trials_csv(res["trials"]))
+        toml_text = best_scenario_toml(t, res["best"])
+        write_text(folder.path("best.toml"), toml_text)
+        costs = [r["cost"] for r in res["trials"]]
+        fig, ax = plt.subplots(figsize=(7, 4))
+        ax.plot(range(1, len(costs) + 1), costs, "o", ms=3, color="gray", label="trial")
+        ax.plot(range(1, len(costs) + 1), [min(costs[: i + 1]) for i in range(len(costs))], color="tab:blue",
+                label="best so far")  # fmt: skip
+        ax.set_yscale("log")
+        ax.set_xlabel("trial")
+        ax.set_ylabel(f"cost ({t.metric} + penalties)")
+        ax.grid(alpha=0.3)
+        ax.legend()
+        fig_path = _save(fig, folder.path("history.png"))
+        keys = list(res["best"])
+        rows = [[str(i + 1)] + [f"{r[k]:.4g}" for k in keys] + [f"{r['cost']:.4g}", str(r["failed"])]
+                for i, r in enumerate(res["trials"])]  # fmt: skip
+        write_html(folder.staging, f"Tuning {t.name}", tables=[("Trials", ["trial", *keys, "cost", "failed"], rows)],
+                   figures={"Search": [fig_path]}, notes=[f"Best cost {res['cost']:.4g}; best.toml:", toml_text],
+                   config=t.data, seed=t.seed)  # fmt: skip
+        final = folder.commit(t.data, seed=t.seed)
+    print(toml_text, end="")
+    if not args.quiet:
+        print(f"best cost {res['cost']:.4g}; results written to {final}", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run
 
@@ -515,6 +554,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--y", default=None, help="axis along y of the heat maps (default: the second axis)")
     sp.add_argument("--quiet", action="store_true")
     sp.set_defaults(func=cmd_sweep_report)
+
+    sp = sub.add_parser("tune", help="search gains with optuna over a population of plants; best as a scenario file")
+    sp.add_argument("spec", help="a tuning .toml file")
+    sp.add_argument("--trials", type=int, default=None, help="number of trials (default: the file's)")
+    sp.add_argument("--out", default=None, help=f"results folder (default: {DEFAULT_OUT}/tune-<name>)")
+    sp.add_argument("--workers", type=int, default=None, help="start a local Dask cluster with N worker processes")
+    sp.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask cluster")
+    sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
+    sp.add_argument("--quiet", action="store_true")
+    sp.set_defaults(func=cmd_tune)
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
     sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help=f"JSON file (default: {DEFAULT_OUT}/bench.json)")

@@ -1,0 +1,239 @@
+"""Gain tuning with optuna over a population of plants and disturbances, on the sweep's execution.
+
+A tuning file (TOML)::
+
+    name = "tune-case-b"
+    base = "case-b-fan"
+    controller = "pdc"
+    trials = 40
+    seed = 7
+    population = 6                 # plants flown by every trial (the same ones: common random numbers)
+    [set]                          # fixed overrides of the base
+    trajectory.hover_duration = 10.0
+    [search]                       # ranges of the gains searched (any scenario value)
+    "control.Kp" = {min = 4.0, max = 40.0, log = true}
+    "control.estimator_wn" = {min = 2.0, max = 30.0, log = true}
+    [spread]                       # how the population's true plants differ (drawn once from the seed)
+    "payload.mass" = {min = 0.0, max = 0.25}
+    [cost]
+    metric = "rms_ep_cm"           # per flight, over the task window
+    saturation_weight = 0.1        # added per % of the window spent at a limit
+    failure_penalty = 1000.0       # replaces the metric of a flight that failed
+
+Cost of a trial = mean over the population of ``metric + saturation_weight * sat_pct`` (or
+``failure_penalty`` for a failed flight). The best gains are written as a scenario file (``best.toml``)
+that ``vtol-impedance run`` flies directly.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError, check_keys, scalar
+from .run import METRICS, Executor, warm_up
+from .spec import _INDEXED, Axis, _axis, _get, from_dict
+
+KEYS = ("name", "description", "base", "controller", "trials", "seed", "population", "set", "search", "spread", "cost")
+COST_KEYS = ("metric", "saturation_weight", "failure_penalty")
+
+
+def _optuna():
+    try:
+        import optuna
+    except ImportError:
+        raise InputError("tuning needs optuna: pip install 'vtol-impedance[tune]'") from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna
+
+
+def optimize(
+    search: list[Axis], objective: Callable[[dict[str, float]], float], trials: int, seed: int,
+    callback: Callable[[int, dict[str, float], float], None] | None = None,
+) -> tuple[dict[str, float], float, list[tuple[dict[str, float], float]]]:  # fmt: skip
+    """Minimise ``objective(params)`` over ranges ``search`` with optuna's TPE sampler (seeded, so the same
+    call gives the same trials); returns the best parameters, their cost and every trial."""
+    optuna = _optuna()
+    study = optuna.create_study(direction="minimize", sampler=optuna.samplers.TPESampler(seed=seed))
+    history: list[tuple[dict[str, float], float]] = []
+
+    def wrapped(trial) -> float:
+        params = {}
+        for a in search:
+            if a.values is not None:
+                params[a.key] = trial.suggest_categorical(a.key, list(a.values))
+            else:
+                params[a.key] = trial.suggest_float(a.key, a.lo, a.hi, log=a.log)
+        value = float(objective(params))
+        if not math.isfinite(value):
+            value = float("inf")
+        history.append((params, value))
+        if callback:
+            callback(len(history), params, value)
+        return value
+
+    study.optimize(wrapped, n_trials=trials)
+    return dict(study.best_params), float(study.best_value), history
+
+
+@dataclass
+class Tuning:
+    name: str
+    description: str
+    data: dict[str, Any]
+    where: Path | None
+    controller: str
+    trials: int
+    seed: int
+    population: int
+    search: list[Axis]
+    spread: list[Axis]
+    metric: str
+    saturation_weight: float
+    failure_penalty: float
+
+    def trial_sweep(self, params: dict[str, float]) -> dict[str, Any]:
+        """The sweep description flying ``params`` on the whole population (one point per member)."""
+        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(2**30,)))
+        members = [{a.key: a.draw(rng) for a in self.spread} for _ in range(self.population)]
+        if self.spread:  # one point per member, one seed each
+            axes, seeds = {a.key: [m[a.key] for m in members] for a in self.spread}, 1
+        else:  # the members differ only by their noise: one point, a seed each (the axis changes nothing)
+            axes, seeds = {"seed": [0]}, self.population
+        fixed = dict(_flat(self.data.get("set", {})))
+        fixed.update(params)
+        return {
+            "name": self.name, "base": self.data["base"], "controllers": [self.controller], "seeds": seeds,
+            "seed": self.seed, "mode": "zip", "chunk": 1, "set": fixed, "axes": axes,
+        }  # fmt: skip
+
+
+def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def load_tuning(path: str | Path) -> Tuning:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read tuning file {path}: {exc}") from None
+    return tuning_from_dict(data, path)
+
+
+def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
+    check_keys("tuning", data, KEYS)
+    search_raw = data.get("search")
+    if not isinstance(search_raw, dict) or not search_raw:
+        raise InputError("a tuning needs [search]: the gains to search, as ranges {min, max, log}")
+    search = [_axis(k, v, "random") for k, v in search_raw.items()]
+    spread_raw = data.get("spread", {})
+    if not isinstance(spread_raw, dict):
+        raise InputError(f"[spread] must be a table of ranges, got {spread_raw!r}")
+    spread = [_axis(k, v, "random") for k, v in spread_raw.items()]
+    cost = data.get("cost", {})
+    check_keys("[cost]", cost, COST_KEYS)
+    metric = cost.get("metric", "rms_ep_cm")
+    if metric not in METRICS:
+        raise InputError(f"cost metric must be one of {', '.join(METRICS)}, got {metric!r}")
+    t = Tuning(
+        name=str(data.get("name", "tune")), description=str(data.get("description", "")), data=data, where=where,
+        controller=str(data.get("controller", "pdc")),
+        trials=int(scalar("trials", data.get("trials", 30), lo=1, hi=100_000, integer=True)),
+        seed=int(scalar("seed", data.get("seed", 0), lo=0, hi=2**63 - 1, integer=True)),
+        population=int(scalar("population", data.get("population", 4), lo=1, hi=10_000, integer=True)),
+        search=search, spread=spread, metric=metric,
+        saturation_weight=float(scalar("saturation_weight", cost.get("saturation_weight", 0.0), lo=0.0)),
+        failure_penalty=float(scalar("failure_penalty", cost.get("failure_penalty", 1000.0), lo=0.0)),
+    )  # fmt: skip
+    # every corner of the search box must be a valid scenario, checked now
+    for corner in ({a.key: a.lo if a.values is None else a.values[0] for a in search},
+                   {a.key: a.hi if a.values is None else a.values[-1] for a in search}):  # fmt: skip
+        from_dict(t.trial_sweep(corner), where)
+    return t
+
+
+def trial_cost(t: Tuning, rows: dict[str, list]) -> tuple[float, dict[str, float]]:
+    vals = np.asarray(rows[t.metric], dtype=float)
+    sat = np.asarray(rows["sat_pct"], dtype=float)
+    failed = np.asarray(rows["diverged"], dtype=bool) | ~np.isfinite(vals)
+    per = np.where(failed, t.failure_penalty, vals + t.saturation_weight * np.nan_to_num(sat))
+    return float(per.mean()), {"metric_mean": float(np.nanmean(np.where(failed, np.nan, vals))) if (~failed).any()
+                               else float("nan"), "failed": int(failed.sum())}  # fmt: skip
+
+
+def tune(
+    t: Tuning, workers: int | None = None, scheduler: str | None = None, trials: int | None = None,
+    backend: str = "compiled", log: Callable[[str], None] = lambda m: None,
+) -> dict[str, Any]:  # fmt: skip
+    """Search the gains; returns the best parameters, cost and every trial with its cost components."""
+    n_trials = t.trials if trials is None else int(scalar("--trials", trials, lo=1, hi=100_000, integer=True))
+    records: list[dict[str, Any]] = []
+    first = from_dict(t.trial_sweep({a.key: a.grid()[0] if a.values else a.lo for a in t.search}), t.where)
+    warm_up(first, backend)
+    with Executor(workers, scheduler) as ex:
+
+        def objective(params: dict[str, float]) -> float:
+            desc = t.trial_sweep(params)
+            sweep = from_dict(desc, t.where, check_points=False)
+            rows: dict[str, list] = {}
+            payload = {"source": desc, "where": str(t.where) if t.where else None}
+            for _, r, _ in ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)), backend):
+                for k, v in r.items():
+                    rows.setdefault(k, []).extend(v)
+            cost, parts = trial_cost(t, rows)
+            records.append({**params, "cost": cost, **parts})
+            return cost
+
+        def progress(i: int, params: dict[str, float], value: float) -> None:
+            best = min(r["cost"] for r in records)
+            log(f"  trial {i}/{n_trials}: cost {value:.4g} (best {best:.4g})")
+
+        best, value, _ = optimize(t.search, objective, n_trials, t.seed, progress)
+    return {"best": best, "cost": value, "trials": records}
+
+
+def best_scenario_toml(t: Tuning, best: dict[str, Any]) -> str:
+    """A scenario file: the base, the fixed overrides and the best values (vectors written whole)."""
+    from .spec import _base, set_param
+
+    spec = _base(t.data, t.where)
+    fixed = _flat(t.data.get("set", {}))
+    for k, v in {**fixed, **best}.items():
+        spec = set_param(spec, k, v)
+    keys = []
+    for k in [*fixed, *best]:
+        m = _INDEXED.match(k)
+        keys.append(m["key"] if m else k)
+    base = t.data["base"]
+    if base.endswith(".toml") and t.where is not None and not Path(base).is_absolute():
+        base = str((t.where.parent / base).resolve())
+    lines = [f"# best gains of tuning {t.name!r}, written by vtol-impedance tune", f"base = {json.dumps(base)}",
+             f"name = {json.dumps(t.name + '-best-v1')}"]  # fmt: skip
+    for k in dict.fromkeys(keys):
+        lines.append(f"{k} = {json.dumps(_get(spec, k))}")
+    return "\n".join(lines) + "\n"
+
+
+def trials_csv(records: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    if records:
+        w = csv.DictWriter(buf, fieldnames=list(records[0]))
+        w.writeheader()
+        w.writerows(records)
+    return buf.getvalue()
