@@ -1,0 +1,292 @@
+"""Sweeps: specs refused before work, results independent of how the work is split (chunks, Dask
+workers, interruptions, a killed worker), the summary, the physics seen through a sweep, and tuning."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from vtol_impedance.cli import main
+from vtol_impedance.errors import InputError
+from vtol_impedance.sweeps import from_dict, read_dataset, run_sweep, summarise, write_report
+from vtol_impedance.sweeps.run import Executor, SweepFolder
+from vtol_impedance.sweeps.spec import Axis
+from vtol_impedance.sweeps.tune import best_scenario_toml, optimize, tuning_from_dict
+
+SMALL = {
+    "name": "small",
+    "base": "case-a-payload",
+    "controllers": ["pd", "pdc"],
+    "seeds": 2,
+    "seed": 11,
+    "chunk": 2,
+    "set": {"trajectory": {"hover_duration": 2.0}},
+    "axes": {"payload.mass": [0.05, 0.15], "control.estimator_wn": [5.0, 15.0]},
+}
+
+
+def _same(a, b) -> None:
+    """Two datasets hold the same flights with the same numbers (NaN equal to NaN)."""
+    assert a.column_names == b.column_names and a.num_rows == b.num_rows
+    for n in a.column_names:
+        x, y = a[n].to_pylist(), b[n].to_pylist()
+        assert all(
+            p == q or (isinstance(p, float) and math.isnan(p) and math.isnan(q)) for p, q in zip(x, y, strict=True)
+        ), n
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref") / "sweep"
+    run_sweep(from_dict(SMALL), out, show_progress=False)
+    return read_dataset(out)
+
+
+# ----------------------------------------------------------------------------- refused before any work
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"axes": {"payload.mas": [0.1]}}, "unknown key 'payload.mas'"),
+        ({"axes": {"payload.mass": []}}, "axis 'payload.mass' is empty"),
+        ({"axes": {}}, "needs \\[axes\\]"),
+        ({"axes": {"control.rate": [30.0]}}, "point 0 .*whole multiple"),
+        ({"axes": {"payload.mass": [-1.0]}}, "payload.mass"),
+        ({"axes": {"payload.mass": {"min": 0.0, "max": 0.2}}}, "needs n"),
+        ({"axes": {"payload.mass": {"min": 0.3, "max": 0.2, "n": 3}}}, "min 0.3 is above max"),
+        ({"mode": "zip", "axes": {"payload.mass": [0.1, 0.2], "control.Kp": [10.0]}}, "equal length"),
+        ({"controllers": ["pd", "lqr"]}, "controllers must be"),
+        ({"mode": "spiral"}, "mode must be one of"),
+        ({"seeds": 0}, "seeds"),
+        ({"colour": "red"}, "colour"),
+        ({"axes": {"payload.offset_B[5]": [0.1]}}, "component 5"),
+        ({"max_flights": 3}, "above max_flights = 3"),
+    ],
+)
+def test_bad_specs_fail_before_any_work(change, message, tmp_path):
+    spec = {**SMALL, **change}
+    with pytest.raises(InputError, match=message):
+        from_dict(spec)
+
+
+def test_cli_refuses_a_bad_sweep_file_without_creating_anything(tmp_path, capsys):
+    f = tmp_path / "bad.toml"
+    f.write_text('name = "bad"\nbase = "case-a-payload"\n[axes]\n"payload.mas" = [0.1]\n')
+    rc = main(["sweep", str(f), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "payload.mas" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+    assert main(["sweep", "no-such-study", "--out", str(tmp_path / "o")]) == 2
+    assert "rate-vs-bandwidth" in capsys.readouterr().err
+    assert main(["sweep", str(f), "--workers", "0"]) == 2
+
+
+# ----------------------------------------------------------------------------- the same results however split
+
+
+def test_chunking_does_not_change_the_results(reference, tmp_path):
+    run_sweep(from_dict({**SMALL, "chunk": 3}), tmp_path / "c3", show_progress=False)
+    _same(read_dataset(tmp_path / "c3"), reference)
+    assert len(list((tmp_path / "c3" / "chunks").glob("*.parquet"))) == 3
+
+
+def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path, monkeypatch):
+    out = tmp_path / "sweep"
+    sweep = from_dict(SMALL)
+    real = SweepFolder.write_chunk
+    calls = {"n": 0}
+
+    def flaky(self, k, rows, traces):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # Ctrl-C after two chunks
+        real(self, k, rows, traces)
+
+    monkeypatch.setattr(SweepFolder, "write_chunk", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(sweep, out, show_progress=False)
+    monkeypatch.setattr(SweepFolder, "write_chunk", real)
+    assert len(list((out / "chunks").glob("*.parquet"))) == 2
+    assert not list(out.rglob("*.tmp*"))
+    _, computed = run_sweep(sweep, out, show_progress=False)
+    assert computed == sweep.n_chunks - 2
+    _same(read_dataset(out), reference)
+    _, computed = run_sweep(sweep, out, show_progress=False)
+    assert computed == 0  # nothing left to do
+
+
+def test_killed_process_resumes(reference, tmp_path):
+    spec = tmp_path / "small.toml"
+    spec.write_text(_toml(SMALL))
+    out = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "vtol_impedance.cli", "sweep", str(spec), "--out", str(out), "--quiet", "--no-report"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline and not list((out / "chunks").glob("chunk-*.parquet")):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert main(["sweep", str(spec), "--out", str(out), "--quiet"]) == 0
+    _same(read_dataset(out), reference)
+    assert (out / "report.html").exists() and (out / "manifest.json").exists()
+
+
+def test_a_different_sweep_in_the_same_folder_is_refused(tmp_path):
+    out = tmp_path / "sweep"
+    small = {**SMALL, "axes": {"payload.mass": [0.1]}, "seeds": 1}
+    run_sweep(from_dict(small), out, show_progress=False)
+    other = from_dict({**small, "seed": 12})
+    with pytest.raises(InputError, match="holds another sweep"):
+        run_sweep(other, out, show_progress=False)
+    run_sweep(other, out, restart=True, show_progress=False)
+    assert json.loads((out / "sweep.json").read_text())["sweep"]["seed"] == 12
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match="no sweep wrote"):
+        run_sweep(other, tmp_path / "foreign", show_progress=False)
+
+
+def test_local_cluster_matches_in_process_and_survives_a_killed_worker(reference, tmp_path):
+    pytest.importorskip("dask.distributed")
+    out = tmp_path / "dask"
+    run_sweep(from_dict(SMALL), out, workers=2, show_progress=False)
+    _same(read_dataset(out), reference)
+
+    # kill one worker process as soon as the first chunk is back: the scheduler reruns its work elsewhere
+    sweep = from_dict({**SMALL, "chunk": 1})
+    folder = SweepFolder(sweep, tmp_path / "killed")
+    payload = {"source": folder.description["source"], "where": None}
+    got = {}
+    try:
+        with Executor(workers=2) as ex:
+            pids = list(ex.client.run(os.getpid).values())
+            for i, (k, rows, traces) in enumerate(ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)))):
+                folder.write_chunk(k, rows, traces)
+                got[k] = rows
+                if i == 0:
+                    os.kill(pids[0], signal.SIGKILL)
+    finally:
+        folder.close()
+    assert sorted(got) == list(range(sweep.n_chunks))
+    _same(read_dataset(tmp_path / "killed"), reference)
+
+
+# ----------------------------------------------------------------------------- summary and physics
+
+
+def test_summary_statistics_and_figures(reference, tmp_path):
+    out = tmp_path / "sweep"
+    run_sweep(from_dict(SMALL), out, show_progress=False)
+    files = write_report(out)
+    names = {p.name for p in files}
+    assert {
+        "summary.csv",
+        "heatmap.png",
+        "compensation.png",
+        "against-axis0.png",
+        "report.html",
+        "manifest.json",
+    } <= names
+    s = summarise(out)
+    cols = {n: np.asarray(reference[n].to_pylist()) for n in reference.column_names}
+    for r in s["rows"]:
+        sel = (cols["point"] == r["point"]) & (cols["controller"] == r["controller"])
+        assert r["n"] == 2
+        assert r["mean"] == pytest.approx(np.mean(cols["rms_ep_cm"][sel]))
+    from vtol_impedance.io import verify_run_folder
+
+    verify_run_folder(out)
+
+
+def test_unfinished_sweep_has_no_report(tmp_path):
+    out = tmp_path / "sweep"
+    run_sweep(from_dict(SMALL), out, show_progress=False)
+    next((out / "chunks").glob("*.parquet")).unlink()
+    with pytest.raises(InputError, match="not finished"):
+        write_report(out)
+
+
+def test_pd_sag_along_a_payload_axis_is_the_analytic_one(tmp_path):
+    """Through the whole sweep machinery: with ideal effects PD holds a payload m_p with a steady error
+    m_p g / Kp (Kp = 16), PD+C with none."""
+    masses = [0.0, 0.1, 0.2, 0.3]
+    spec = {"name": "sag", "base": "case-a-payload", "controllers": ["pd", "pdc"], "seed": 1,
+            "set": {"ideal": True, "trajectory": {"hover_duration": 12.0}, "payload": {"offset_B": [0.0, 0.0, 0.0]}},
+            "axes": {"payload.mass": masses}}  # fmt: skip
+    run_sweep(from_dict(spec), tmp_path / "sag", show_progress=False)
+    t = read_dataset(tmp_path / "sag")
+    cols = {n: np.asarray(t[n].to_pylist()) for n in t.column_names}
+    for m in masses:
+        pd_ = cols["ss_ep_cm"][(cols["payload.mass"] == m) & (cols["controller"] == "pd")][0]
+        pdc = cols["ss_ep_cm"][(cols["payload.mass"] == m) & (cols["controller"] == "pdc")][0]
+        assert pd_ == pytest.approx(100 * m * 9.81 / 16.0, abs=0.05)
+        assert pdc < 0.1
+
+
+# ----------------------------------------------------------------------------- tuning
+
+
+def test_optimizer_finds_the_known_optimum_of_a_toy_cost():
+    search = [Axis("control.Kp", lo=1.0, hi=100.0, log=True), Axis("control.estimator_wn", lo=1.0, hi=40.0)]
+
+    def cost(p):
+        return (math.log(p["control.Kp"] / 16.0)) ** 2 + ((p["control.estimator_wn"] - 10.0) / 10.0) ** 2
+
+    best, value, history = optimize(search, cost, trials=80, seed=3)
+    assert len(history) == 80
+    assert best["control.Kp"] == pytest.approx(16.0, rel=0.25)
+    assert best["control.estimator_wn"] == pytest.approx(10.0, abs=2.5)
+    assert value < 0.1
+    again, _, _ = optimize(search, cost, trials=80, seed=3)
+    assert again == best  # seeded: the same search
+
+
+def test_tune_cli_writes_a_scenario_that_runs(tmp_path, capsys):
+    spec = tmp_path / "tune.toml"
+    spec.write_text(
+        'name = "t"\nbase = "case-a-payload"\ncontroller = "pdc"\ntrials = 3\nseed = 1\npopulation = 2\n'
+        "[set]\ntrajectory.hover_duration = 2.0\n"
+        '[search]\n"control.Kp" = {min = 8.0, max = 30.0, log = true}\n'
+        '[spread]\n"payload.mass" = {min = 0.05, max = 0.2}\n'
+    )
+    out = tmp_path / "tune"
+    assert main(["tune", str(spec), "--out", str(out), "--quiet"]) == 0
+    best = (out / "best.toml").read_text()
+    assert "control.Kp" in best and (out / "trials.csv").read_text().count("\n") == 4
+    assert main(["run", str(out / "best.toml"), "--out", str(tmp_path / "run"), "--quiet", "--no-plots"]) == 0
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "t"\nbase = "case-a-payload"\n[search]\n"control.Kp" = {min = -1.0, max = 30.0}\n')
+    assert main(["tune", str(bad), "--out", str(tmp_path / "x")]) == 2
+    assert "control.Kp" in capsys.readouterr().err
+
+
+def test_tuning_population_is_the_same_for_every_trial():
+    t = tuning_from_dict({"name": "t", "base": "case-a-payload", "population": 3, "seed": 5,
+                          "search": {"control.Kp": {"min": 8.0, "max": 30.0}},
+                          "spread": {"payload.mass": {"min": 0.0, "max": 0.3}}})  # fmt: skip
+    a = t.trial_sweep({"control.Kp": 10.0})
+    b = t.trial_sweep({"control.Kp": 20.0})
+    assert a["axes"] == b["axes"] and len(a["axes"]["payload.mass"]) == 3
+    assert "control.Kp = 20.0" in best_scenario_toml(t, {"control.Kp": 20.0})
+
+
+def _toml(d: dict, prefix: str = "") -> str:
+    lines, tables = [], []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            tables.append((k, v))
+        else:
+            lines.append(f"{json.dumps(k) if '[' in k or '.' in k else k} = {json.dumps(v)}")
+    out = "\n".join(lines) + "\n"
+    for k, v in tables:
+        out += f"[{prefix}{k}]\n" + _toml(v, f"{prefix}{k}.").replace("\n[", "\n[")
+    return out
