@@ -168,6 +168,27 @@ def _log_estimation(samples: int) -> dict[str, float]:
     return {"samples": samples, "wall": wall, "samples_per_s": samples / wall, "numpy_samples_per_s": samples / wall_np}
 
 
+def _sweep(workers: int | None, quick: bool) -> dict[str, float] | str:
+    """Flights per second of a sweep (study (a) cut down), in this process or on a LocalCluster."""
+    from .sweeps import from_dict, run_sweep
+
+    spec = {
+        "name": "bench", "base": "case-b-fan", "controllers": ["pd", "pdc"], "seeds": 1, "seed": 1, "chunk": 4,
+        "set": {"trajectory": {"hover_duration": 5.0 if quick else 15.0}},
+        "axes": {"control.rate": [100, 200] if quick else [50, 100, 200, 500],
+                 "control.estimator_wn": [5.0, 10.0] if quick else [2.0, 5.0, 10.0, 20.0]},
+    }  # fmt: skip
+    sweep = from_dict(spec)
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            t0 = time.perf_counter()
+            run_sweep(sweep, Path(d) / "s", workers=workers, show_progress=False)
+            wall = time.perf_counter() - t0
+    except Exception as exc:  # a missing or broken Dask must not sink the other numbers
+        return f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+    return {"flights": sweep.n_flights, "wall_including_startup": wall, "flights_per_s": sweep.n_flights / wall}
+
+
 def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -> dict[str, Any]:
     """Measure everything, print a table, write JSON to ``out``; returns the numbers.
 
@@ -193,6 +214,9 @@ def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -
     res["latency"] = _latency(2000 if quick else 50000)
     log("wrench estimation on a flight log ...")
     res["log_estimation"] = _log_estimation(100_000 if quick else 2_000_000)
+    log("sweep in this process and on a 2-worker LocalCluster ...")
+    res["sweep_in_process"] = _sweep(None, quick)
+    res["sweep_local_cluster_2"] = _sweep(2, quick)
     res["batched"] = []
     sizes = (1, 10) if quick else SIZES
     for n in sizes:
@@ -218,6 +242,12 @@ def table(res: dict[str, Any]) -> str:
         f"{lat['step_arrays_p99_us']:.2f} us",
         f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us",
     ]
+    for key, what in (("sweep_in_process", "in this process"), ("sweep_local_cluster_2", "LocalCluster, 2 workers")):
+        sw = res.get(key)
+        if isinstance(sw, dict):
+            lines.append(f"sweep flights/s, {what:<24}{sw['flights_per_s']:10.1f} (incl. start-up)")
+        elif sw:
+            lines.append(f"sweep, {what}: {sw}")
     le = res.get("log_estimation")
     if le:
         lines.append(f"log estimation, compiled, one core               {le['samples_per_s'] / 1e6:10.2f} M samples/s")
