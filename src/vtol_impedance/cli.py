@@ -476,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("run", help="one scenario with one controller")
     sp.add_argument("scenario", help="registered name (see 'list') or a .toml scenario file")
-    sp.add_argument("--controller", default="pdc", choices=["pd", "pid", "pdc"])
+    sp.add_argument("--controller", default="pdc", choices=["pd", "pid", "pdc", "comply"])
     common(sp)
     sp.set_defaults(func=lambda a: cmd_run(a, [a.controller]))
 

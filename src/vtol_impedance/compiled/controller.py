@@ -11,7 +11,8 @@ Layouts (flat float64 vectors, so that one call passes few arguments):
 * shared design ``sh``: ``[Ts, filter wn, filter zeta, filter Ad (4), filter Bd (2), n, Ad (6 n n),
   Bd (6 n), C (6 n)]``;
 * controller state ``cs`` (:func:`state_size`), measurement ``y = [p_W, v_W, eta, eta_dot]`` (12),
-  reference ``r = [p_d, v_d, a_d, psi, psi_dot, psi_ddot]`` (12), output ``o`` (:data:`OUT_SIZE`).
+  reference ``r = [p_d, v_d, a_d, psi, psi_dot, psi_ddot]`` (12) or with ``comply`` (3) appended (15),
+  output ``o`` (:data:`OUT_SIZE`).
 """
 
 from __future__ import annotations
@@ -25,13 +26,14 @@ from ..control.impedance import ControllerArrays
 from ..conventions import SINGULARITY_COS_EPS, G
 from ..model.vehicle import MAX_ROTORS
 from .algebra import _mm9, _mv9, _solve9, _t9
-from .estimator import estimator_update, state_length
+from .estimator import design_tail, estimator_update, sh_offsets, state_length
 
 # controller parameter row: fixed part, then per rotor i: E_pinv row i (4) at CP_ROT + 4 i, then
 # E (4 x n, row-major) at CP_ROT + 4 n, f_min (n) at CP_ROT + 8 n, f_max (n) at CP_ROT + 9 n
 CP_MASS, CP_I = 0, 1
 CP_KP, CP_DP, CP_KI, CP_KO, CP_DO = 10, 13, 16, 19, 22
-CP_COMP, CP_TILT, CP_LIFT, CP_ILIM, CP_SHIFT, CP_NR, CP_ROT = 25, 26, 27, 28, 29, 30, 31
+CP_COMP, CP_TILT, CP_LIFT, CP_ILIM, CP_SHIFT, CP_NR = 25, 26, 27, 28, 29, 30
+CP_MD, CP_DD, CP_KD, CP_CEN, CP_ROT = 31, 34, 37, 40, 41  # comply impedance (3 each), comply enabled
 
 # output row; the n rotor forces come last
 O_THRUST, O_TAU, O_SAT, O_THRUST_REQ, O_TAU_REQ = 0, 1, 4, 5, 6
@@ -52,7 +54,7 @@ def out_size(n_rotors: int) -> int:
 
 
 def state_size(n: int) -> int:
-    """Controller state length for an order-``n`` estimator (including ``n + 6`` scratch slots)."""
+    """Controller state length for an order-``n`` estimator (including ``n + 12`` scratch slots)."""
     return state_length(n)
 
 
@@ -74,21 +76,21 @@ def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
     cp[:, CP_ILIM] = P.integral_limit
     cp[:, CP_SHIFT] = P.thrust_shift_max
     cp[:, CP_NR] = nr
+    cp[:, CP_MD : CP_MD + 3] = P.Md
+    cp[:, CP_DD : CP_DD + 3] = P.Dd
+    cp[:, CP_KD : CP_KD + 3] = P.Kd
+    cp[:, CP_CEN] = P.comply_enable
     r0 = CP_ROT
     cp[:, r0 : r0 + 4 * nr] = P.E_pinv.reshape(B, 4 * nr)
     cp[:, r0 + 4 * nr : r0 + 8 * nr] = P.E.reshape(B, 4 * nr)
     cp[:, r0 + 8 * nr : r0 + 9 * nr] = P.f_min.reshape(B, nr)
     cp[:, r0 + 9 * nr : r0 + 10 * nr] = P.f_max.reshape(B, nr)
-    n = P.est.Ad.shape[-1]
     sh = np.concatenate(
         [
             [P.Ts, P.filt.wn, P.filt.zeta],
             P.filt.Ad.ravel(),
             P.filt.Bd.ravel(),
-            [float(n)],
-            P.est.Ad.ravel(),
-            P.est.Bd.ravel(),
-            P.est.C.ravel(),
+            design_tail(P.est),
         ]
     )
     return cp, sh
@@ -220,6 +222,24 @@ def _mix_row(cp, o, row):
     return acc
 
 
+@njit(cache=True, inline="always")
+def _impedance_axis(cp, cs, r, i, m, comp, e, ev, fh, fl, fdot, lead, ig):
+    """``mu_bar`` on world axis ``i``: eq. (18a) with compensation, blended with the comply impedance
+    (which feeds forward ``fl``, the estimate with its filter delay taken out, and leads its command by
+    ``lead`` seconds), as :func:`vtol_impedance.control.impedance.controller_step`."""
+    lam = 0.0
+    if cp[CP_CEN] > 0.5 and r.shape[0] >= 15:
+        lam = min(max(r[12 + i], 0.0), 1.0)
+    md = cp[CP_MD + i]
+    kp = (1.0 - lam) * cp[CP_KP + i] + lam * m * cp[CP_KD + i] / md
+    dp = (1.0 - lam) * cp[CP_DP + i] + lam * m * cp[CP_DD + i] / md
+    ff = (1.0 - lam) * comp * fh + lam * (1.0 - m / md) * fl
+    mu = r[6 + i] - (dp * ev + kp * e + (1.0 - lam) * cp[CP_KI + i] * cs[ig + i]) / m - ff / m
+    acc = (fl - cp[CP_DD + i] * ev - cp[CP_KD + i] * e) / md
+    rate = -cp[CP_DD + i] * acc / md + (1.0 / md - 1.0 / m) * fdot
+    return mu + lam * lead * rate
+
+
 def thrust_prev_index(n: int) -> int:
     """Where the held thrust sits in the controller state (the held torque follows it)."""
     return 6 * n + 21
@@ -243,13 +263,21 @@ def controller_step(cp, sh, cs, y, r, o):
     # estimator, eqs. (6)-(13)
     Q, M, C, w = estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2)
     fh0, fh1, fh2, th0, th1, th2 = w
+    # the force estimate with G's low-frequency delay taken out (used by "comply"): f_hat + lag f_hat_dot
+    ilag = sh_offsets(n)[5]
+    ird = 6 * n + 25 + n + 6
+    fl0 = fh0 + sh[ilag] * cs[ird]
+    fl1 = fh1 + sh[ilag + 1] * cs[ird + 1]
+    fl2 = fh2 + sh[ilag + 2] * cs[ird + 2]
+    lead = 2.0 * fz / fwn  # the attitude filter's delay: how late the force follows the command
 
     # position impedance (18a), compensation, eq. (16)
     ig = o_q + 18
+    # per axis, "comply" blends the rejecting law (lam = 0) with M_d e'' + D_d e' + K_d e = f_ext (lam = 1)
     ep0, ep1, ep2 = p0 - r[0], p1 - r[1], p2 - r[2]
-    mb0 = r[6] - (cp[CP_DP] * (v0 - r[3]) + cp[CP_KP] * ep0 + cp[CP_KI] * cs[ig]) / m - comp * fh0 / m
-    mb1 = r[7] - (cp[CP_DP + 1] * (v1 - r[4]) + cp[CP_KP + 1] * ep1 + cp[CP_KI + 1] * cs[ig + 1]) / m - comp * fh1 / m
-    mb2 = r[8] - (cp[CP_DP + 2] * (v2 - r[5]) + cp[CP_KP + 2] * ep2 + cp[CP_KI + 2] * cs[ig + 2]) / m - comp * fh2 / m
+    mb0 = _impedance_axis(cp, cs, r, 0, m, comp, ep0, v0 - r[3], fh0, fl0, cs[ird], lead, ig)
+    mb1 = _impedance_axis(cp, cs, r, 1, m, comp, ep1, v1 - r[4], fh1, fl1, cs[ird + 1], lead, ig)
+    mb2 = _impedance_axis(cp, cs, r, 2, m, comp, ep2, v2 - r[5], fh2, fl2, cs[ird + 2], lead, ig)
     psi_d = r[9]
     thrust_req, phi_d, theta_d, tilt_lim = thrust_and_attitude((mb0, mb1, mb2), psi_d, m, cp[CP_TILT], cp[CP_LIFT])
 
@@ -322,10 +350,13 @@ def checked_step(cp, sh, cs, y, r, o):
     Euler singularity (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`), 3 for a
     wrong length. The explicit signature refuses anything but C-contiguous float64 arrays at dispatch
     (a float32 or strided input would otherwise compile a new, silently different specialisation)."""
-    if y.shape[0] != 12 or r.shape[0] != 12:
+    if y.shape[0] != 12 or (r.shape[0] != 12 and r.shape[0] != 15):
         return 3
     for i in range(12):
         if not (math.isfinite(y[i]) and math.isfinite(r[i])):
+            return 1
+    for i in range(12, r.shape[0]):
+        if not (0.0 <= r[i] <= 1.0):
             return 1
     if abs(math.cos(y[7])) < SINGULARITY_COS_EPS:
         return 2

@@ -5,10 +5,10 @@ Mirrors :func:`vtol_impedance.estimator.momentum.estimator_step` (the NumPy defi
 in ``tests/test_compiled.py`` and ``tests/test_logs.py`` tie the two.
 
 Layouts: the shared design ``sh`` is ``[Ts, filter wn, filter zeta, filter Ad (4), filter Bd (2), n,
-Ad (6 n n), Bd (6 n), C (6 n)]`` (the attitude-filter slots are unused here); the state ``cs`` holds
-``x (6 n), q_prev (6), eta_prev (3), eta_dot_prev (3), started`` from index 0, the held thrust and
-torque at ``6 n + 21 .. 6 n + 24`` and scratch ``x_new (n), w_hat (6)`` from ``6 n + 25``
-(:func:`vtol_impedance.compiled.controller.state_size`).
+Ad (6 n n), Bd (6 n), C (6 n), CA (6 n), CB (6), lag (6)]`` (the attitude-filter slots are unused here);
+the state ``cs`` holds ``x (6 n), q_prev (6), eta_prev (3), eta_dot_prev (3), started`` from index 0,
+the held thrust and torque at ``6 n + 21 .. 6 n + 24`` and scratch ``x_new (n), w_hat (6), r_dot (6)``
+from ``6 n + 25`` (:func:`vtol_impedance.compiled.controller.state_size`).
 """
 
 from __future__ import annotations
@@ -24,13 +24,29 @@ SH_N = 9  # where the order n sits in ``sh``; the estimator matrices follow it
 
 def pack_design(des: EstimatorDesign) -> np.ndarray:
     """``sh`` for an estimator alone (attitude-filter slots zero)."""
+    return np.concatenate([[des.Ts], np.zeros(8), design_tail(des)])
+
+
+def design_tail(des: EstimatorDesign) -> np.ndarray:
+    """``[n, Ad, Bd, C, CA, CB, lag]``: the estimator's part of ``sh``."""
     n = des.Ad.shape[-1]
-    return np.concatenate([[des.Ts], np.zeros(8), [float(n)], des.Ad.ravel(), des.Bd.ravel(), des.C.ravel()])
+    return np.concatenate([[float(n)], des.Ad.ravel(), des.Bd.ravel(), des.C.ravel(), des.CA.ravel(), des.CB, des.lag])
 
 
 def state_length(n: int) -> int:
     """State length of the estimator alone (the controller state has the same prefix)."""
-    return 7 * n + 31
+    return 7 * n + 37
+
+
+@njit(cache=True, inline="always")
+def sh_offsets(n):
+    """Where ``Ad, Bd, C, CA, CB, lag`` start in ``sh`` for an order-``n`` estimator."""
+    iA = SH_N + 1
+    iB = iA + 6 * n * n
+    iC = iB + 6 * n
+    iCA = iC + 6 * n
+    iCB = iCA + 6 * n
+    return iA, iB, iC, iCA, iCB, iCB + 6
 
 
 @njit(cache=True, inline="always")
@@ -40,13 +56,12 @@ def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa:
     ``I`` is the nominal inertia as a row-major 9-tuple, ``v`` the world-frame velocity (NED),
     ``e`` the ZYX Euler angles and ``d`` their rates. The command held over the period that just ended is
     read from ``cs[6 n + 21 .. 6 n + 24]``. Returns ``Q, M, C`` at this sample (9-tuples) and the estimate
-    ``[f_hat_ext_W; tau_hat_ext_eta]`` (zero at the first sample), also left in ``cs[6 n + 25 + n ..]``.
+    ``[f_hat_ext_W; tau_hat_ext_eta]`` (zero at the first sample), also left in ``cs[6 n + 25 + n ..]``,
+    and its rate of change after it, in ``cs[6 n + 31 + n ..]``.
     """
     Ts = sh[0]
     n = int(sh[SH_N])
-    iA = SH_N + 1
-    iB = iA + 6 * n * n
-    iC = iB + 6 * n
+    iA, iB, iC, iCA, iCB, _ = sh_offsets(n)
     o_q = 6 * n
     iw = o_q + 25
     Q, M, C = _QMC(e0, e1, d0, d1, d2, I)
@@ -54,6 +69,7 @@ def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa:
     q = (m * v0, m * v1, m * v2, qa[0], qa[1], qa[2])
     for ch in range(6):
         cs[iw + n + ch] = 0.0
+        cs[iw + n + 6 + ch] = 0.0
     if cs[o_q + 12] > 0.5:
         u_prev = cs[o_q + 21]
         tp0, tp1, tp2 = cs[o_q + 22], cs[o_q + 23], cs[o_q + 24]
@@ -75,10 +91,13 @@ def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa:
                     s += sh[row + j] * cs[base + j]
                 cs[iw + i] = s
             acc = 0.0
+            rate = sh[iCB + ch] * wbar
             for i in range(n):
                 cs[base + i] = cs[iw + i]
                 acc += sh[iC + base + i] * cs[iw + i]
+                rate += sh[iCA + base + i] * cs[iw + i]
             cs[iw + n + ch] = acc
+            cs[iw + n + 6 + ch] = rate
     cs[o_q + 12] = 1.0
     for ch in range(6):
         cs[o_q + ch] = q[ch]
@@ -96,7 +115,7 @@ def estimate_log(sh, m, I_B, v_W, eta, eta_dot, thrust, tau_B, restart, out):  #
     ``restart[k]`` is true the estimator starts afresh (after a gap), as at ``k = 0``.
     """
     n = int(sh[SH_N])
-    cs = np.zeros(7 * n + 31)  # state_length(n)
+    cs = np.zeros(7 * n + 37)  # state_length(n)
     I = (I_B[0, 0], I_B[0, 1], I_B[0, 2], I_B[1, 0], I_B[1, 1], I_B[1, 2], I_B[2, 0], I_B[2, 1], I_B[2, 2])  # noqa: E741
     o_q = 6 * n
     for k in range(v_W.shape[0]):

@@ -152,9 +152,10 @@ def _moment_B(R, r0, r1, r2, f0, f1, f2):
 
 
 @njit(cache=True, error_model="numpy")
-def add_disturbances(t, p0, p1, p2, R, codes, dparams, series, env):
+def add_disturbances(t, p0, p1, p2, v0, v1, v2, R, codes, dparams, series, env):
     """Write the sum of the encoded disturbances into ``env = [f_W, tau_B]``, as
-    :class:`vtol_impedance.sim.disturbances.DisturbanceSet`. ``R`` is the rotation as a row-major 9-tuple."""
+    :class:`vtol_impedance.sim.disturbances.DisturbanceSet`. ``R`` is the rotation as a row-major 9-tuple;
+    ``p``, ``v`` the body origin's position and velocity (world)."""
     f0 = f1 = f2 = t0 = t1 = t2 = 0.0
     for d in range(codes.shape[0]):
         code = codes[d]
@@ -185,6 +186,26 @@ def add_disturbances(t, p0, p1, p2, R, codes, dparams, series, env):
             t0 += series[d, j, 3]
             t1 += series[d, j, 4]
             t2 += series[d, j, 5]
+        elif code == 7:  # wall: spring-damper with regularised Coulomb friction
+            n0, n1, n2 = P[3], P[4], P[5]
+            pen = P[9] - ((p0 - P[0]) * n0 + (p1 - P[1]) * n1 + (p2 - P[2]) * n2)
+            if pen > 0:
+                vn = v0 * n0 + v1 * n1 + v2 * n2
+                fn = max(P[6] * pen - P[7] * vn, 0.0)
+                s0, s1, s2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
+                k = P[8] * fn / max(math.sqrt(s0 * s0 + s1 * s1 + s2 * s2), P[10])
+                a0, a1, a2 = fn * n0 - k * s0, fn * n1 - k * s1, fn * n2 - k * s2
+                f0 += a0
+                f1 += a1
+                f2 += a2
+                # contact point -radius n (world) from the origin, into the body frame
+                c0 = -P[9] * (R[0] * n0 + R[3] * n1 + R[6] * n2)
+                c1 = -P[9] * (R[1] * n0 + R[4] * n1 + R[7] * n2)
+                c2 = -P[9] * (R[2] * n0 + R[5] * n1 + R[8] * n2)
+                m0, m1, m2 = _moment_B(R, c0, c1, c2, a0, a1, a2)
+                t0 += m0
+                t1 += m1
+                t2 += m2
         elif t >= P[12]:  # fan jet
             r0, r1, r2 = p0 - P[0], p1 - P[1], p2 - P[2]
             s = r0 * P[3] + r1 * P[4] + r2 * P[5]
@@ -350,7 +371,7 @@ def disturbance_at(pp, x, t, codes, dparams, series, dist):
         return
     R = _R_of(x, 6)
     o = _origin(pp, x, R)
-    add_disturbances(t, o[0], o[1], o[2], R, codes, dparams, series, dist)
+    add_disturbances(t, o[0], o[1], o[2], o[3], o[4], o[5], R, codes, dparams, series, dist)
 
 
 @njit(cache=True, error_model="numpy")

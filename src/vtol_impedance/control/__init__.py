@@ -1,6 +1,6 @@
 """Hierarchical impedance controller, eqs. (14)-(20)."""
 
-from .gains import ImpedanceGains
+from .gains import Impedance, ImpedanceGains
 from .impedance import (
     PAPER_KI,
     VARIANTS,
@@ -23,6 +23,7 @@ __all__ = [
     "ControllerArrays",
     "ControllerParams",
     "ControllerState",
+    "Impedance",
     "ImpedanceGains",
     "Measurement",
     "Reference",

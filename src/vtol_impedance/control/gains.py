@@ -114,3 +114,35 @@ class ImpedanceGains:
 
     def to_dict(self) -> dict[str, list[float]]:
         return {k: getattr(self, k).tolist() for k in ("Kp", "Dp", "Ki", "Ko", "Do")}
+
+
+@dataclass(frozen=True, eq=False)
+class Impedance:
+    """The translational impedance a ``comply`` controller shows, per world axis (NED):
+    ``M_d e'' + D_d e' + K_d e = f_ext`` with ``e = p - p_d``.
+
+    ``M`` apparent mass [kg], ``D`` damping [N s/m], ``K`` stiffness [N/m]; scalars or three values, all
+    positive. With ``M`` equal to the vehicle's mass no estimate is needed (it is a plain PD); any other
+    apparent mass needs the estimated force, fed forward with weight ``m / M - 1``: the vehicle's own
+    inertia must be cancelled in part (``M > m``: it feels heavier) or amplified (``M < m``), and only the
+    estimate says how hard it is being pushed.
+    """
+
+    M: np.ndarray | float
+    D: np.ndarray | float
+    K: np.ndarray | float
+
+    def __post_init__(self) -> None:
+        for name in ("M", "D", "K"):
+            arr = _vec3(f"impedance {name}", getattr(self, name))
+            if np.any(arr <= 0):
+                raise InputError(f"impedance {name} must be positive on every axis, got {arr.tolist()}")
+            object.__setattr__(self, name, arr)
+
+    def natural(self) -> dict[str, np.ndarray]:
+        """Natural frequency (rad/s) and damping ratio of each axis."""
+        wn = np.sqrt(self.K / self.M)
+        return {"wn": wn, "zeta": self.D / (2.0 * np.sqrt(self.K * self.M))}
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {k: getattr(self, k).tolist() for k in ("M", "D", "K")}

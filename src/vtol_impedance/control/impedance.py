@@ -43,7 +43,7 @@ from ..model.kinematics import check_euler_regular, euler_rate_matrix_Q, wrap_an
 from ..model.mixer import THRUST_SHIFT_MAX, allocate
 from ..model.vehicle import VehicleParams, load_preset
 from .attitude_filter import FilterDesign, FilterState, design_filter, filter_step
-from .gains import ImpedanceGains
+from .gains import Impedance, ImpedanceGains
 from .signals import ControlOutput, Measurement, Reference
 from .thrust import thrust_and_attitude
 
@@ -57,7 +57,8 @@ ATTITUDE_FILTER_WN = 25.0
 VARIANTS: dict[str, str] = {
     "pd": "PD (no compensation)",
     "pid": "PID (PD + integral of e_p)",
-    "pdc": "PD+C (PD + compensation of the estimated wrench)",
+    "pdc": "PD+C (PD + compensation of the estimated wrench): rejects",
+    "comply": "impedance: per axis, rejects like PD+C or yields with the set M_d, D_d, K_d (Reference.comply)",
 }
 #: Integral gain of the paper's PID baseline, Sec. VI.B.
 PAPER_KI = 0.5
@@ -78,8 +79,11 @@ class ControllerParams:
     attitude_filter_zeta: float = 1.0
     integral_limit: float = 3.0
     thrust_shift_max: float = THRUST_SHIFT_MAX
+    impedance: Impedance | None = None  # what "comply" yields with; default: M = m, D = Dp, K = Kp
 
     def __post_init__(self) -> None:
+        if self.impedance is not None and not isinstance(self.impedance, Impedance):
+            raise InputError(f"impedance must be an Impedance, got {type(self.impedance).__name__}")
         if not isinstance(self.variant, str) or self.variant not in VARIANTS:
             raise InputError(f"unknown controller variant {self.variant!r}; choose one of {sorted(VARIANTS)}")
         for name, want in (("vehicle", VehicleParams), ("gains", ImpedanceGains), ("estimator", EstimatorParams)):
@@ -127,7 +131,15 @@ class ControllerParams:
             "attitude_filter_zeta": self.attitude_filter_zeta,
             "integral_limit": self.integral_limit,
             "thrust_shift_max": self.thrust_shift_max,
+            "impedance": self.apparent_impedance().to_dict(),
         }
+
+    def apparent_impedance(self) -> Impedance:
+        """The impedance ``comply`` yields with: the set one, or by default the vehicle's own mass with
+        the position gains (a plain PD, which needs no estimate)."""
+        if self.impedance is not None:
+            return self.impedance
+        return Impedance(M=self.vehicle.mass, D=self.gains.Dp, K=self.gains.Kp)
 
 
 class ControllerArrays(NamedTuple):
@@ -149,6 +161,10 @@ class ControllerArrays(NamedTuple):
     min_lift_accel: np.ndarray
     integral_limit: np.ndarray
     thrust_shift_max: np.ndarray
+    Md: np.ndarray  # (..., 3) apparent mass of "comply", kg
+    Dd: np.ndarray  # (..., 3) N s/m
+    Kd: np.ndarray  # (..., 3) N/m
+    comply_enable: np.ndarray  # (...) 1 for the "comply" variant
     est: EstimatorDesign
     filt: FilterDesign
     Ts: float
@@ -197,11 +213,15 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         Ki=col(lambda p: p.gains.Ki if p.variant == "pid" else np.zeros(3)),
         Ko=col(lambda p: p.gains.Ko),
         Do=col(lambda p: p.gains.Do),
-        compensate=col(lambda p: 1.0 if p.variant == "pdc" else 0.0),
+        compensate=col(lambda p: 1.0 if p.variant in ("pdc", "comply") else 0.0),
         tilt_max=col(lambda p: p.tilt_max),
         min_lift_accel=col(lambda p: p.min_lift_accel),
         integral_limit=col(lambda p: p.integral_limit),
         thrust_shift_max=col(lambda p: p.thrust_shift_max),
+        Md=col(lambda p: p.apparent_impedance().M),
+        Dd=col(lambda p: p.apparent_impedance().D),
+        Kd=col(lambda p: p.apparent_impedance().K),
+        comply_enable=col(lambda p: 1.0 if p.variant == "comply" else 0.0),
         est=design(p0.estimator, p0.Ts),
         filt=design_filter(p0.attitude_filter_wn, p0.attitude_filter_zeta, p0.Ts),
         Ts=float(p0.Ts),
@@ -240,11 +260,27 @@ def controller_step(
     f_hat_W = w_hat[..., :3]
     tau_hat_eta = w_hat[..., 3:]
 
-    # Position impedance (18a), compensation, eq. (16) solved in NED.
+    # Position impedance (18a), compensation, eq. (16) solved in NED. Per axis, "comply" blends the
+    # stiff rejecting law (lam = 0) with M_d e'' + D_d e' + K_d e = f_ext (lam = 1):
+    # u/m = a_d - (D_d e' + K_d e) / M_d + (1/M_d - 1/m) f, with f the estimate advanced by G's
+    # low-frequency delay (f_hat + lag f_hat_dot): without it the delay shows up as damping and mass.
+    lam = P.comply_enable[..., None] * np.clip(ref.comply, 0.0, 1.0)
+    Kp = (1.0 - lam) * P.Kp + lam * m3 * P.Kd / P.Md
+    Dp = (1.0 - lam) * P.Dp + lam * m3 * P.Dd / P.Md
+    f_lead = f_hat_W + P.est.lag[:3] * est.r_dot[..., :3]
     e_p = meas.p_W - ref.p_W
     e_v = meas.v_W - ref.v_W
-    mu = ref.a_W - (P.Dp * e_v + P.Kp * e_p + P.Ki * S.integral) / m3
-    mu_bar = mu - comp * f_hat_W / m3
+    mu = ref.a_W - (Dp * e_v + Kp * e_p + (1.0 - lam) * P.Ki * S.integral) / m3
+    mu_bar = mu - ((1.0 - lam) * comp * f_hat_W + lam * (1.0 - m3 / P.Md) * f_lead) / m3
+    # The force follows the command only as fast as the attitude does, about the attitude filter's
+    # delay 2 zeta / wn later; comply leads the inertial and force terms of its law by that much:
+    # D_d times the impedance's own acceleration, and the force estimate's rate. (Measured on the
+    # realistic plant: without this lead a 2 kg apparent mass comes out at 1.5 kg; leading the
+    # stiffness term too over-damps by 10 %.)
+    lead = 2.0 * P.filt.zeta / P.filt.wn
+    acc = (f_lead - P.Dd * e_v - P.Kd * e_p) / P.Md
+    rate = -P.Dd * acc / P.Md + (1.0 / P.Md - 1.0 / m3) * est.r_dot[..., :3]
+    mu_bar = mu_bar + lam * lead * rate
     thrust_req, phi_d, theta_d, tilt_limited = thrust_and_attitude(mu_bar, ref.psi, m, P.tilt_max, P.min_lift_accel)
 
     # Desired attitude: filtered roll/pitch, planned yaw.
@@ -316,6 +352,17 @@ def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _comply_input(value: object, bs: tuple[int, ...]) -> np.ndarray:
+    arr = as_finite("comply (Reference.comply)", value)
+    if arr.shape not in ((), (3,), bs + (3,)):
+        raise InputError(
+            f"Reference.comply has shape {arr.shape}; give a fraction, 3 fractions (x, y, z) or {bs + (3,)}"
+        )
+    if np.any((arr < 0) | (arr > 1)):
+        raise InputError(f"Reference.comply must be within [0, 1] (0 rejects, 1 complies), got {arr.tolist()}")
+    return np.broadcast_to(arr, bs + (3,)) if arr.shape == () else arr
+
+
 def _describe(a: object) -> str:
     if type(a) is not np.ndarray:
         return type(a).__name__
@@ -332,7 +379,8 @@ class Controller:
     :meth:`step` validates its inputs (numeric, finite, shape ``(3,)`` or the batch's ``(B, 3)``, away from
     the Euler singularity) and returns a :class:`ControlOutput` (plain floats and ``(3,)`` arrays for one
     vehicle). :meth:`step_arrays` is the low-overhead path for real-time loops: flat ``y = [p_W, v_W, eta,
-    eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` (float64, shape ``(12,)``) in, a flat
+    eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` (float64, shape ``(12,)``, or
+    ``(15,)`` with the comply fractions appended) in, a flat
     output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
 
     The controller keeps what it learnt in flight (the wrench estimate, the attitude filter, the PID
@@ -378,7 +426,8 @@ class Controller:
             self._cs = self._k.initial_state(self._cp, self._n)
 
     def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
-        """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, C-contiguous float64.
+        """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)`` or ``(15,)`` (with
+        ``comply``), C-contiguous float64.
 
         Returns the output row (a view, overwritten by the next call). Raises :class:`InputError` on a
         wrong type, dtype, shape or a non-finite value, and :class:`SingularityError` at theta = +-90 deg.
@@ -395,7 +444,7 @@ class Controller:
         if status:
             if status == 3:
                 raise InputError(
-                    "step_arrays: y and r must be C-contiguous float64 arrays of shape (12,), got "
+                    "step_arrays: y and r must be C-contiguous float64 arrays of shape (12,) (r: or (15,)), got "
                     f"{_describe(y)} and {_describe(r)}"
                 )
             if status == 2:
@@ -430,6 +479,7 @@ class Controller:
             _scalar_input("psi_d", ref.psi, bs),
             _scalar_input("psi_dot_d", ref.psi_dot, bs),
             _scalar_input("psi_ddot_d", ref.psi_ddot, bs),
+            _comply_input(ref.comply, bs),
         )
         for name, v in zip(("p_d", "v_d", "a_d"), ref[:3], strict=True):
             if v.shape[:-1] not in ((), bs):
@@ -478,6 +528,7 @@ class Controller:
                 np.broadcast_to(ref.v_W, (B, 3)),
                 np.broadcast_to(ref.a_W, (B, 3)),
                 np.stack([np.broadcast_to(v, bs).reshape(B) for v in (ref.psi, ref.psi_dot, ref.psi_ddot)], -1),
+                np.broadcast_to(ref.comply, bs + (3,)).reshape(B, 3),
             ],
             -1,
         )

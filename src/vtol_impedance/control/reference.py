@@ -142,11 +142,22 @@ class Trajectory:
     segments: tuple[Segment, ...]
     yaw0: float = 0.0
     yaw_steps: tuple[tuple[float, float], ...] = ()
+    comply0: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    comply_switches: tuple[tuple[float, int, float], ...] = ()
+    blend_s: float = 0.5
     _t0: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.segments:
             raise InputError("a trajectory needs at least one segment")
+        c0 = as_finite("comply0", self.comply0, (3,))
+        if c0.shape != (3,) or np.any((c0 < 0) | (c0 > 1)):
+            raise InputError(f"comply0 must be three fractions in [0, 1] (x, y, z), got {self.comply0!r}")
+        for sw in self.comply_switches:
+            if len(sw) != 3 or not isinstance(sw[1], int | np.integer) or not 0 <= sw[1] <= 2 or not 0 <= sw[2] <= 1:
+                raise InputError(f"a comply switch is (time s, axis 0|1|2, fraction 0..1), got {sw!r}")
+            scalar("comply switch time", sw[0], lo=0.0)
+        scalar("blend_s", self.blend_s, lo=0.0)
         durations = [scalar("segment duration", s.duration, lo=0.0) for s in self.segments]
         for a, b in zip(self.segments[:-1], self.segments[1:], strict=True):
             if not np.allclose(a.end(), b.start(), atol=1e-9):
@@ -162,10 +173,26 @@ class Trajectory:
         """Start time of each segment and the end time of the last, s."""
         return self._t0.copy()
 
-    def sample_many(self, t: np.ndarray) -> np.ndarray:
-        """Rows ``[p_W (3), v_W (3), a_W (3), psi, psi_dot, psi_ddot]`` at the times ``t``, shape ``(N, 12)``."""
+    def comply_at(self, t: np.ndarray) -> np.ndarray:
+        """The comply fraction per world axis at the times ``t``, ``(N, 3)``: each switch moves an axis from
+        its current fraction to the new one along a minimum-jerk blend of ``blend_s`` seconds."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        out = np.zeros((t.size, 12))
+        out = np.tile(np.asarray(self.comply0, dtype=float), (t.size, 1))
+        for ts, axis, frac in sorted(self.comply_switches, key=lambda s: s[0]):
+            before = out[:, axis].copy()
+            if self.blend_s > 0:
+                w = _smooth5((t - ts) / self.blend_s)[0]
+            else:
+                w = (t >= ts).astype(float)
+            out[:, axis] = np.where(t >= ts, before + w * (frac - before), before)
+        return out
+
+    def sample_many(self, t: np.ndarray) -> np.ndarray:
+        """Rows ``[p_W (3), v_W (3), a_W (3), psi, psi_dot, psi_ddot, comply (3)]`` at the times ``t``,
+        shape ``(N, 15)``."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        out = np.zeros((t.size, 15))
+        out[:, 12:15] = self.comply_at(t)
         seg = np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self.segments))
         for i, segment in enumerate(self.segments):
             m = seg == i
@@ -182,4 +209,4 @@ class Trajectory:
     def sample(self, t: float) -> Reference:
         """The reference at one time ``t``."""
         r = self.sample_many(np.array([t]))[0]
-        return Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]))
+        return Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:15])

@@ -31,6 +31,11 @@ class Reference(NamedTuple):
     """Desired flat outputs: position ``p_W`` (m), velocity ``v_W`` (m/s), acceleration ``a_W`` (m/s^2), each
     ``(..., 3)`` in the world NED frame, and yaw ``psi`` (rad) with two derivatives.
 
+    ``comply`` (per world axis, 0..1) chooses the interaction behaviour of a controller built with
+    ``variant="comply"``: 0 rejects the external force (PD+C, stiff), 1 yields to it with the set
+    impedance ``M_d, D_d, K_d``, values in between blend the two (a switch ramps through them, so the
+    commands never jump). Other variants ignore it.
+
     Everything but ``p_W`` defaults to zero, so ``Reference(np.array([0, 0, -1.0]))`` holds a point 1 m up
     with the nose north.
     """
@@ -41,6 +46,7 @@ class Reference(NamedTuple):
     psi: np.ndarray | float = 0.0
     psi_dot: np.ndarray | float = 0.0
     psi_ddot: np.ndarray | float = 0.0
+    comply: np.ndarray | float = 0.0
 
 
 class ControlOutput(NamedTuple):

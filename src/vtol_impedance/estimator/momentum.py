@@ -139,12 +139,21 @@ class EstimatorParams:
 
 
 class EstimatorDesign(NamedTuple):
-    """Discrete matrices of the estimator filters: ``x_k = Ad x_{k-1} + Bd w_bar_k``, ``r_k = C x_k``."""
+    """Discrete matrices of the estimator filters: ``x_k = Ad x_{k-1} + Bd w_bar_k``, ``r_k = C x_k``.
+
+    ``CA``, ``CB`` give the estimate's rate of change ``r_dot_k = CA x_k + CB w_bar_k`` (the continuous
+    filter's derivative; ``CB = 0`` from order 2 on), and ``lag`` the filter's delay at low frequency,
+    ``-G'(0) = sum_i 1/(-p_i)`` (``2 zeta / wn`` for eq. (10)): ``r + lag r_dot`` is the estimate with that
+    delay taken out, to first order.
+    """
 
     Ad: np.ndarray  # (6, n, n)
     Bd: np.ndarray  # (6, n)
     C: np.ndarray  # (6, n)
     Ts: float
+    CA: np.ndarray | None = None  # (6, n)
+    CB: np.ndarray | None = None  # (6,)
+    lag: np.ndarray | None = None  # (6,) s
 
 
 def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
@@ -168,6 +177,9 @@ def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
     Ad = np.empty((6, n, n))
     Bd = np.empty((6, n))
     C = np.zeros((6, n))
+    CA = np.zeros((6, n))
+    CB = np.zeros(6)
+    lag = np.real(np.sum(1.0 / -poles, axis=1))
     for i in range(6):
         coeffs = np.real(np.poly(poles[i]))  # s^n + a1 s^(n-1) + ... + an
         A = np.zeros((n, n))
@@ -180,23 +192,28 @@ def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
         Ad[i] = E[:n, :n]
         Bd[i] = E[:n, n]
         C[i, 0] = coeffs[-1]
-    return EstimatorDesign(Ad, Bd, C, Ts)
+        CA[i] = C[i] @ A
+        CB[i] = C[i, n - 1] if n == 1 else 0.0  # B = e_n: only order 1 feeds w straight into r_dot
+    return EstimatorDesign(Ad, Bd, C, Ts, CA, CB, lag)
 
 
 class EstimatorState(NamedTuple):
-    """Filter state ``x (..., 6, n)`` and the previous sample's momentum, attitude and rates."""
+    """Filter state ``x (..., 6, n)``, the previous sample's momentum, attitude and rates, and the
+    estimate's rate of change ``r_dot (..., 6)`` at the last sample."""
 
     x: np.ndarray
     q_prev: np.ndarray
     eta_prev: np.ndarray
     eta_dot_prev: np.ndarray
     started: bool
+    r_dot: np.ndarray | None = None
 
 
 def initial_state(des: EstimatorDesign, batch_shape: tuple[int, ...] = ()) -> EstimatorState:
     n = des.Ad.shape[-1]
     z3 = np.zeros(batch_shape + (3,))
-    return EstimatorState(np.zeros(batch_shape + (6, n)), np.zeros(batch_shape + (6,)), z3, z3, False)
+    z6 = np.zeros(batch_shape + (6,))
+    return EstimatorState(np.zeros(batch_shape + (6, n)), z6, z3, z3, False, z6)
 
 
 def estimator_step(
@@ -224,13 +241,14 @@ def estimator_step(
     """
     q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)
     if not state.started:
-        return EstimatorState(state.x, q, eta, eta_dot, True), np.zeros(q.shape)
+        return EstimatorState(state.x, q, eta, eta_dot, True, np.zeros(q.shape)), np.zeros(q.shape)
     beta_a = momentum_rate_known(state.eta_prev, state.eta_dot_prev, thrust_prev, tau_B_prev, mass, I_B)
     beta_b = momentum_rate_known(eta, eta_dot, thrust_prev, tau_B_prev, mass, I_B)
     w_bar = (q - state.q_prev) / des.Ts - 0.5 * (beta_a + beta_b)
     x = np.einsum("cij,...cj->...ci", des.Ad, state.x) + des.Bd * w_bar[..., None]
     r = np.einsum("ci,...ci->...c", des.C, x)
-    return EstimatorState(x, q, eta, eta_dot, True), r
+    r_dot = np.einsum("ci,...ci->...c", des.CA, x) + des.CB * w_bar
+    return EstimatorState(x, q, eta, eta_dot, True, r_dot), r
 
 
 def check_inputs(eta: np.ndarray, eta_dot: np.ndarray, v_W: np.ndarray) -> None:

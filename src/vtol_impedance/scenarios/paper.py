@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from .registry import register
-from .spec import ScenarioSpec, TrajectorySpec
+from .spec import InteractionSpec, ScenarioSpec, TrajectorySpec
 
 CASE_A = ScenarioSpec(
     name="case-a-payload-v1",
@@ -60,7 +60,49 @@ YAW_STEP = replace(
     trajectory=TrajectorySpec(kind="hover", start_on_ground=False, hover_duration=10.0, yaw_step_time=2.0),
 )
 
+# Interaction (the title's impedance): the vehicle of case A, now also flown with "comply".
+OPERATOR_PUSH_2 = replace(
+    CASE_A,
+    name="operator-push-v2",
+    description="Interaction: hovering with the payload, an operator's hand pushes along +x (a half-sine of 3 N "
+    "peak over 2.5 s) and lets go; compare PD, reject (pdc) and comply (M_d 2 kg, D_d 6 N s/m, K_d 5 N/m in x, y).",
+    trajectory=TrajectorySpec(kind="hover", hover_duration=17.0),
+    interaction=InteractionSpec(M=2.0, D=6.0, K=5.0, comply=(1.0, 1.0, 0.0)),
+    disturbances=({"kind": "push", "force_W": (3.0, 0.0, 0.0), "t_on": 10.0, "duration": 2.5},),
+)
+
+WALL_CONTACT = replace(
+    CASE_A,
+    name="wall-contact-v1",
+    description="Interaction: after the hover, move 0.8 m toward a wall 0.6 m ahead (a 0.1 m bumper touches it at "
+    "x = 0.5 m) and hold a contact force of K_d (0.8 - 0.5) = 1.5 N by complying along x.",
+    trajectory=TrajectorySpec(
+        kind="hover", hover_duration=3.0, move_offset=(0.8, 0.0, 0.0), move_duration=6.0, move_hold=10.0
+    ),  # fmt: skip
+    interaction=InteractionSpec(M=2.0, D=6.0, K=5.0, comply=(1.0, 0.0, 0.0)),
+    disturbances=(
+        {
+            "kind": "wall",
+            "position_W": (0.6, 0.0, 0.0),
+            "normal_W": (-1.0, 0.0, 0.0),
+            "stiffness": 2000.0,
+            "damping": 60.0,
+            "friction": 0.3,
+            "radius": 0.1,
+        },
+    ),  # fmt: skip
+)
+
+GUST = replace(
+    CASE_A,
+    name="gust-v1",
+    description="Interaction: hovering in a 1 m/s breeze with Dryden turbulence (sigma_w 0.3 m/s), a 1-cosine gust "
+    "of 5 m/s over 2 s at t = 12 s, all through rotor drag.",
+    trajectory=TrajectorySpec(kind="hover", hover_duration=15.0),
+    disturbances=({"kind": "gust", "mean_speed": 1.0, "amplitude": 5.0, "start": 12.0, "length": 2.0, "sigma_w": 0.3},),
+)
+
 PAPER_CASES: tuple[str, ...] = ("case-a-payload", "case-b-fan", "case-c-circle")
 
-for _spec in (CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP):
+for _spec in (CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP, OPERATOR_PUSH_2, WALL_CONTACT, GUST):
     register(_spec)

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..control.gains import ImpedanceGains
+from ..control.gains import Impedance, ImpedanceGains
 from ..control.impedance import ATTITUDE_FILTER_WN, PAPER_KI, ControllerParams, compile_controllers
 from ..control.reference import Circle, Hold, MinJerk, Trajectory
 from ..errors import InputError, ScenarioError
@@ -56,6 +56,9 @@ class TrajectorySpec:
     yaw: float = 0.0
     yaw_step_time: float = -1.0
     yaw_step_angle: float = 0.5
+    move_offset: Vec3 = (0.0, 0.0, 0.0)  # after the hover: a minimum-jerk move by this much (NED, m)
+    move_duration: float = 3.0
+    move_hold: float = 5.0  # then hold there, s
 
 
 @dataclass(frozen=True)
@@ -100,6 +103,44 @@ class ControlSpec:
     thrust_shift_max: float = THRUST_SHIFT_MAX
 
 
+AXES = ("x", "y", "z")
+BEHAVIOURS = {"reject": 0.0, "comply": 1.0}
+
+
+@dataclass(frozen=True)
+class InteractionSpec:
+    """Impedance of the ``comply`` controller per world axis (``M`` kg, ``D`` N s/m, ``K`` N/m) and its
+    behaviour: ``comply`` gives the initial fraction per axis (1 yields with the impedance, 0 rejects like
+    PD+C), ``switches`` changes it in flight, ``[[time_s, "x"|"y"|"z", "comply"|"reject"], ...]``, each
+    ramped over ``blend_s`` seconds so that the commands never jump."""
+
+    M: float | Vec3 = 2.0
+    D: float | Vec3 = 6.0
+    K: float | Vec3 = 5.0
+    comply: Vec3 = (1.0, 1.0, 1.0)
+    switches: tuple[tuple[float, str, str], ...] = ()
+    blend_s: float = 0.5
+
+
+def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
+    """Validate ``[[time_s, axis, behaviour], ...]`` naming what is wrong."""
+    if not isinstance(value, list | tuple):
+        raise ScenarioError(f"interaction.switches must be a list of [time_s, axis, behaviour], got {value!r}")
+    out = []
+    for sw in value:
+        if not isinstance(sw, list | tuple) or len(sw) != 3:
+            raise ScenarioError(f"an interaction switch is [time_s, axis, behaviour], got {sw!r}")
+        t, axis, beh = sw
+        if not isinstance(t, int | float) or isinstance(t, bool) or not np.isfinite(t) or t < 0:
+            raise ScenarioError(f"interaction switch time must be a number >= 0 s, got {t!r}")
+        if axis not in AXES:
+            raise ScenarioError(f"interaction switch axis {axis!r} does not exist; the axes are x, y, z (world NED)")
+        if beh not in BEHAVIOURS:
+            raise ScenarioError(f"interaction switch behaviour {beh!r} is not one of {', '.join(BEHAVIOURS)}")
+        out.append((float(t), str(axis), str(beh)))
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class ScenarioSpec:
     name: str
@@ -114,6 +155,7 @@ class ScenarioSpec:
     plant: PlantSpec = field(default_factory=PlantSpec)
     sensors: SensorParams = field(default_factory=SensorParams)
     control: ControlSpec = field(default_factory=ControlSpec)
+    interaction: InteractionSpec = field(default_factory=InteractionSpec)
     disturbances: tuple[dict[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
@@ -171,6 +213,12 @@ def build_trajectory(ts: TrajectorySpec) -> tuple[Trajectory, tuple[float, float
     phases["hover"] = t
     segs.append(Hold(hover, ts.hover_duration))
     t += ts.hover_duration
+    if np.any(np.asarray(ts.move_offset) != 0.0):
+        target = tuple(float(a + b) for a, b in zip(hover, ts.move_offset, strict=True))
+        segs += [MinJerk(hover, target, ts.move_duration), Hold(target, ts.move_hold)]
+        phases["move"] = t
+        t += ts.move_duration + ts.move_hold
+        hover = target
     if ts.kind == "hover":
         window = (phases["hover"], t)
     else:
@@ -182,6 +230,7 @@ def build_trajectory(ts: TrajectorySpec) -> tuple[Trajectory, tuple[float, float
         segs.append(Hold(hover, ts.settle_duration))
         t += ts.settle_duration
     if ts.land:
+        ground = (hover[0], hover[1], 0.0)
         segs += [MinJerk(hover, ground, ts.land_duration), Hold(ground, ts.land_hold)]
         phases["land"] = t
         t += ts.land_duration + ts.land_hold
@@ -206,6 +255,9 @@ def build(spec: ScenarioSpec) -> Built:
         sensors = spec.sensors
     start = np.array([0.0, 0.0, 0.0 if spec.trajectory.start_on_ground else -spec.trajectory.altitude])
     dists = tuple(from_dict(d) for d in spec.disturbances)
+    it = spec.interaction
+    switches = tuple((t, AXES.index(axis), BEHAVIOURS[beh]) for t, axis, beh in it.switches)
+    traj = replace(traj, comply0=tuple(float(c) for c in it.comply), comply_switches=switches, blend_s=it.blend_s)
     return Built(plant, traj, dists, sensors, float(duration), window, phases, start)
 
 
@@ -231,6 +283,7 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
         attitude_filter_wn=c.attitude_filter_wn,
         integral_limit=c.integral_limit,
         thrust_shift_max=c.thrust_shift_max,
+        impedance=Impedance(M=spec.interaction.M, D=spec.interaction.D, K=spec.interaction.K),
     )
 
 
@@ -308,8 +361,16 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "control.tilt_max_deg": (0.0, 89.0, True),
     "control.integral_limit": (0.0, 1e6, True),
     "control.thrust_shift_max": (0.0, 1.0, False),
+    "interaction.M": (0.0, 1e6, True),
+    "interaction.D": (0.0, 1e6, True),
+    "interaction.K": (0.0, 1e6, True),
+    "interaction.comply": (0.0, 1.0, False),
+    "interaction.blend_s": (0.0, 100.0, False),
+    "trajectory.move_offset": (-1e4, 1e4, False),
+    "trajectory.move_duration": (0.0, 1e6, True),
+    "trajectory.move_hold": (0.0, 1e6, False),
 }
-_GAIN_KEYS = ("control.Kp", "control.Dp", "control.Ki")
+_GAIN_KEYS = ("control.Kp", "control.Dp", "control.Ki", "interaction.M", "interaction.D", "interaction.K")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,99}$")
 
 
@@ -423,6 +484,8 @@ def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
         if not isinstance(value, list | tuple) or not all(isinstance(d, dict) for d in value):
             raise ScenarioError("disturbances must be a list of tables with a 'kind'")
         return replace(obj, disturbances=tuple(value))
+    if full == "interaction.switches":
+        return replace(obj, switches=parse_switches(value))
     if full in _GAIN_KEYS or (isinstance(current, tuple) and full.startswith("control.")):
         value = _gain_value(full, value)
     if head == "name":

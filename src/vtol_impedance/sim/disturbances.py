@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 
 from ..errors import InputError, as_finite, positive, scalar
@@ -20,7 +21,7 @@ from ..model.kinematics import cross
 Vec3 = tuple[float, float, float]
 
 #: Codes and parameter-vector length of the compiled encoding (see ``Disturbance.encode``).
-CODE = {"constant": 0, "step": 1, "ramp": 2, "sinusoid": 3, "push": 4, "noise": 5, "fan": 6}
+CODE = {"constant": 0, "step": 1, "ramp": 2, "sinusoid": 3, "push": 4, "noise": 5, "fan": 6, "wall": 7}
 ENC_PARAMS = 16
 
 
@@ -37,6 +38,9 @@ class Disturbance:
 
     def prepare(self, t_end: float, dt: float, rng: np.random.Generator) -> Disturbance:
         return self
+
+    def check_start(self, p_W: np.ndarray) -> None:
+        """Refuse a start the disturbance cannot begin from (a wall through the vehicle); default: any."""
 
     def __call__(self, t: float, p_W: np.ndarray, v_W: np.ndarray, R_WB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
@@ -320,8 +324,195 @@ class Wind(Disturbance):
         return _const(p_W, self.drag * np.asarray(self.velocity_W), np.zeros(3))
 
 
+@dataclass(frozen=True)
+class Wall(Disturbance):
+    """A flat wall as a stiff spring-damper with Coulomb friction, touched by a sphere of ``radius`` around
+    the body origin (a bumper, or the tip of a probe held level with it).
+
+    The plane passes through ``position_W`` with ``normal_W`` pointing out of the wall, to the free side.
+    With the gap ``g = (p - position_W) . n - radius``, a penetration ``-g > 0`` pushes back with
+    ``F_n = max(stiffness (-g) - damping (v . n), 0)`` along ``n`` (a wall pushes, never pulls) and rubs with
+    ``mu F_n`` against the sliding velocity (regularised below ``slip_speed``). The force acts at the
+    contact point ``p - radius n``, which gives the moment about the origin.
+    """
+
+    kind: ClassVar[str] = "wall"
+    position_W: Vec3 = (1.0, 0.0, 0.0)
+    normal_W: Vec3 = (-1.0, 0.0, 0.0)
+    stiffness: float = 2000.0
+    damping: float = 60.0
+    friction: float = 0.3
+    radius: float = 0.0
+    slip_speed: float = 0.01
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position_W", _vec("wall position_W", self.position_W))
+        n = np.asarray(_vec("wall normal_W", self.normal_W))
+        if np.linalg.norm(n) == 0:
+            raise InputError("wall normal_W must be non-zero")
+        object.__setattr__(self, "normal_W", tuple(n / np.linalg.norm(n)))
+        positive("wall stiffness", self.stiffness)
+        positive("wall damping", self.damping, allow_zero=True)
+        positive("wall friction", self.friction, allow_zero=True)
+        positive("wall radius", self.radius, allow_zero=True)
+        positive("wall slip_speed", self.slip_speed)
+
+    def gap(self, p_W: np.ndarray) -> np.ndarray:
+        """Distance from the contact sphere to the wall, m (negative: in contact)."""
+        return (np.asarray(p_W) - np.asarray(self.position_W)) @ np.asarray(self.normal_W) - self.radius
+
+    def check_start(self, p_W: np.ndarray) -> None:
+        g = float(self.gap(p_W))
+        if g < 0:
+            raise InputError(
+                f"the wall at {list(self.position_W)} (normal {list(self.normal_W)}) is inside the vehicle's start "
+                f"position {np.asarray(p_W).tolist()}: the contact sphere of radius {self.radius} m overlaps it by "
+                f"{-g:.3g} m; move the wall to the free side"
+            )
+
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        return CODE["wall"], _enc(*self.position_W, *self.normal_W, self.stiffness, self.damping, self.friction,
+                                  self.radius, self.slip_speed), None  # fmt: skip
+
+    def __call__(self, t, p_W, v_W, R_WB):
+        n = np.asarray(self.normal_W)
+        pen = -self.gap(p_W)
+        vn = v_W @ n
+        fn = np.where(pen > 0, np.maximum(self.stiffness * pen - self.damping * vn, 0.0), 0.0)
+        vt = v_W - vn[..., None] * n
+        speed = np.linalg.norm(vt, axis=-1)
+        ft = -self.friction * (fn / np.maximum(speed, self.slip_speed))[..., None] * vt
+        f_W = fn[..., None] * n + ft
+        r_B = np.einsum("...ji,j->...i", R_WB, -self.radius * n)  # contact point from the origin, body frame
+        f_B = np.einsum("...ji,...j->...i", R_WB, f_W)
+        return f_W, cross(r_B, f_B)
+
+
+def dryden_filters(sigma_w: float, altitude: float, airspeed: float) -> list[tuple[float, float, float]]:
+    """``(sigma, L, kind)`` of the u, v, w components of MIL-F-8785C's low-altitude Dryden model:
+    ``L_w = h``, ``L_u = L_v = h / (0.177 + 0.000823 h)^1.2`` and ``sigma_u = sigma_v = sigma_w /
+    (0.177 + 0.000823 h)^0.4`` with ``h`` in feet (converted here from metres, floored at 3 ft)."""
+    h = max(altitude / 0.3048, 3.0)
+    k = 0.177 + 0.000823 * h
+    L_uv = h / k**1.2 * 0.3048
+    L_w = h * 0.3048
+    s_uv = sigma_w / k**0.4
+    return [(s_uv, L_uv, 1.0), (s_uv, L_uv, 2.0), (sigma_w, L_w, 2.0)]
+
+
+def dryden_series(
+    rng: np.random.Generator, n: int, dt: float, sigma: float, length: float, airspeed: float, order: int
+) -> np.ndarray:
+    """A stationary Dryden component sampled every ``dt``: ``order`` 1 is the longitudinal form
+    ``sigma sqrt(2L/(pi V)) / (1 + (L/V) s)``, 2 the lateral/vertical one ``sigma sqrt(L/(pi V)) (1 + sqrt(3)
+    (L/V) s) / (1 + (L/V) s)^2``. Discretised exactly (Van Loan) from white noise of intensity pi (the
+    spectra are one-sided) and run ten time constants before it is kept, so its variance is ``sigma^2``."""
+    if sigma == 0:
+        return np.zeros(n)
+    T = length / airspeed
+    if order == 1:
+        A = np.array([[-1.0 / T]])
+        B = np.array([[1.0]])
+        C = np.array([[sigma * np.sqrt(2 * length / (np.pi * airspeed)) / T]])
+    else:  # (1 + sqrt3 T s) / (1 + T s)^2 in controllable form
+        A = np.array([[0.0, 1.0], [-1.0 / T**2, -2.0 / T]])
+        B = np.array([[0.0], [1.0]])
+        g = sigma * np.sqrt(length / (np.pi * airspeed)) / T**2
+        C = np.array([[g, g * np.sqrt(3.0) * T]])
+    m = A.shape[0]
+    q = np.pi
+    M = np.zeros((2 * m, 2 * m))
+    M[:m, :m] = -A
+    M[:m, m:] = q * B @ B.T
+    M[m:, m:] = A.T
+    E = scipy.linalg.expm(M * dt)
+    Ad = E[m:, m:].T
+    Qd = Ad @ E[:m, m:]
+    lam, vec = np.linalg.eigh(0.5 * (Qd + Qd.T))
+    Lq = vec * np.sqrt(np.maximum(lam, 0.0))  # Lq Lq^T = Qd
+    pad = int(10.0 * T / dt) + 1  # ten time constants from rest: stationary to e^-20
+    xi = rng.standard_normal((n + pad, m))
+    out = np.zeros(n + pad)
+    for j in range(m):
+        num, den = scipy.signal.ss2tf(Ad, Lq[:, j : j + 1], C, np.zeros((1, 1)))
+        out += scipy.signal.lfilter(num[0], den, xi[:, j])
+    return out[pad:]
+
+
+@dataclass(frozen=True)
+class Gust(Disturbance):
+    """Wind acting through rotor drag (``f = drag * v_wind``, as :class:`Wind`; the plant supplies ``-drag v``):
+    a mean wind along ``direction_W``, a 1-cosine gust ``amplitude/2 (1 - cos(2 pi (t - start)/length))``
+    over ``[start, start + length]``, and Dryden turbulence of MIL-F-8785C at ``altitude`` with vertical
+    intensity ``sigma_w`` (m/s; 0: none) relative to an airspeed of ``max(mean_speed, 1 m/s)``: longitudinal
+    along the wind, lateral across it, vertical along NED z."""
+
+    kind: ClassVar[str] = "gust"
+    direction_W: Vec3 = (1.0, 0.0, 0.0)
+    mean_speed: float = 0.0
+    amplitude: float = 3.0
+    start: float = 10.0
+    length: float = 2.0
+    sigma_w: float = 0.0
+    altitude: float = 1.0
+    drag: float = 0.18
+    _series: np.ndarray | None = field(default=None, repr=False, compare=False)
+    _dt: float = field(default=0.0, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        d = np.asarray(_vec("gust direction_W", self.direction_W))
+        if np.linalg.norm(d[:2]) == 0:
+            raise InputError("gust direction_W must have a horizontal component")
+        object.__setattr__(self, "direction_W", tuple(d / np.linalg.norm(d)))
+        for name in ("mean_speed", "amplitude", "start", "sigma_w", "drag"):
+            positive(f"gust {name}", getattr(self, name), allow_zero=True)
+        positive("gust length", self.length)
+        positive("gust altitude", self.altitude)
+
+    def wind_W(self, t: np.ndarray, turbulence: np.ndarray | None = None) -> np.ndarray:
+        """Wind velocity (NED, m/s) at times ``t``; ``turbulence (N, 3)`` as ``[u, v, w]``."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        d = np.asarray(self.direction_W)
+        s = np.clip((t - self.start) / self.length, 0.0, 1.0)
+        inside = (t >= self.start) & (t <= self.start + self.length)
+        speed = self.mean_speed + np.where(inside, 0.5 * self.amplitude * (1 - np.cos(2 * np.pi * s)), 0.0)
+        w = speed[:, None] * d
+        if turbulence is not None:
+            horiz = np.array([d[0], d[1], 0.0]) / np.linalg.norm(d[:2])
+            lateral = np.array([-horiz[1], horiz[0], 0.0])
+            w = (
+                w
+                + turbulence[:, :1] * horiz
+                + turbulence[:, 1:2] * lateral
+                + turbulence[:, 2:3] * np.array([0, 0, 1.0])
+            )
+        return w
+
+    def prepare(self, t_end: float, dt: float, rng: np.random.Generator) -> Gust:
+        n = int(np.ceil(t_end / dt)) + 2
+        V = max(self.mean_speed, 1.0)
+        turb = np.zeros((n, 3))
+        for i, (sig, L, order) in enumerate(dryden_filters(self.sigma_w, self.altitude, V)):
+            turb[:, i] = dryden_series(rng, n, dt, sig, L, V, int(order))
+        series = np.zeros((n, 6))
+        series[:, :3] = self.drag * self.wind_W(np.arange(n) * dt, turb)
+        return replace(self, _series=series, _dt=dt)
+
+    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+        if self._series is None:
+            raise RuntimeError("Gust used before prepare()")
+        return CODE["noise"], _enc(self._dt), self._series  # a force series, as BandLimitedNoise
+
+    def __call__(self, t, p_W, v_W, R_WB):
+        if self._series is None:
+            raise RuntimeError("Gust used before prepare()")
+        s = self._series[min(int(t / self._dt), len(self._series) - 1)]
+        return _const(p_W, s[:3], s[3:])
+
+
 KINDS: dict[str, type[Disturbance]] = {
-    c.kind: c for c in (ConstantWrench, StepWrench, RampWrench, SinusoidWrench, Push, BandLimitedNoise, FanJet, Wind)
+    c.kind: c
+    for c in (ConstantWrench, StepWrench, RampWrench, SinusoidWrench, Push, BandLimitedNoise, FanJet, Wind, Wall, Gust)
 }
 
 

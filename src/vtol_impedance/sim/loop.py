@@ -196,7 +196,7 @@ class _Setup:
     dist: DisturbanceSet
     sensors: SensorParams
     noise: NoiseSource
-    refs: np.ndarray  # (N, 12)
+    refs: np.ndarray  # (N, 15): Trajectory.sample_many
     x0: np.ndarray  # (B, 17)
     Ts: float
     dt: float
@@ -330,6 +330,8 @@ def run_closed_loop(
     start = trajectory.sample(0.0).p_W if start_W is None else as_finite("start_W", start_W, (3,))
     if start.shape != (3,):
         raise InputError(f"start_W must be one point of shape (3,), got shape {start.shape}")
+    for d in disturbances:
+        d.check_start(start)
     x0 = initial_state(PA, np.broadcast_to(start, (B, 3)), np.array([0.0, 0.0, trajectory.yaw0]))
     # A vehicle set down with a contact point (a low-slung payload) under the ground is lifted onto it.
     lift = np.where(PA.ground > 0, np.maximum(lowest_contact_depth(PA, x0), 0.0), 0.0)
@@ -500,7 +502,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
         t = k * s.Ts
         meas = sens.measure(noise[:, k % BLOCK_TICKS])
         r = s.refs[k]
-        ref = Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]))
+        ref = Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:15])
         thrust_prev, tau_prev = CS.thrust_prev, CS.tau_B_prev
         CS, out = controller_step(CA, CS, meas, ref)
 

@@ -1,0 +1,226 @@
+"""Interaction: the programmable impedance (comply), rejection (PD+C) against PD under a push, bumpless
+behaviour switches, wall contact, gusts and Dryden turbulence, and the bad inputs of each."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal as sg
+
+from vtol_impedance.cli import main
+from vtol_impedance.control import Controller, ControllerParams, Impedance, Measurement, Reference
+from vtol_impedance.control.reference import Hold, Trajectory
+from vtol_impedance.errors import InputError, ScenarioError
+from vtol_impedance.scenarios import get, set_value, simulate
+from vtol_impedance.sim.disturbances import Gust, Wall, dryden_filters, dryden_series
+
+PUSH_T0, PUSH_LEN, PUSH_F = 10.0, 2.5, 3.0
+
+
+def _push(t):
+    return np.where((t >= PUSH_T0) & (t <= PUSH_T0 + PUSH_LEN), PUSH_F * np.sin(np.pi * (t - PUSH_T0) / PUSH_LEN), 0.0)
+
+
+@pytest.fixture(scope="module")
+def push_run():
+    return simulate(get("operator-push"), ["pd", "pdc", "comply"])
+
+
+def _fit_impedance(r, label: str) -> np.ndarray:
+    """Least squares ``f = M e'' + D e' + K e`` along x, from the true motion and the true force the
+    nominal model misses (the push, the drag, the payload's share)."""
+    b = r.labels.index(label)
+    t = r.t
+    sel = (t > PUSH_T0 - 0.5) & (t < t[-1] - 0.5)
+    e = r["p_W"][b, :, 0] - r["p_ref_W"][b, :, 0]
+    ed = r["v_W"][b, :, 0] - r["v_ref_W"][b, :, 0]
+    edd = np.gradient(ed, t)
+    A = np.stack([edd, ed, e], -1)[sel]
+    return np.linalg.lstsq(A, r["f_lumped_W"][b, sel, 0], rcond=None)[0]
+
+
+def test_comply_shows_the_set_impedance(push_run):
+    spec = get("operator-push").interaction
+    M, D, K = _fit_impedance(push_run, "comply")
+    np.testing.assert_allclose([M, D, K], [spec.M, spec.D, spec.K], rtol=0.10)
+
+
+def test_comply_yields_and_comes_back(push_run):
+    b = push_run.labels.index("comply")
+    t, x = push_run.t, push_run["p_W"][b, :, 0]
+    assert x[(t > PUSH_T0) & (t < PUSH_T0 + 4)].max() > 0.3  # yields: 3 N on 5 N/m
+    assert abs(x[t > t[-1] - 1].mean()) < 0.05  # and returns once the hand lets go
+
+
+def test_reject_beats_pd_by_what_the_estimator_bandwidth_predicts(push_run):
+    """PD: x = L f with L = 1/(m s^2 + Dp s + Kp); PD+C leaves the part the estimate has not caught up with:
+    x = L (1 - G) f with G of eq. (10) at 10 rad/s. The ratio of the peaks, from scipy.signal.lsim."""
+    t = np.arange(0, 20, 0.001)
+    m, Kp, Dp, wn = 1.2 + 0.110, 16.0, 12.0, 10.0
+    _, x_pd, _ = sg.lsim(sg.lti([1.0], [m, Dp, Kp]), _push(t), t)
+    one_minus_g = sg.lti(np.polymul([1.0], [1, 2 * wn, 0]), np.polymul([m, Dp, Kp], [1, 2 * wn, wn * wn]))
+    _, x_pdc, _ = sg.lsim(one_minus_g, _push(t), t)
+    predicted = np.abs(x_pdc).max() / np.abs(x_pd).max()
+
+    def peak(label):
+        b = push_run.labels.index(label)
+        tt, x = push_run.t, push_run["p_W"][b, :, 0]
+        base = x[(tt > PUSH_T0 - 2) & (tt < PUSH_T0)].mean()
+        return np.abs(x[(tt > PUSH_T0) & (tt < PUSH_T0 + 5)] - base).max()
+
+    measured = peak("pdc") / peak("pd")
+    assert peak("pd") == pytest.approx(np.abs(x_pd).max(), rel=0.25)
+    assert measured == pytest.approx(predicted, rel=0.35)
+    assert measured < 0.3
+
+
+def test_switching_behaviour_has_no_jump_in_the_command():
+    """Hold the vehicle 0.3 m off its reference with a known estimate and switch x from comply to reject:
+    abruptly the commanded acceleration jumps by the difference of the two laws (computed by hand); ramped
+    over 0.5 s no step exceeds the ramp's steepest slope times that difference."""
+    params = ControllerParams.paper("comply", impedance=Impedance(M=2.0, D=6.0, K=5.0))
+    Ts, m = params.Ts, params.vehicle.mass
+    e = 0.3
+    lead = 2.0 * 1.0 / params.attitude_filter_wn  # the comply law leads by the attitude filter's delay
+    comply_acc = -5.0 * e / 2.0 + lead * 6.0 * 5.0 * e / 2.0**2  # -(K_d e)/M_d + lead D_d K_d e / M_d^2
+    reject_acc = -16.0 * e / m  # -(Kp e)/m; level and still, the estimate along x stays zero
+    for blend, bound in ((0.0, None), (0.5, 1.875 * Ts / 0.5)):
+        traj = Trajectory((Hold((0.0, 0.0, -1.0), 10.0),), comply0=(1.0, 1.0, 1.0), comply_switches=((1.0, 0, 0.0),),
+                          blend_s=blend)  # fmt: skip
+        ctrl = Controller(params, backend="numpy")
+        acc = []
+        for k in range(200):
+            t = k * Ts
+            ref = traj.sample(t)
+            out = ctrl.step(Measurement(np.array([e, 0, -1.0]), np.zeros(3), np.zeros(3), np.zeros(3)), ref)
+            acc.append(out.mu_bar[0])
+        acc = np.array(acc)
+        steps = np.abs(np.diff(acc[50:]))  # after the estimator settled on "no force"
+        jump = reject_acc - comply_acc
+        assert acc[95] == pytest.approx(comply_acc, abs=0.02) and acc[-1] == pytest.approx(reject_acc, abs=0.02)
+        if bound is None:
+            assert steps.max() == pytest.approx(abs(jump), rel=0.05)
+        else:
+            assert steps.max() <= bound * abs(jump) * 1.05
+
+
+def test_comply_backends_agree():
+    spec = set_value(get("operator-push"), "duration", 12.0)
+    spec = set_value(spec, "interaction.switches", [[11.0, "x", "reject"]])
+    a = simulate(spec, ["comply"], backend="compiled")
+    b = simulate(spec, ["comply"], backend="numpy")
+    np.testing.assert_allclose(a["p_W"], b["p_W"], atol=1e-8)
+    np.testing.assert_allclose(a["f_hat_W"], b["f_hat_W"], atol=1e-7)
+
+
+# ----------------------------------------------------------------------------- wall
+
+
+@pytest.fixture(scope="module")
+def wall_run():
+    return simulate(get("wall-contact"), ["pdc", "comply"])
+
+
+def test_wall_holds_the_commanded_contact_force(wall_run):
+    spec = get("wall-contact")
+    wall = spec.disturbances[0]
+    b = wall_run.labels.index("comply")
+    t = wall_run.t
+    x = wall_run["p_W"][b, :, 0]
+    x_contact = wall["position_W"][0] - wall["radius"]
+    x_d = spec.trajectory.move_offset[0]
+    commanded = spec.interaction.K * (x_d - x_contact)
+    fx = -wall_run["f_ext_W"][b, :, 0]  # the wall pushes back along -x
+    last = t > t[-1] - 4
+    assert fx[last].mean() == pytest.approx(commanded, rel=0.05)
+    in_contact = x >= x_contact
+    first = t[np.argmax(in_contact)]
+    assert in_contact.any() and np.all(in_contact[t > first + 3.0])  # no bounce, no loss of contact
+    # the estimate sees the contact force
+    assert wall_run["f_hat_W"][b, last, 0].mean() == pytest.approx(-commanded, rel=0.05)
+    # rejecting instead pushes the wall as hard as the rotors allow
+    r = wall_run.labels.index("pdc")
+    assert -wall_run["f_ext_W"][r, last, 0].mean() > 3 * commanded
+
+
+def test_wall_force_law_by_hand():
+    w = Wall(position_W=(1.0, 0, 0), normal_W=(-1.0, 0, 0), stiffness=1000.0, damping=50.0, friction=0.5, radius=0.1)
+    R = np.eye(3)
+    f, tau = w(0.0, np.array([0.92, 0.0, -1.0]), np.array([0.1, 0.2, 0.0]), R)
+    fn = 1000.0 * 0.02 - 50.0 * (-0.1)  # penetration 2 cm, approaching at 0.1 m/s
+    np.testing.assert_allclose(f, [-fn, -0.5 * fn, 0.0], atol=1e-9)  # friction against the 0.2 m/s slide
+    np.testing.assert_allclose(tau, np.cross([0.1, 0, 0], f), atol=1e-9)  # acting at the bumper's front
+    f, _ = w(0.0, np.array([0.85, 0.0, -1.0]), np.array([0.1, 0.2, 0.0]), R)
+    np.testing.assert_allclose(f, 0.0)
+    f, _ = w(0.0, np.array([0.905, 0.0, -1.0]), np.array([-2.0, 0.0, 0.0]), R)
+    np.testing.assert_allclose(f, 0.0)  # leaving fast: a wall never pulls
+
+
+# ----------------------------------------------------------------------------- gusts
+
+
+def test_dryden_series_have_the_model_variance_and_correlation():
+    rng = np.random.default_rng(4)
+    for order in (1, 2):
+        x = dryden_series(rng, 300_000, 0.01, 1.3, 8.0, 2.0, order)
+        assert x.std() == pytest.approx(1.3, rel=0.05)
+    x = dryden_series(rng, 2_000_000, 0.05, 1.0, 8.0, 2.0, 1)  # 25,000 correlation times: +-0.01
+    lag = 40  # 2 s: exp(-V tau / L)
+    assert np.mean(x[:-lag] * x[lag:]) == pytest.approx(np.exp(-2.0 * 2.0 / 8.0), abs=0.04)
+    (s_u, L_u, _), _, (s_w, L_w, _) = dryden_filters(0.5, 10 * 0.3048, 1.0)
+    assert L_w == pytest.approx(10 * 0.3048) and s_u / s_w == pytest.approx(1 / (0.177 + 0.00823) ** 0.4)
+
+
+def test_one_minus_cosine_gust_by_hand():
+    g = Gust(direction_W=(0.0, 1.0, 0.0), mean_speed=1.0, amplitude=4.0, start=2.0, length=2.0, drag=0.2)
+    t = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    np.testing.assert_allclose(g.wind_W(t)[:, 1], [1.0, 1.0, 5.0, 1.0, 1.0], atol=1e-12)
+    prepared = g.prepare(6.0, 0.001, np.random.default_rng(0))
+    f, _ = prepared(3.0, np.zeros(3), np.zeros(3), np.eye(3))
+    np.testing.assert_allclose(f, [0.0, 0.2 * 5.0, 0.0], atol=1e-9)
+
+
+def test_gust_pushes_pd_more_than_pdc():
+    r = simulate(get("gust"), ["pd", "pdc"])
+    t = r.t
+    w = (t > 12) & (t < 16)
+    peak = {lab: np.abs(r["p_W"][i, w, 0] - r["p_ref_W"][i, w, 0]).max() for i, lab in enumerate(r.labels)}
+    assert peak["pdc"] < 0.5 * peak["pd"]
+    assert r["f_ext_W"][0, w, 0].max() == pytest.approx(0.18 * (1.0 + 5.0), rel=0.3)  # mean + gust, turbulence
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def test_bad_interaction_inputs():
+    with pytest.raises(InputError, match="impedance M must be > 0"):
+        Impedance(M=0.0, D=1.0, K=1.0)
+    with pytest.raises(InputError, match="impedance K"):
+        Impedance(M=1.0, D=1.0, K=[1.0, -2.0, 1.0])
+    with pytest.raises(ScenarioError, match="axis 'w' does not exist"):
+        set_value(get("operator-push"), "interaction.switches", [[3.0, "w", "reject"]])
+    with pytest.raises(ScenarioError, match="behaviour 'soft'"):
+        set_value(get("operator-push"), "interaction.switches", [[3.0, "x", "soft"]])
+    with pytest.raises(ScenarioError, match="interaction.D"):
+        set_value(get("operator-push"), "interaction.D", 0.0)
+    spec = set_value(get("wall-contact"), "disturbances.0.position_W", [0.05, 0.0, 0.0])
+    with pytest.raises(InputError, match="inside the vehicle's start"):
+        simulate(spec, ["comply"])
+    with pytest.raises(InputError, match="comply"):
+        Controller(ControllerParams.paper("comply")).step(
+            Measurement(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)), Reference(np.zeros(3), comply=1.5)
+        )
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--set", "interaction.M=-2"], "interaction.M"),
+        (["--set", 'interaction.switches=[[5.0, "q", "comply"]]'], "axis 'q'"),
+        (["--set", "disturbances.0.position_W=[0.0, 0.0, 0.0]"], "inside the vehicle's start"),
+    ],
+)
+def test_cli_interaction_bad_input(args, message, tmp_path, capsys):
+    rc = main(["run", "wall-contact", "--controller", "comply", "--out", str(tmp_path / "o"), "--no-plots", *args])
+    err = capsys.readouterr().err
+    assert rc == 2 and message in err and "Traceback" not in err
