@@ -224,3 +224,16 @@ def test_cli_interaction_bad_input(args, message, tmp_path, capsys):
     rc = main(["run", "wall-contact", "--controller", "comply", "--out", str(tmp_path / "o"), "--no-plots", *args])
     err = capsys.readouterr().err
     assert rc == 2 and message in err and "Traceback" not in err
+
+
+def test_animation_is_written_and_embedded(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "o"
+    rc = main(["compare", "wall-contact", "--controllers", "pdc,comply", "--duration", "4", "--animate", "--out",
+               str(out), "--quiet"])  # fmt: skip
+    assert rc == 0
+    gif = out / "wall-contact-v1.gif"
+    with Image.open(gif) as im:
+        assert im.n_frames > 20 and im.format == "GIF"
+    assert "data:image/gif;base64," in (out / "report.html").read_text()

@@ -105,7 +105,7 @@ def _run_parallel(jobs_args: list[tuple[Any, ...]], jobs: int) -> list[Any]:
     return results
 
 
-def _write_case(result: Any, folder: Any, stem: str, plots: bool) -> list[Path]:
+def _write_case(result: Any, folder: Any, stem: str, plots: bool, animate: bool = False) -> list[Path]:
     from .io import write_text
 
     files = [result.save(folder.path(f"{stem}.npz"))]
@@ -114,6 +114,10 @@ def _write_case(result: Any, folder: Any, stem: str, plots: bool) -> list[Path]:
         from .analysis.plots import plot_case
 
         files += plot_case(result, folder.staging, stem)
+    if animate:
+        from .analysis.animate import write_gif
+
+        files.append(write_gif(result, folder.path(f"{stem}.gif")))
     return files
 
 
@@ -183,12 +187,14 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / spec.name) as folder:
         _announce_compile(args.backend, args.quiet)
         result = _run_case(spec, variants, seed, args.quiet, args.backend)
-        figs = _write_case(result, folder, spec.name, not args.no_plots)
+        if args.animate and not args.quiet:
+            print("drawing the animation ...", file=sys.stderr)
+        figs = _write_case(result, folder, spec.name, not args.no_plots, args.animate)
         _finish(
             folder,
             f"vtol-impedance: {spec.name}",
             {spec.name: result},
-            {spec.name: [p for p in figs if p.suffix == ".png"]},
+            {spec.name: [p for p in figs if p.suffix in (".png", ".gif")]},
             args.quiet,
         )
     if not args.quiet:
@@ -478,12 +484,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("scenario", help="registered name (see 'list') or a .toml scenario file")
     sp.add_argument("--controller", default="pdc", choices=["pd", "pid", "pdc", "comply"])
     common(sp)
+    sp.add_argument("--animate", action="store_true", help="also write <scenario>.gif (3D, with the force arrows)")
     sp.set_defaults(func=lambda a: cmd_run(a, [a.controller]))
 
     sp = sub.add_parser("compare", help="one scenario with several controllers on the same disturbances")
     sp.add_argument("scenario", help="registered name (see 'list') or a .toml scenario file")
     sp.add_argument("--controllers", default="pd,pid,pdc", help="comma-separated (default: pd,pid,pdc)")
     common(sp)
+    sp.add_argument("--animate", action="store_true", help="also write <scenario>.gif (3D, with the force arrows)")
     sp.set_defaults(func=lambda a: cmd_run(a, [c.strip() for c in a.controllers.split(",") if c.strip()]))
 
     sp = sub.add_parser(

@@ -10,12 +10,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..control.impedance import DISPLAY_NAMES  # noqa: E402
 from ..io import atomic_path  # noqa: E402
 from ..sim.result import Result  # noqa: E402
 from .metrics import window_mask  # noqa: E402
 
-COLORS = {"pdc": "tab:blue", "pid": "tab:red", "pd": "black"}
-NAMES = {"pdc": "PD+C", "pid": "PID", "pd": "PD"}
+COLORS = {"pdc": "tab:blue", "pid": "tab:red", "pd": "black", "comply": "tab:green"}
+NAMES = DISPLAY_NAMES
 AXES = ("x", "y", "z")
 AXIS_COLORS = ("tab:blue", "tab:red", "black")
 

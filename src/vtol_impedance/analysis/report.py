@@ -11,10 +11,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ..control.impedance import DISPLAY_NAMES
 from ..io import write_text
 from .metrics import METRIC_COLUMNS
 
-NAMES = {"pdc": "PD+C", "pid": "PID", "pd": "PD"}
+NAMES = DISPLAY_NAMES
 
 
 def _fmt(v: Any) -> str:

@@ -60,6 +60,8 @@ VARIANTS: dict[str, str] = {
     "pdc": "PD+C (PD + compensation of the estimated wrench): rejects",
     "comply": "impedance: per axis, rejects like PD+C or yields with the set M_d, D_d, K_d (Reference.comply)",
 }
+#: How tables and figures name the variants.
+DISPLAY_NAMES: dict[str, str] = {"pd": "PD", "pid": "PID", "pdc": "PD+C", "comply": "comply"}
 #: Integral gain of the paper's PID baseline, Sec. VI.B.
 PAPER_KI = 0.5
 
@@ -136,10 +138,14 @@ class ControllerParams:
 
     def apparent_impedance(self) -> Impedance:
         """The impedance ``comply`` yields with: the set one, or by default the vehicle's own mass with
-        the position gains (a plain PD, which needs no estimate)."""
+        the position gains (a plain PD, which needs no estimate). Built once per parameter set."""
         if self.impedance is not None:
             return self.impedance
-        return Impedance(M=self.vehicle.mass, D=self.gains.Dp, K=self.gains.Kp)
+        cached = self.__dict__.get("_default_impedance")
+        if cached is None:
+            cached = Impedance(M=self.vehicle.mass, D=self.gains.Dp, K=self.gains.Kp)
+            object.__setattr__(self, "_default_impedance", cached)
+        return cached
 
 
 class ControllerArrays(NamedTuple):
@@ -201,6 +207,8 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         arr = np.array([fn(p) for p in plist], dtype=float)
         return arr[0] if single else arr
 
+    imp = {id(p): p.apparent_impedance() for p in plist}
+
     return ControllerArrays(
         mass=col(lambda p: p.vehicle.mass),
         I_B=col(lambda p: p.vehicle.inertia),
@@ -218,9 +226,9 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         min_lift_accel=col(lambda p: p.min_lift_accel),
         integral_limit=col(lambda p: p.integral_limit),
         thrust_shift_max=col(lambda p: p.thrust_shift_max),
-        Md=col(lambda p: p.apparent_impedance().M),
-        Dd=col(lambda p: p.apparent_impedance().D),
-        Kd=col(lambda p: p.apparent_impedance().K),
+        Md=col(lambda p: imp[id(p)].M),
+        Dd=col(lambda p: imp[id(p)].D),
+        Kd=col(lambda p: imp[id(p)].K),
         comply_enable=col(lambda p: 1.0 if p.variant == "comply" else 0.0),
         est=design(p0.estimator, p0.Ts),
         filt=design_filter(p0.attitude_filter_wn, p0.attitude_filter_zeta, p0.Ts),

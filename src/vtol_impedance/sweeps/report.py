@@ -11,11 +11,12 @@ from typing import Any
 
 import numpy as np
 
+from ..control.impedance import DISPLAY_NAMES
 from ..errors import InputError
 from ..io import MANIFEST, sha256_of, write_text
 from .run import METRICS, SWEEP_FILE, read_dataset
 
-LABELS = {"pd": "PD", "pid": "PID", "pdc": "PD+C"}
+LABELS = DISPLAY_NAMES
 METRIC_LABELS = {
     "rms_ep_cm": "RMS |e_p| [cm]",
     "max_ep_cm": "max |e_p| [cm]",
