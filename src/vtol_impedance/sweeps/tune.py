@@ -41,7 +41,7 @@ import numpy as np
 
 from ..errors import InputError, check_keys, scalar
 from .run import METRICS, Executor, warm_up
-from .spec import _INDEXED, Axis, _axis, _get, from_dict
+from .spec import _INDEXED, Axis, _axis, _flatten, _get, from_dict
 
 KEYS = ("name", "description", "base", "controller", "trials", "seed", "population", "set", "search", "spread", "cost")
 COST_KEYS = ("metric", "saturation_weight", "failure_penalty")
@@ -109,22 +109,12 @@ class Tuning:
             axes, seeds = {a.key: [m[a.key] for m in members] for a in self.spread}, 1
         else:  # the members differ only by their noise: one point, a seed each (the axis changes nothing)
             axes, seeds = {"seed": [0]}, self.population
-        fixed = dict(_flat(self.data.get("set", {})))
+        fixed = dict(_flatten(self.data.get("set", {})))
         fixed.update(params)
         return {
             "name": self.name, "base": self.data["base"], "controllers": [self.controller], "seeds": seeds,
             "seed": self.seed, "mode": "zip", "chunk": 1, "set": fixed, "axes": axes,
         }  # fmt: skip
-
-
-def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
 
 
 def load_tuning(path: str | Path) -> Tuning:
@@ -213,7 +203,7 @@ def best_scenario_toml(t: Tuning, best: dict[str, Any]) -> str:
     from .spec import _base, set_param
 
     spec = _base(t.data, t.where)
-    fixed = _flat(t.data.get("set", {}))
+    fixed = _flatten(t.data.get("set", {}))
     for k, v in {**fixed, **best}.items():
         spec = set_param(spec, k, v)
     keys = []
