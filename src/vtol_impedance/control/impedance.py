@@ -13,7 +13,9 @@ One step at the control rate:
 
 Baselines of Sec. VI.B: ``"pd"`` (no compensation), ``"pid"`` (PD plus ``Ki int e_p`` with anti-windup:
 integration freezes while the allocation or the tilt limit is active, and ``|Ki int e_p|`` is bounded
-per axis by ``integral_limit``), ``"pdc"`` (the paper's PD + compensation).
+per axis by ``integral_limit``), ``"pdc"`` (the paper's PD + compensation). ``"comply"`` is PD+C on the
+axes that reject and, on the axes that comply (``Reference.comply``), the programmable impedance
+``M_d e'' + D_d e' + K_d e = f_ext`` of step 2 (see :class:`~vtol_impedance.control.gains.Impedance`).
 
 Every function takes arrays with leading batch dimensions; several controllers (for example the three
 variants) run as one batch.
