@@ -237,3 +237,76 @@ def test_animation_is_written_and_embedded(tmp_path):
     with Image.open(gif) as im:
         assert im.n_frames > 20 and im.format == "GIF"
     assert "data:image/gif;base64," in (out / "report.html").read_text()
+
+
+# ----------------------------------------------------------------------------- pendulum
+
+
+def test_pendulum_in_free_fall_conserves_what_it_must():
+    """No rotors, no ground, no drag: the centre of mass of vehicle and bob falls with g exactly and the
+    bob circles the joint at constant speed (the link's force is internal and does no work there)."""
+    from vtol_impedance.model import load_preset
+    from vtol_impedance.sim.plant import P_COM, PEND_R, PEND_V, PlantParams, compile_plants, initial_state, rk4_step
+
+    P = compile_plants(PlantParams(load_preset(), pendulum_mass=0.1, pendulum_length=0.5, ground=False,
+                                   rotor_tau_up=0.0, rotor_tau_down=0.0))  # fmt: skip
+    x = initial_state(P, np.array([0.0, 0.0, -2.0]), hover_rotors=False)
+    v0 = np.array([0.8, 0.3, 0.0])
+    x[PEND_V] = v0
+    m, ml = float(P.mass), float(P.pend_m)
+    com0 = x[P_COM] + ml * x[PEND_R] / (m + ml)
+    dt, n = 0.001, 1000
+    for k in range(n):
+        x = rk4_step(P, x, np.zeros(4), k * dt, dt)
+        assert np.linalg.norm(x[PEND_V]) == pytest.approx(np.linalg.norm(v0), rel=1e-9)
+    T = n * dt
+    com = x[P_COM] + ml * x[PEND_R] / (m + ml)
+    np.testing.assert_allclose(com, com0 + ml * v0 / (m + ml) * T + 0.5 * np.array([0, 0, 9.81]) * T * T, atol=1e-9)
+    assert np.linalg.norm(x[PEND_R]) == pytest.approx(0.5, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def pendulum_run():
+    return simulate(get("pendulum"), ["pd", "pdc"])
+
+
+def test_pendulum_pd_sags_by_the_hung_weight_and_pdc_holds(pendulum_run):
+    r = pendulum_run
+    t = r.t
+    hover = (t > 4) & (t < 8)
+    pd, pdc = r.labels.index("pd"), r.labels.index("pdc")
+    sag = (r["p_W"][pd, hover, 2] - r["p_ref_W"][pd, hover, 2]).mean()
+    assert sag == pytest.approx((0.110 + 0.1) * 9.81 / 16.0, rel=0.05)  # payload and bob on Kp = 16
+    err = {b: np.linalg.norm(r.e_p[b, t > 3], axis=-1) for b in (pd, pdc)}
+    assert np.sqrt(np.mean(err[pdc] ** 2)) < 0.2 * np.sqrt(np.mean(err[pd] ** 2))
+
+
+def test_pendulum_estimate_follows_the_link_force_within_the_estimator_lag(pendulum_run):
+    """Horizontally the force the plant applies is the link's pull (and rotor drag); the estimate is G(s) of
+    it, so it can be off by at most the lag 2 zeta / wn times the largest rate of change of that force, plus
+    the estimation floor of the hover cases (0.05 N)."""
+    r = pendulum_run
+    t = r.t
+    b = r.labels.index("pdc")
+    w = t > 3
+    f = r["f_ext_W"][b, :, :2]
+    lag = 2 * 1.0 / 10.0
+    bound = lag * np.abs(np.gradient(f, t, axis=0))[w].max(0) + 0.05
+    assert np.all(np.abs(r["f_hat_W"][b, :, :2] - f)[w].max(0) < bound)
+    assert np.abs(f[w, 0]).max() > 0.1  # the bob did swing and pull
+
+
+def test_pendulum_backends_agree():
+    spec = set_value(get("pendulum"), "duration", 10.0)
+    a = simulate(spec, ["pdc"], backend="compiled")
+    b = simulate(spec, ["pdc"], backend="numpy")
+    np.testing.assert_allclose(a["p_W"], b["p_W"], atol=1e-8)
+    np.testing.assert_allclose(a["f_ext_W"], b["f_ext_W"], atol=1e-7)
+
+
+def test_pendulum_longer_than_the_altitude_is_refused(tmp_path, capsys):
+    spec = set_value(get("pendulum"), "plant.pendulum_length", 2.0)
+    with pytest.raises(InputError, match="longer than the flight's lowest altitude"):
+        simulate(spec, ["pd"])
+    rc = main(["run", "pendulum", "--set", "plant.pendulum_length=1.6", "--out", str(tmp_path / "o"), "--no-plots"])
+    assert rc == 2 and "pendulum (1.6 m) is longer" in capsys.readouterr().err

@@ -1,6 +1,6 @@
 """An animated GIF of a run: every vehicle in 3D (drawn east-north-up so that up is up), its reference,
-the estimated external force (solid arrow) and the true one the nominal model misses (thin), and a wall
-where the scenario has one. Matplotlib with Pillow's GIF writer; written atomically."""
+the estimated external force (solid arrow) and the true one the nominal model misses (thin), a wall and
+a hanging pendulum where the scenario has them. Matplotlib with Pillow's GIF writer; written atomically."""
 
 from __future__ import annotations
 
@@ -72,7 +72,8 @@ def write_gif(result: Result, path: Path, fps: int = 8, max_frames: int = 160, t
         trail = ax.plot([], [], [], color=col, lw=0.8, alpha=0.6)[0]
         f_hat = ax.plot([], [], [], color=col, lw=2.2, label=f"{NAMES.get(lab, lab)}: estimate")[0]
         f_true = ax.plot([], [], [], color=col, lw=0.9, ls=":", label=f"{NAMES.get(lab, lab)}: true")[0]
-        art.append((body, trail, f_hat, f_true))
+        link = ax.plot([], [], [], "-o", color="dimgray", lw=1.0, ms=5, markevery=[1])[0]
+        art.append((body, trail, f_hat, f_true, link))
     target = ax.plot([], [], [], "x", color="black", ms=7)[0]
     text = ax.text2D(0.02, 0.95, "", transform=ax.transAxes)
     ax.legend(loc="lower left", fontsize=6)
@@ -83,10 +84,18 @@ def write_gif(result: Result, path: Path, fps: int = 8, max_frames: int = 160, t
     scale = ARROW_MAX_M / biggest
     f_hat_all, f_true_all = f_hat_all * scale, f_true_all * scale
     eta = result["eta"]
+    plants = result.config.get("plants", [])
+    # the pendulum's link points along its pull on the vehicle (the external force, in the air)
+    pend_L = [float(pl.get("pendulum_length", 0.0)) if pl.get("pendulum_mass", 0.0) > 0 else 0.0 for pl in plants]
+    f_ext = _enu(result["f_ext_W"])
 
     def draw(k: int):
         for b in range(B):
-            body, trail, fh, ft = art[b]
+            body, trail, fh, ft, link = art[b]
+            L = pend_L[min(b, len(pend_L) - 1)] if pend_L else 0.0
+            if L > 0:
+                d = f_ext[b, k] / max(np.linalg.norm(f_ext[b, k]), 1e-9)
+                link.set_data_3d([c[0], c[0] + L * d[0]], [c[1], c[1] + L * d[1]], [c[2], c[2] + L * d[2]])
             c = p[b, k]
             if not np.all(np.isfinite(c)):
                 continue

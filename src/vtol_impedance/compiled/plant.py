@@ -2,9 +2,9 @@
 
 Same equations as :mod:`vtol_impedance.sim.plant` and :mod:`vtol_impedance.sim.disturbances` (the
 NumPy reference backend and test oracle); ``tests/test_compiled.py`` proves they agree.
-State layout as in :mod:`vtol_impedance.sim.plant`: ``[p_com_W, v_com_W, q_WB, omega_B, f_rotor (n)]``
-(``13 + n``). Rotor forces act through the true effectiveness matrix ``E`` here, while the NumPy plant sums
-the rotors' cross products: the parity tests tie the two.
+State layout as in :mod:`vtol_impedance.sim.plant`: ``[p_com_W, v_com_W, q_WB, omega_B, f_rotor (n), r_pend_W,
+r_pend_dot_W]`` (``13 + n + 6``). Rotor forces act through the true effectiveness matrix ``E`` here, while
+the NumPy plant sums the rotors' cross products: the parity tests tie the two.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from .algebra import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
 PP_MASS, PP_I, PP_IINV, PP_C, PP_CONTACT = 0, 1, 10, 19, 22
 PP_TUP, PP_TDN, PP_DRAG, PP_GROUND, PP_KG, PP_CG, PP_BG = 25, 26, 27, 28, 29, 30, 31
 PP_INV_M, PP_INV_TUP, PP_INV_TDN = 32, 33, 34  # reciprocals: multiplications on the hot path
-PP_NR, PP_ROT = 35, 36
+PP_PM, PP_PL = 35, 36  # pendulum mass (0: none) and link length
+PP_NR, PP_ROT = 37, 38
 
 
 def pp_size(n_rotors: int) -> int:
@@ -52,6 +53,8 @@ def pack_plant(P: PlantArrays) -> np.ndarray:
         (PP_KG, P.k_ground),
         (PP_CG, P.c_ground),
         (PP_BG, P.b_ground),
+        (PP_PM, P.pend_m),
+        (PP_PL, P.pend_L),
     ):
         pp[:, idx] = arr
     pp[:, PP_INV_M] = 1.0 / P.mass
@@ -318,6 +321,23 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     F0 = -u * R[2] + fe0
     F1 = -u * R[5] + fe1
     F2 = -u * R[8] + fe2
+    # the pendulum, jointed at the CoM (sim.plant.link_force): tension from the link constraint
+    ip = 13 + n
+    ml = pp[PP_PM]
+    lk0 = lk1 = lk2 = rdd0 = rdd1 = rdd2 = 0.0
+    if ml > 0.0:
+        q0, q1, q2 = x[ip], x[ip + 1], x[ip + 2]
+        s0, s1, s2 = x[ip + 3], x[ip + 4], x[ip + 5]
+        L = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2), 1e-9)
+        n0, n1, n2 = q0 / L, q1 / L, q2 / L
+        T = ((s0 * s0 + s1 * s1 + s2 * s2) / L - (n0 * F0 + n1 * F1 + n2 * F2) * im) / (1.0 / ml + im)
+        lk0, lk1, lk2 = T * n0, T * n1, T * n2
+        rdd0 = -T / ml * n0 - (F0 + lk0) * im
+        rdd1 = -T / ml * n1 - (F1 + lk1) * im
+        rdd2 = -T / ml * n2 - (F2 + lk2) * im
+    fe0 += lk0  # logged with the external force; acting at the CoM it adds no moment (B below)
+    fe1 += lk1
+    fe2 += lk2
     B0 = R[0] * F0 + R[3] * F1 + R[6] * F2
     B1 = R[1] * F0 + R[4] * F1 + R[7] * F2
     B2 = R[2] * F0 + R[5] * F1 + R[8] * F2
@@ -336,9 +356,9 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     v0, v1, v2 = x[3], x[4], x[5]
     kup, kdn = pp[PP_INV_TUP], pp[PP_INV_TDN]
     xd[0], xd[1], xd[2] = v0, v1, v2
-    xd[3] = F0 * im
-    xd[4] = F1 * im
-    xd[5] = G + F2 * im
+    xd[3] = (F0 + lk0) * im
+    xd[4] = (F1 + lk1) * im
+    xd[5] = G + (F2 + lk2) * im
     xd[6] = 0.5 * (-qx * w0 - qy * w1 - qz * w2)
     xd[7] = 0.5 * (qw * w0 + qy * w2 - qz * w1)
     xd[8] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
@@ -348,6 +368,8 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
         _rotor_lag(pp, x, f_cmd, xd, 4, kup, kdn)
     else:
         _rotor_lag(pp, x, f_cmd, xd, n, kup, kdn)
+    xd[ip], xd[ip + 1], xd[ip + 2] = x[ip + 3], x[ip + 4], x[ip + 5]
+    xd[ip + 3], xd[ip + 4], xd[ip + 5] = rdd0, rdd1, rdd2
     env[0], env[1], env[2], env[3], env[4], env[5] = fe0, fe1, fe2, te0, te1, te2
 
 
@@ -394,6 +416,15 @@ def rk4_step(pp, x, f_cmd, dist, dt, k1, k2, k3, k4, xt, env):
     inq = 1.0 / math.sqrt(x[6] * x[6] + x[7] * x[7] + x[8] * x[8] + x[9] * x[9])
     for i in range(6, 10):
         x[i] *= inq
+    if pp[PP_PM] > 0.0:  # back on the sphere, as sim.plant.project_pendulum
+        ip = ns - 6
+        L = max(math.sqrt(x[ip] ** 2 + x[ip + 1] ** 2 + x[ip + 2] ** 2), 1e-9)
+        n0, n1, n2 = x[ip] / L, x[ip + 1] / L, x[ip + 2] / L
+        vr = x[ip + 3] * n0 + x[ip + 4] * n1 + x[ip + 5] * n2
+        x[ip], x[ip + 1], x[ip + 2] = pp[PP_PL] * n0, pp[PP_PL] * n1, pp[PP_PL] * n2
+        x[ip + 3] -= vr * n0
+        x[ip + 4] -= vr * n1
+        x[ip + 5] -= vr * n2
 
 
 @njit(cache=True, error_model="numpy")

@@ -102,7 +102,24 @@ GUST = replace(
     disturbances=({"kind": "gust", "mean_speed": 1.0, "amplitude": 5.0, "start": 12.0, "length": 2.0, "sigma_w": 0.3},),
 )
 
+PENDULUM = replace(
+    CASE_A,
+    name="pendulum-v1",
+    description="Interaction: a 0.1 kg mass on a 0.5 m link hangs below the vehicle (a second body, jointed at the "
+    "centre of mass); hover at 1.5 m, then a 1 m move along x and hold.",
+    trajectory=TrajectorySpec(
+        kind="hover",
+        altitude=1.5,
+        start_on_ground=False,
+        hover_duration=8.0,
+        move_offset=(1.0, 0.0, 0.0),
+        move_duration=3.0,
+        move_hold=9.0,
+    ),  # fmt: skip
+    plant=replace(CASE_A.plant, pendulum_mass=0.1, pendulum_length=0.5),
+)
+
 PAPER_CASES: tuple[str, ...] = ("case-a-payload", "case-b-fan", "case-c-circle")
 
-for _spec in (CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP, OPERATOR_PUSH_2, WALL_CONTACT, GUST):
+for _spec in (CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP, OPERATOR_PUSH_2, WALL_CONTACT, GUST, PENDULUM):
     register(_spec)

@@ -81,6 +81,8 @@ class PlantSpec:
     rotor_drag: float = 0.18
     rotor_limits: bool = True
     ground: bool = True
+    pendulum_mass: float = 0.0  # kg on a rigid link hung from the centre of mass (0: none)
+    pendulum_length: float = 0.5  # m
 
 
 @dataclass(frozen=True)
@@ -247,7 +249,10 @@ def build(spec: ScenarioSpec) -> Built:
     ps, pl = spec.plant, spec.payload
     true_vehicle = vehicle if ps.rotor_limits else vehicle.with_rotor_limits(f_max=1e6)
     if spec.ideal:
-        plant = PlantParams(true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground)
+        plant = PlantParams(
+            true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground,
+            pendulum_mass=ps.pendulum_mass, pendulum_length=ps.pendulum_length,
+        )  # fmt: skip
         sensors = SensorParams.ideal()
     else:
         effects = {k: v for k, v in dataclasses.asdict(ps).items() if k != "rotor_limits"}
@@ -342,6 +347,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "plant.rotor_tau_up": (0.0, 10.0, False),
     "plant.rotor_tau_down": (0.0, 10.0, False),
     "plant.rotor_drag": (0.0, 1e3, False),
+    "plant.pendulum_mass": (0.0, 1e3, False),
+    "plant.pendulum_length": (0.0, 100.0, True),
     "sensors.pos_noise": (0.0, 1e3, False),
     "sensors.vel_noise": (0.0, 1e3, False),
     "sensors.att_noise": (0.0, 10.0, False),

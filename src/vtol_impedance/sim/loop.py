@@ -48,10 +48,12 @@ from .plant import (
     compile_plants,
     environment_wrench,
     initial_state,
+    link_force,
     lowest_contact_depth,
     origin_kinematics,
     plant_derivative,
     rk4_step,
+    rotor_wrench,
 )
 from .result import (
     STEADY_TAIL_S,
@@ -197,7 +199,7 @@ class _Setup:
     sensors: SensorParams
     noise: NoiseSource
     refs: np.ndarray  # (N, 15): Trajectory.sample_many
-    x0: np.ndarray  # (B, 17)
+    x0: np.ndarray  # (B, state_size(n))
     Ts: float
     dt: float
     n_sub: int
@@ -332,6 +334,13 @@ def run_closed_loop(
         raise InputError(f"start_W must be one point of shape (3,), got shape {start.shape}")
     for d in disturbances:
         d.check_start(start)
+    lowest = float(np.max(trajectory.sample_many(np.linspace(0.0, duration, 2001))[:, 2]))  # NED: largest z
+    for p in [plant] if isinstance(plant, PlantParams) else plant:
+        if p.pendulum_mass > 0 and lowest + p.pendulum_length >= 0.0:
+            raise InputError(
+                f"the pendulum ({p.pendulum_length} m) is longer than the flight's lowest altitude ({-lowest:.3g} m): "
+                "its bob would hit the ground; shorten it or fly higher (start_on_ground = false)"
+            )
     x0 = initial_state(PA, np.broadcast_to(start, (B, 3)), np.array([0.0, 0.0, trajectory.yaw0]))
     # A vehicle set down with a contact point (a low-slung payload) under the ground is lifted onto it.
     lift = np.where(PA.ground > 0, np.maximum(lowest_contact_depth(PA, x0), 0.0), 0.0)
@@ -510,6 +519,8 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
         R = quat_to_rotation(x[..., QUAT])
         eta = euler_from_rotation(R)
         f_env, tau_env = environment_wrench(PA, t, x, R, dist)
+        u = rotor_wrench(PA, x[..., ROTOR])[0]
+        f_env = f_env + link_force(PA, x, -u[..., None] * R[..., :, 2] + f_env)[0]  # the pendulum's pull
         f_lump, tau_lump = _lumped_wrench(PA, x, x_dot, R, eta, thrust_prev, tau_prev, CA.mass, CA.I_B)
         p_o, v_o = origin_kinematics(PA, x, R)
         row = {

@@ -38,13 +38,16 @@ from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
 from ..model.vehicle import VehicleParams, effectiveness
 
-#: State length without the rotors; the state is ``N_BODY + n_rotors`` long.
+#: State length without the rotors and the pendulum; the state is ``N_BODY + n_rotors + N_PEND`` long:
+#: ``[p_com, v_com, q, omega_B, rotor forces (n), pendulum bob from the joint r_W (3), its rate (3)]``.
 N_BODY = 13
-P_COM, V_COM, QUAT, OMEGA, ROTOR = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13), slice(13, None)
+N_PEND = 6
+P_COM, V_COM, QUAT, OMEGA = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13)
+ROTOR, PEND_R, PEND_V = slice(13, -N_PEND), slice(-6, -3), slice(-3, None)
 
 
 def state_size(n_rotors: int) -> int:
-    return N_BODY + n_rotors
+    return N_BODY + n_rotors + N_PEND
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,6 +78,8 @@ class PlantParams:
     ground_stiffness: float = 3000.0
     ground_damping: float = 150.0
     ground_friction: float = 20.0
+    pendulum_mass: float = 0.0
+    pendulum_length: float = 0.5
 
     def __post_init__(self) -> None:
         if not isinstance(self.vehicle, VehicleParams):
@@ -96,6 +101,10 @@ class PlantParams:
             object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0))
         if not isinstance(self.ground, bool | np.bool_):
             raise InputError(f"ground must be true or false, got {self.ground!r}")
+        object.__setattr__(self, "pendulum_mass", scalar("pendulum_mass", self.pendulum_mass, lo=0.0, hi=1e3))
+        object.__setattr__(
+            self, "pendulum_length", scalar("pendulum_length", self.pendulum_length, lo=0.0, hi=100.0, lo_open=True)
+        )
 
     @property
     def total_mass(self) -> float:
@@ -116,6 +125,8 @@ class PlantParams:
             "ground_stiffness": self.ground_stiffness,
             "ground_damping": self.ground_damping,
             "ground_friction": self.ground_friction,
+            "pendulum_mass": self.pendulum_mass,
+            "pendulum_length": self.pendulum_length,
         }
 
 
@@ -140,6 +151,8 @@ class PlantArrays(NamedTuple):
     k_ground: np.ndarray
     c_ground: np.ndarray
     b_ground: np.ndarray
+    pend_m: np.ndarray  # kg, 0: no pendulum
+    pend_L: np.ndarray  # m
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -181,6 +194,8 @@ def compile_plant_one(P: PlantParams) -> dict[str, np.ndarray]:
         "k_ground": P.ground_stiffness,
         "c_ground": P.ground_damping,
         "b_ground": P.ground_friction,
+        "pend_m": P.pendulum_mass,
+        "pend_L": P.pendulum_length,
     }
 
 
@@ -217,7 +232,42 @@ def initial_state(
     x[..., P_COM] = np.asarray(p_origin_W, dtype=float) + matvec(R, P.c_B)
     x[..., QUAT] = q
     if hover_rotors:
-        x[..., ROTOR] = np.clip((P.mass * G)[..., None] / n, P.f_min, P.f_max)
+        x[..., ROTOR] = np.clip(((P.mass + P.pend_m) * G)[..., None] / n, P.f_min, P.f_max)
+    x[..., PEND_R.start + 2] = P.pend_L  # the bob hangs straight down (NED z), at rest
+    return x
+
+
+def link_force(P: PlantArrays, x: np.ndarray, F_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pendulum: a point mass ``pend_m`` on a rigid massless link of length ``pend_L`` whose spherical
+    joint sits at the vehicle's centre of mass (so the link exerts no moment).
+
+    With ``F_W`` every non-gravity force on the vehicle, ``n = r / |r|`` from the joint to the bob and the
+    constraint ``n . r'' = -|r'|^2 / L``, the link tension is ``T = (|r'|^2 / L - n . F_W / m) / (1/m_l + 1/m)``
+    (``m_l g`` hanging at rest). Returns the force on the vehicle ``T n`` (world) and ``r''``, the bob's
+    acceleration relative to the joint. Zero without a pendulum.
+    """
+    r, rd = x[..., PEND_R], x[..., PEND_V]
+    m, ml = P.mass, P.pend_m
+    has = ml > 0
+    L = np.maximum(np.linalg.norm(r, axis=-1), 1e-9)
+    n = r / L[..., None]
+    T = (np.sum(rd * rd, -1) / L - np.sum(n * F_W, -1) / m) / (1.0 / np.maximum(ml, 1e-300) + 1.0 / m)
+    T = np.where(has, T, 0.0)
+    f_link = T[..., None] * n
+    r_dd = -(T / np.maximum(ml, 1e-300))[..., None] * n - (F_W + f_link) / m[..., None]
+    return f_link, np.where(has[..., None], r_dd, 0.0)
+
+
+def project_pendulum(P: PlantArrays, x: np.ndarray) -> np.ndarray:
+    """Put the bob back on its sphere (``|r| = L``, no radial rate) after an integration step."""
+    has = P.pend_m > 0
+    if not np.any(has):
+        return x
+    r, rd = x[..., PEND_R], x[..., PEND_V]
+    n = r / np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), 1e-9)
+    x = x.copy()
+    x[..., PEND_R] = np.where(has[..., None], P.pend_L[..., None] * n, r)
+    x[..., PEND_V] = np.where(has[..., None], rd - np.sum(rd * n, -1, keepdims=True) * n, rd)
     return x
 
 
@@ -298,7 +348,8 @@ def plant_derivative(
     u, tau_rot_B = rotor_wrench(P, f)
     z_B = R[..., :, 2]
     F_W = -u[..., None] * z_B + f_env_W  # everything applied at the body origin
-    a = GRAVITY_W + F_W / P.mass[..., None]
+    f_link, r_dd = link_force(P, x, F_W)  # the pendulum pulls at the centre of mass: no moment
+    a = GRAVITY_W + (F_W + f_link) / P.mass[..., None]
     F_B = matvec(transpose(R), F_W)
     tau_com = tau_rot_B + tau_env_B - cross(P.c_B, F_B)
     Iw = matvec(P.I_com, w)
@@ -306,7 +357,7 @@ def plant_derivative(
     target = np.clip(f_cmd, P.f_min, P.f_max)
     tau = np.where(target > f, P.tau_up[..., None], P.tau_down[..., None])
     f_dot = np.where(tau > 0, (target - f) / np.maximum(tau, 1e-12), 0.0)
-    return np.concatenate([x[..., V_COM], a, quat_derivative(q, w), w_dot, f_dot], -1)
+    return np.concatenate([x[..., V_COM], a, quat_derivative(q, w), w_dot, f_dot, x[..., PEND_V], r_dd], -1)
 
 
 def apply_instant_rotors(P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray) -> np.ndarray:
@@ -352,4 +403,4 @@ def rk4_step(
     xn = x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     q = xn[..., QUAT]
     xn[..., QUAT] = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return xn
+    return project_pendulum(P, xn)
