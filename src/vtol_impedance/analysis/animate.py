@@ -92,13 +92,13 @@ def write_gif(result: Result, path: Path, fps: int = 8, max_frames: int = 160, t
     def draw(k: int):
         for b in range(B):
             body, trail, fh, ft, link = art[b]
+            c = p[b, k]
+            if not np.all(np.isfinite(c)):
+                continue
             L = pend_L[min(b, len(pend_L) - 1)] if pend_L else 0.0
             if L > 0:
                 d = f_ext[b, k] / max(np.linalg.norm(f_ext[b, k]), 1e-9)
                 link.set_data_3d([c[0], c[0] + L * d[0]], [c[1], c[1] + L * d[1]], [c[2], c[2] + L * d[2]])
-            c = p[b, k]
-            if not np.all(np.isfinite(c)):
-                continue
             R = rotation_zyx(eta[b, k])
             for line, arm in zip(body, arms[b], strict=True):
                 tip = c + _enu(R @ arm)
