@@ -88,6 +88,8 @@ def test_cli_refuses_a_bad_sweep_file_without_creating_anything(tmp_path, capsys
     assert main(["sweep", "no-such-study", "--out", str(tmp_path / "o")]) == 2
     assert "rate-vs-bandwidth" in capsys.readouterr().err
     assert main(["sweep", str(f), "--workers", "0"]) == 2
+    assert main(["sweep-report", str(tmp_path)]) == 2
+    assert "not a sweep folder" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------- the same results however split

@@ -37,7 +37,12 @@ def summarise(folder: Path, metric: str = "rms_ep_cm") -> dict[str, Any]:
     the share of failed flights (failed flights are left out of the statistics)."""
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
-    desc = json.loads((Path(folder) / SWEEP_FILE).read_text(encoding="utf-8"))
+    if not (Path(folder) / SWEEP_FILE).is_file():
+        raise InputError(f"{folder} is not a sweep folder (it has no {SWEEP_FILE}); give the --out of a sweep")
+    try:
+        desc = json.loads((Path(folder) / SWEEP_FILE).read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise InputError(f"{Path(folder) / SWEEP_FILE} is not readable: {exc}") from None
     sw = desc["sweep"]
     cols = _columns(read_dataset(folder))
     n_expected = len(sw["points"]) * sw["seeds"] * len(sw["controllers"])

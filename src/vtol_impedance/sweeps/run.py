@@ -335,6 +335,9 @@ def run_sweep(
 ) -> tuple[Path, int]:
     """Run (or resume) a sweep into ``out``; returns the folder and how many chunks were computed now."""
     Executor(workers, scheduler)  # validates the choice before touching the folder
+    if scheduler:
+        with Executor(None, scheduler):
+            pass  # an unreachable cluster fails here, before the folder exists
     folder = SweepFolder(sweep, out, restart, where)
     try:
         todo = folder.missing()
