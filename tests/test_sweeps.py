@@ -292,3 +292,12 @@ def _toml(d: dict, prefix: str = "") -> str:
     for k, v in tables:
         out += f"[{prefix}{k}]\n" + _toml(v, f"{prefix}{k}.").replace("\n[", "\n[")
     return out
+
+
+def test_unreachable_scheduler_fails_before_the_folder_exists(tmp_path, capsys):
+    pytest.importorskip("dask.distributed")
+    spec = tmp_path / "small.toml"
+    spec.write_text(_toml(SMALL))
+    out = tmp_path / "s"
+    assert main(["sweep", str(spec), "--scheduler", "tcp://127.0.0.1:1", "--out", str(out), "--quiet"]) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err and not out.exists()
