@@ -167,7 +167,7 @@ def test_dryden_series_have_the_model_variance_and_correlation():
     x = dryden_series(rng, 2_000_000, 0.05, 1.0, 8.0, 2.0, 1)  # 25,000 correlation times: +-0.01
     lag = 40  # 2 s: exp(-V tau / L)
     assert np.mean(x[:-lag] * x[lag:]) == pytest.approx(np.exp(-2.0 * 2.0 / 8.0), abs=0.04)
-    (s_u, L_u, _), _, (s_w, L_w, _) = dryden_filters(0.5, 10 * 0.3048, 1.0)
+    (s_u, L_u, _), _, (s_w, L_w, _) = dryden_filters(0.5, 10 * 0.3048)
     assert L_w == pytest.approx(10 * 0.3048) and s_u / s_w == pytest.approx(1 / (0.177 + 0.00823) ** 0.4)
 
 

@@ -318,7 +318,8 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         from .analysis.report import write_html
         from .logs.output import summary, write_estimate
 
-        write_estimate(est, folder.staging)
+        s = summary(est)
+        write_estimate(est, folder.staging, s)
         figs = []
         if not args.no_plots:
             from .analysis.log_plots import plot_log_inputs, plot_log_wrench
@@ -327,7 +328,6 @@ def cmd_estimate(args: argparse.Namespace) -> int:
                 plot_log_wrench(est, folder.path("wrench.png"), f"{log.name}: estimated external wrench"),
                 plot_log_inputs(est, folder.path("inputs.png"), f"{log.name}: inputs at {flight.rate_hz:g} Hz"),
             ]
-        s = summary(est)
         notes = [
             "Force in world NED, moment in body FRD. The estimate contains everything the nominal model misses: "
             "a thrust-map or mass error appears as a constant force along the thrust axis (see the bias).",

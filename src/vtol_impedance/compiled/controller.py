@@ -8,8 +8,8 @@ on one vehicle with small fixed-size arrays, so a batch is a ``prange`` loop ove
 Layouts (flat float64 vectors, so that one call passes few arguments):
 
 * controller parameters ``cp`` (:data:`CP_SIZE`), one row per vehicle, see :func:`pack_controller`;
-* shared design ``sh``: ``[Ts, filter wn, filter zeta, filter Ad (4), filter Bd (2), n, Ad (6 n n),
-  Bd (6 n), C (6 n)]``;
+* shared design ``sh``: ``[Ts, filter wn, filter zeta, filter Ad (4), filter Bd (2)]`` and the estimator's
+  part (:func:`vtol_impedance.compiled.estimator.design_tail`);
 * controller state ``cs`` (:func:`state_size`), measurement ``y = [p_W, v_W, eta, eta_dot]`` (12),
   reference ``r = [p_d, v_d, a_d, psi, psi_dot, psi_ddot]`` (12) or with ``comply`` (3) appended (15),
   output ``o`` (:data:`OUT_SIZE`).
@@ -26,7 +26,7 @@ from ..control.impedance import ControllerArrays
 from ..conventions import SINGULARITY_COS_EPS, G
 from ..model.vehicle import MAX_ROTORS
 from .algebra import _mm9, _mv9, _solve9, _t9
-from .estimator import design_tail, estimator_update, sh_offsets, state_length
+from .estimator import design_tail, estimator_update, rate_offset, sh_offsets, state_length
 
 # controller parameter row: fixed part, then per rotor i: E_pinv row i (4) at CP_ROT + 4 i, then
 # E (4 x n, row-major) at CP_ROT + 4 n, f_min (n) at CP_ROT + 8 n, f_max (n) at CP_ROT + 9 n
@@ -255,7 +255,7 @@ def controller_step(cp, sh, cs, y, r, o):
     I = (cp[1], cp[2], cp[3], cp[4], cp[5], cp[6], cp[7], cp[8], cp[9])  # noqa: E741
     comp = cp[CP_COMP]
     o_q = 6 * n  # state layout: x (6n), q_prev (6), eta_prev (3), eta_dot_prev (3), started, filter (5),
-    # integral (3), thrust_prev, tau_prev (3), scratch: x_new (n), w_hat (6)
+    # integral (3), thrust_prev, tau_prev (3), scratch: x_new (n), w_hat (6), r_dot (6)
 
     p0, p1, p2, v0, v1, v2 = y[0], y[1], y[2], y[3], y[4], y[5]
     e0, e1, e2, d0, d1, d2 = y[6], y[7], y[8], y[9], y[10], y[11]
@@ -265,7 +265,7 @@ def controller_step(cp, sh, cs, y, r, o):
     fh0, fh1, fh2, th0, th1, th2 = w
     # the force estimate with G's low-frequency delay taken out (used by "comply"): f_hat + lag f_hat_dot
     ilag = sh_offsets(n)[5]
-    ird = 6 * n + 25 + n + 6
+    ird = rate_offset(n)
     fl0 = fh0 + sh[ilag] * cs[ird]
     fl1 = fh1 + sh[ilag + 1] * cs[ird + 1]
     fl2 = fh2 + sh[ilag + 2] * cs[ird + 2]

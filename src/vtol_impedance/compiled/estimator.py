@@ -33,9 +33,16 @@ def design_tail(des: EstimatorDesign) -> np.ndarray:
     return np.concatenate([[float(n)], des.Ad.ravel(), des.Bd.ravel(), des.C.ravel(), des.CA.ravel(), des.CB, des.lag])
 
 
-def state_length(n: int) -> int:
+@njit(cache=True)
+def state_length(n):
     """State length of the estimator alone (the controller state has the same prefix)."""
     return 7 * n + 37
+
+
+@njit(cache=True, inline="always")
+def rate_offset(n):
+    """Where the estimate's rate of change (6) sits in the state, after the estimate itself."""
+    return 6 * n + 25 + n + 6
 
 
 @njit(cache=True, inline="always")
@@ -67,9 +74,10 @@ def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa:
     Q, M, C = _QMC(e0, e1, d0, d1, d2, I)
     qa = _mv9(M, d0, d1, d2)
     q = (m * v0, m * v1, m * v2, qa[0], qa[1], qa[2])
+    ir = rate_offset(n)
     for ch in range(6):
         cs[iw + n + ch] = 0.0
-        cs[iw + n + 6 + ch] = 0.0
+        cs[ir + ch] = 0.0
     if cs[o_q + 12] > 0.5:
         u_prev = cs[o_q + 21]
         tp0, tp1, tp2 = cs[o_q + 22], cs[o_q + 23], cs[o_q + 24]
@@ -97,7 +105,7 @@ def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa:
                 acc += sh[iC + base + i] * cs[iw + i]
                 rate += sh[iCA + base + i] * cs[iw + i]
             cs[iw + n + ch] = acc
-            cs[iw + n + 6 + ch] = rate
+            cs[ir + ch] = rate
     cs[o_q + 12] = 1.0
     for ch in range(6):
         cs[o_q + ch] = q[ch]
@@ -115,7 +123,7 @@ def estimate_log(sh, m, I_B, v_W, eta, eta_dot, thrust, tau_B, restart, out):  #
     ``restart[k]`` is true the estimator starts afresh (after a gap), as at ``k = 0``.
     """
     n = int(sh[SH_N])
-    cs = np.zeros(7 * n + 37)  # state_length(n)
+    cs = np.zeros(state_length(n))
     I = (I_B[0, 0], I_B[0, 1], I_B[0, 2], I_B[1, 0], I_B[1, 1], I_B[1, 2], I_B[2, 0], I_B[2, 1], I_B[2, 2])  # noqa: E741
     o_q = 6 * n
     for k in range(v_W.shape[0]):

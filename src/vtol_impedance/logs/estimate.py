@@ -191,6 +191,9 @@ def estimate(
     des = design(params, flight.Ts)
     thrust, tau, info, notes = commands_in_si(flight, mass, hover_thrust, hover_segment, torque_scale)
     tau_in = np.zeros_like(flight.v_W) if tau is None else tau
+    w = None
+    if backend == "numpy" or zero_phase_too:
+        w = momentum_residual(flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts)
     if backend == "compiled":
         from ..compiled.estimator import estimate_log, pack_design
 
@@ -202,13 +205,11 @@ def estimate(
         )  # fmt: skip
         f_W, tau_eta, tau_B = out[:, :3], out[:, 3:6], out[:, 6:9]
     else:
-        w = momentum_residual(flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts)
         r = causal(des, w, flight.restart)
         f_W, tau_eta = r[:, :3], r[:, 3:]
         tau_B = body_moment_from_euler(tau_eta, flight.eta)
     f_zp = tau_zp = None
     if zero_phase_too:
-        w = momentum_residual(flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts)
         r = zero_phase(des, w, flight.restart)
         f_zp, tau_zp = r[:, :3], body_moment_from_euler(r[:, 3:], flight.eta)
     if tau is None:

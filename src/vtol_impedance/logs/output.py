@@ -26,8 +26,9 @@ def summary(est: LogEstimate) -> dict[str, Any]:
     return {"info": est.info, "bias": est.bias, "notes": est.notes, "stats": stats}
 
 
-def write_estimate(est: LogEstimate, folder: Path) -> list[Path]:
-    """``wrench.csv``, ``wrench.parquet`` and ``estimate.json`` into ``folder``."""
+def write_estimate(est: LogEstimate, folder: Path, summ: dict[str, Any] | None = None) -> list[Path]:
+    """``wrench.csv``, ``wrench.parquet`` and ``estimate.json`` (``summ``, default :func:`summary`) into
+    ``folder``."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -38,10 +39,11 @@ def write_estimate(est: LogEstimate, folder: Path) -> list[Path]:
     buf.write(",".join(names) + "\n")
     np.savetxt(buf, data, delimiter=",", fmt="%.9g")
     table = pa.table({n: np.asarray(cols[n]) for n in names})
-    meta = {b"vtol_impedance": json.dumps(summary(est), default=str).encode()}
+    summ = summary(est) if summ is None else summ
+    meta = {b"vtol_impedance": json.dumps(summ, default=str).encode()}
     table = table.replace_schema_metadata(meta)
     return [
         write_text(folder / "wrench.csv", buf.getvalue()),
         write_with(folder / "wrench.parquet", lambda fh: pq.write_table(table, fh)),
-        write_text(folder / "estimate.json", json.dumps(summary(est), indent=1, default=str)),
+        write_text(folder / "estimate.json", json.dumps(summ, indent=1, default=str)),
     ]

@@ -388,8 +388,12 @@ class Wall(Disturbance):
         return f_W, cross(r_B, f_B)
 
 
-def dryden_filters(sigma_w: float, altitude: float, airspeed: float) -> list[tuple[float, float, float]]:
-    """``(sigma, L, kind)`` of the u, v, w components of MIL-F-8785C's low-altitude Dryden model:
+#: MIL-F-8785C's low-altitude Dryden model holds below 1000 ft.
+DRYDEN_MAX_ALTITUDE_M = 304.8
+
+
+def dryden_filters(sigma_w: float, altitude: float) -> list[tuple[float, float, int]]:
+    """``(sigma, L, order)`` of the u, v, w components of MIL-F-8785C's low-altitude Dryden model:
     ``L_w = h``, ``L_u = L_v = h / (0.177 + 0.000823 h)^1.2`` and ``sigma_u = sigma_v = sigma_w /
     (0.177 + 0.000823 h)^0.4`` with ``h`` in feet (converted here from metres, floored at 3 ft)."""
     h = max(altitude / 0.3048, 3.0)
@@ -397,7 +401,7 @@ def dryden_filters(sigma_w: float, altitude: float, airspeed: float) -> list[tup
     L_uv = h / k**1.2 * 0.3048
     L_w = h * 0.3048
     s_uv = sigma_w / k**0.4
-    return [(s_uv, L_uv, 1.0), (s_uv, L_uv, 2.0), (sigma_w, L_w, 2.0)]
+    return [(s_uv, L_uv, 1), (s_uv, L_uv, 2), (sigma_w, L_w, 2)]
 
 
 def dryden_series(
@@ -467,7 +471,7 @@ class Gust(Disturbance):
         for name in ("mean_speed", "amplitude", "start", "sigma_w", "drag"):
             positive(f"gust {name}", getattr(self, name), allow_zero=True)
         positive("gust length", self.length)
-        positive("gust altitude", self.altitude)
+        scalar("gust altitude", self.altitude, lo=0.0, hi=DRYDEN_MAX_ALTITUDE_M, lo_open=True)
 
     def wind_W(self, t: np.ndarray, turbulence: np.ndarray | None = None) -> np.ndarray:
         """Wind velocity (NED, m/s) at times ``t``; ``turbulence (N, 3)`` as ``[u, v, w]``."""
@@ -492,8 +496,8 @@ class Gust(Disturbance):
         n = int(np.ceil(t_end / dt)) + 2
         V = max(self.mean_speed, 1.0)
         turb = np.zeros((n, 3))
-        for i, (sig, L, order) in enumerate(dryden_filters(self.sigma_w, self.altitude, V)):
-            turb[:, i] = dryden_series(rng, n, dt, sig, L, V, int(order))
+        for i, (sig, L, order) in enumerate(dryden_filters(self.sigma_w, self.altitude)):
+            turb[:, i] = dryden_series(rng, n, dt, sig, L, V, order)
         series = np.zeros((n, 6))
         series[:, :3] = self.drag * self.wind_W(np.arange(n) * dt, turb)
         return replace(self, _series=series, _dt=dt)
