@@ -70,6 +70,15 @@ def reference(tmp_path_factory):
         ({"colour": "red"}, "colour"),
         ({"axes": {"payload.offset_B[5]": [0.1]}}, "component 5"),
         ({"max_flights": 3}, "above max_flights = 3"),
+        (
+            {
+                "axes": {
+                    "payload.mass": {"min": 0.0, "max": 0.3, "n": 10000},
+                    "control.Kp": {"min": 8.0, "max": 30.0, "n": 10000},
+                }
+            },
+            "100000000 points",
+        ),
     ],
 )
 def test_bad_specs_fail_before_any_work(change, message, tmp_path):

@@ -33,6 +33,8 @@ from ..model.kinematics import (
 
 DEFAULT_RATE_HZ = 100.0
 DEFAULT_MAX_GAP_S = 0.25
+#: The longest resampled log: 50 million samples (about 6 days at 100 Hz, some GB of arrays).
+MAX_SAMPLES = 50_000_000
 
 
 @dataclass
@@ -167,7 +169,13 @@ def resample(
         spans = ", ".join(f"{s.name} {s.t[0]:.3f}-{s.t[-1]:.3f} s" for s in sigs)
         window = "" if t_start is None and t_end is None else f" inside the window {t_start} to {t_end} s"
         raise InputError(f"the signals share no common time span{window} to estimate over (they cover: {spans})")
-    grid = lo + np.arange(int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1) / rate_hz
+    n_grid = int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1
+    if n_grid > MAX_SAMPLES:
+        raise InputError(
+            f"{hi - lo:.6g} s at {rate_hz:g} Hz is {n_grid} samples, above {MAX_SAMPLES}: lower the rate or cut the "
+            "log with a start and end time"
+        )
+    grid = lo + np.arange(n_grid) / rate_hz
     keep = np.ones(len(grid), bool)
     restart = np.zeros(len(grid), bool)
     for s in sigs:

@@ -261,6 +261,18 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
     for a in axes:  # unknown keys fail here, before any flight
         set_param(base, a.key, a.grid()[0] if mode != "random" else a.draw(np.random.default_rng(0)))
     if mode == "grid":
+        n_points = int(np.prod([len(a.grid()) for a in axes], dtype=float))
+    elif mode == "zip":
+        n_points = len(axes[0].grid())
+    else:
+        n_points = int(scalar("samples", data.get("samples", 0), lo=1, hi=10_000_000, integer=True))
+    n_flights = n_points * seeds * len(ctrls)
+    if n_flights > max_flights:  # before the points are built: a huge grid is refused, not allocated
+        raise InputError(
+            f"the sweep has {n_flights} flights ({n_points} points x {seeds} seeds x {len(ctrls)} "
+            f"controllers), above max_flights = {max_flights}; raise max_flights in the sweep file if this is meant"
+        )
+    if mode == "grid":
         points = [dict(zip([a.key for a in axes], combo, strict=True)) for combo in product(*(a.grid() for a in axes))]
     elif mode == "zip":
         lengths = {a.key: len(a.grid()) for a in axes}
@@ -271,16 +283,10 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
             for combo in zip(*(a.grid() for a in axes), strict=True)
         ]
     else:
-        n = int(scalar("samples", data.get("samples", 0), lo=1, hi=10_000_000, integer=True))
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
-        points = [{a.key: a.draw(rng) for a in axes} for _ in range(n)]
+        points = [{a.key: a.draw(rng) for a in axes} for _ in range(n_points)]
     sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
                   source=data)  # fmt: skip
-    if sweep.n_flights > max_flights:
-        raise InputError(
-            f"the sweep has {sweep.n_flights} flights ({len(points)} points x {seeds} seeds x {len(ctrls)} "
-            f"controllers), above max_flights = {max_flights}; raise max_flights in the sweep file if this is meant"
-        )
     if check_points:
         for i in range(len(points)):
             with warnings.catch_warnings(record=True) as caught:
