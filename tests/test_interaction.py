@@ -21,9 +21,13 @@ def _push(t):
     return np.where((t >= PUSH_T0) & (t <= PUSH_T0 + PUSH_LEN), PUSH_F * np.sin(np.pi * (t - PUSH_T0) / PUSH_LEN), 0.0)
 
 
-@pytest.fixture(scope="module")
-def push_run():
-    return simulate(get("operator-push"), ["pd", "pdc", "comply"])
+#: Every conclusion is checked on this package's plant (compiled) and on MuJoCo's physics.
+PLANTS = ["compiled", "mujoco"]
+
+
+@pytest.fixture(scope="module", params=PLANTS)
+def push_run(request):
+    return simulate(get("operator-push"), ["pd", "pdc", "comply"], backend=request.param)
 
 
 def _fit_impedance(r, label: str) -> np.ndarray:
@@ -116,9 +120,9 @@ def test_comply_backends_agree():
 # ----------------------------------------------------------------------------- wall
 
 
-@pytest.fixture(scope="module")
-def wall_run():
-    return simulate(get("wall-contact"), ["pdc", "comply"])
+@pytest.fixture(scope="module", params=PLANTS)
+def wall_run(request):
+    return simulate(get("wall-contact"), ["pdc", "comply"], backend=request.param)
 
 
 def test_wall_holds_the_commanded_contact_force(wall_run):
@@ -265,9 +269,9 @@ def test_pendulum_in_free_fall_conserves_what_it_must():
     assert np.linalg.norm(x[PEND_R]) == pytest.approx(0.5, rel=1e-12)
 
 
-@pytest.fixture(scope="module")
-def pendulum_run():
-    return simulate(get("pendulum"), ["pd", "pdc"])
+@pytest.fixture(scope="module", params=PLANTS)
+def pendulum_run(request):
+    return simulate(get("pendulum"), ["pd", "pdc"], backend=request.param)
 
 
 def test_pendulum_pd_sags_by_the_hung_weight_and_pdc_holds(pendulum_run):

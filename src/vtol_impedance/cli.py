@@ -57,6 +57,16 @@ def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
     return spec
 
 
+def _backend(args: argparse.Namespace) -> str:
+    """``--plant mujoco`` puts MuJoCo's physics under the NumPy controller, whatever ``--backend`` says."""
+    if args.plant == "mujoco":
+        from .sim.mjplant import require_mujoco
+
+        require_mujoco()
+        return "mujoco"
+    return args.backend
+
+
 def _announce_compile(backend: str, quiet: bool) -> None:
     if backend != "compiled" or quiet:
         return
@@ -121,6 +131,16 @@ def _write_case(result: Any, folder: Any, stem: str, plots: bool, animate: bool 
     return files
 
 
+def _write_mjcf(spec: Any, folder: Any) -> Path:
+    """The MuJoCo model that was flown, for MuJoCo's own viewer (``python -m mujoco.viewer --mjcf ...``)."""
+    from .io import write_text
+    from .scenarios.spec import build
+    from .sim.mjplant import scene_mjcf
+
+    b = build(spec)
+    return write_text(folder.path(f"{spec.name}.mjcf.xml"), scene_mjcf(b.plant, b.disturbances, 1.0 / spec.plant_rate))
+
+
 def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str, list[Path]], quiet: bool) -> None:
     from .analysis.metrics import compute_metrics
     from .analysis.report import table_rows, text_table, write_html, write_tables
@@ -183,13 +203,16 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
         raise InputError(f"unknown controller(s) {bad or variants}; choose from {', '.join(VARIANTS)}")
     seed = _seed(args)
     check(spec, variants)
+    backend = _backend(args)
     t0 = time.perf_counter()
     with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / spec.name) as folder:
-        _announce_compile(args.backend, args.quiet)
-        result = _run_case(spec, variants, seed, args.quiet, args.backend)
+        _announce_compile(backend, args.quiet)
+        result = _run_case(spec, variants, seed, args.quiet, backend)
         if args.animate and not args.quiet:
             print("drawing the animation ...", file=sys.stderr)
         figs = _write_case(result, folder, spec.name, not args.no_plots, args.animate)
+        if backend == "mujoco":
+            figs.append(_write_mjcf(spec, folder))
         _finish(
             folder,
             f"vtol-impedance: {spec.name}",
@@ -214,13 +237,14 @@ def cmd_paper(args: argparse.Namespace) -> int:
     seed = _seed(args)
     for spec in specs:
         check(spec, variants)
+    backend = _backend(args)
     t0 = time.perf_counter()
     with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / "paper") as folder:
         if not args.quiet:
             print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
-        _announce_compile(args.backend, args.quiet)
+        _announce_compile(backend, args.quiet)
         jobs = min(args.jobs, len(specs))
-        jobs_args = [(s, variants, seed, args.quiet, args.backend) for s in specs]
+        jobs_args = [(s, variants, seed, args.quiet, backend) for s in specs]
         results_list = _run_parallel(jobs_args, jobs) if jobs > 1 else [_run_case_job(a) for a in jobs_args]
         results: dict[str, Any] = {}
         figures: dict[str, list[Path]] = {}
@@ -471,6 +495,13 @@ def build_parser() -> argparse.ArgumentParser:
             choices=["compiled", "numpy"],
             default="compiled",
             help="compiled (numba) or the NumPy reference",
+        )
+        sp.add_argument(
+            "--plant",
+            choices=["builtin", "mujoco"],
+            default="builtin",
+            help="the physics: this package's plant, or MuJoCo's (an independent engine, flown by the NumPy "
+            "controller; needs: pip install 'vtol-impedance[mujoco]')",
         )
 
     sp = sub.add_parser("paper", help="all three case studies with PD, PID and PD+C: figures, table, report")

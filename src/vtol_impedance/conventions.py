@@ -20,5 +20,11 @@ GRAVITY_W.setflags(write=False)
 #: Third axis unit vector.
 E3: np.ndarray = np.array([0.0, 0.0, 1.0])
 E3.setflags(write=False)
+#: ``v_NED = T_NED_ENU v_ENU`` (swap x and y, flip z) and ``v_FRD = T_FRD_FLU v_FLU`` (flip y and z): the
+#: z-up conventions of ROS logs and of MuJoCo. Each matrix is its own inverse.
+T_NED_ENU: np.ndarray = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+T_NED_ENU.setflags(write=False)
+T_FRD_FLU: np.ndarray = np.diag([1.0, -1.0, -1.0])
+T_FRD_FLU.setflags(write=False)
 #: Distance of |cos(theta)| from zero under which the Euler parametrisation is declared singular.
 SINGULARITY_COS_EPS: float = 1e-3

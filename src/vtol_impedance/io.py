@@ -245,7 +245,7 @@ def _versions() -> dict[str, str]:
     from importlib import metadata
 
     out = {}
-    for pkg in ("numpy", "scipy", "numba", "matplotlib", "pyarrow", "pyulog"):
+    for pkg in ("numpy", "scipy", "numba", "matplotlib", "pyarrow", "pyulog", "mujoco"):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

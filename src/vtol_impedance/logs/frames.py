@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..conventions import T_FRD_FLU, T_NED_ENU
 from ..errors import InputError, _short
 from ..model.kinematics import euler_from_rotation, quat_to_rotation, rotation_zyx
 
@@ -20,9 +21,6 @@ WORLDS = ("ned", "enu")
 BODIES = ("frd", "flu")
 QUAT_ORDERS = ("wxyz", "xyzw")
 QUAT_DIRECTIONS = ("body-to-world", "world-to-body")
-
-T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-T_FRD_FLU = np.diag([1.0, -1.0, -1.0])
 
 
 def _choice(name: str, value: str, allowed: tuple[str, ...]) -> str:

@@ -93,6 +93,29 @@ WALL_CONTACT = replace(
     ),  # fmt: skip
 )
 
+# Comply is engaged once airborne: on the ground the estimator sees the ground's reaction (friction at the
+# contact point), and yielding to it tips the vehicle about that point; with Coulomb friction (MuJoCo's
+# ground) the v1/v2 take-offs lunged 0.5 m. The switch is blended (no jump in the commands).
+AIRBORNE_S = 5.0
+OPERATOR_PUSH_3 = replace(
+    OPERATOR_PUSH_2,
+    name="operator-push-v3",
+    description=OPERATOR_PUSH_2.description + " Comply is switched on in x and y at t = 5 s, once airborne.",
+    interaction=replace(
+        OPERATOR_PUSH_2.interaction,
+        comply=(0.0, 0.0, 0.0),
+        switches=((AIRBORNE_S, "x", "comply"), (AIRBORNE_S, "y", "comply")),
+    ),
+)
+WALL_CONTACT_2 = replace(
+    WALL_CONTACT,
+    name="wall-contact-v2",
+    description=WALL_CONTACT.description + " Comply is switched on along x at t = 5 s, once airborne; the contact "
+    "is held 20 s (with static friction the rolling bumper couples pitch and height: a slow mode of ~8 s).",
+    trajectory=replace(WALL_CONTACT.trajectory, move_hold=20.0),
+    interaction=replace(WALL_CONTACT.interaction, comply=(0.0, 0.0, 0.0), switches=((AIRBORNE_S, "x", "comply"),)),
+)
+
 GUST = replace(
     CASE_A,
     name="gust-v1",
@@ -121,5 +144,8 @@ PENDULUM = replace(
 
 PAPER_CASES: tuple[str, ...] = ("case-a-payload", "case-b-fan", "case-c-circle")
 
-for _spec in (CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP, OPERATOR_PUSH_2, WALL_CONTACT, GUST, PENDULUM):
+for _spec in (
+    CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP, OPERATOR_PUSH_2, WALL_CONTACT, GUST, PENDULUM, OPERATOR_PUSH_3,
+    WALL_CONTACT_2,
+):  # fmt: skip
     register(_spec)

@@ -85,7 +85,8 @@ BLOCK_BYTES = 50_000_000
 #: Control ticks per block of random numbers in the NumPy backend.
 BLOCK_TICKS = 200
 
-BACKENDS = ("compiled", "numpy")
+#: ``"mujoco"``: the NumPy controller flying MuJoCo's physics (:mod:`.mjplant`, the ``mujoco`` extra).
+BACKENDS = ("compiled", "numpy", "mujoco")
 
 
 @dataclass(frozen=True)
@@ -127,14 +128,14 @@ def estimate_run(
 ) -> dict[str, float]:
     """Bytes and plant steps a run will need (the numbers :class:`Limits` are checked against)."""
     width = row_width(n_rotors)
-    n_log = N if backend == "numpy" else ((N + dec - 1) // dec if dec else 0)
+    n_log = N if backend != "compiled" else ((N + dec - 1) // dec if dec else 0)
     mem = 8.0 * (
         B * n_log * width  # traces
         + B * history * (13 + n_rotors)  # sensor history
         + N * 12  # reference samples
         + n_dist * (N * n_sub + 2) * 6  # disturbance series at the plant rate
     ) + min(BLOCK_BYTES, 8.0 * B * N * 12)  # noise blocks
-    if backend == "numpy":
+    if backend != "compiled":
         mem *= 2.0  # temporaries of the batched NumPy arithmetic
     return {"memory_bytes": mem, "plant_steps": float(B) * N * n_sub}
 
@@ -161,7 +162,8 @@ ProgressFn = Callable[[float], None]
 def _lumped_wrench(
     PA: PlantArrays,
     x: np.ndarray,
-    x_dot: np.ndarray,
+    a_o: np.ndarray,
+    w_dot: np.ndarray,
     R: np.ndarray,
     eta: np.ndarray,
     thrust_prev: np.ndarray,
@@ -172,12 +174,10 @@ def _lumped_wrench(
     """What the nominal model (5) misses, given the true motion: the estimator's target.
 
     ``f = m (a_o - g_W) + u R e3`` and ``tau_eta = M eta_ddot + C eta_dot - Q^T tau_B`` with nominal
-    ``m``, ``I_B``, the true acceleration ``a_o`` of the body origin and the command held over the period.
+    ``m``, ``I_B``, the true acceleration ``a_o`` of the body origin (world), the true ``w_dot_B`` and the
+    command held over the period.
     """
     w = x[..., OMEGA]
-    w_dot = x_dot[..., OMEGA]
-    c = PA.c_B
-    a_o = x_dot[..., V_COM] - matvec(R, cross(w_dot, c) + cross(w, cross(w, c)))
     f = mass_nom[..., None] * (a_o - GRAVITY_W) + thrust_prev[..., None] * matvec(R, np.broadcast_to(E3, a_o.shape))
     Q = euler_rate_matrix_Q(eta)
     eta_dot = np.linalg.solve(Q, w[..., None])[..., 0]
@@ -189,6 +189,37 @@ def _lumped_wrench(
         - matvec(transpose(Q), tau_B_prev)
     )
     return f, tau
+
+
+class _BuiltinPlant:
+    """The plant of :mod:`.plant` integrated by RK4: the NumPy backend's physics, with the interface
+    :class:`.mjplant.MujocoPlant` shares (``x``, ``truth``, ``advance``, ``park``)."""
+
+    def __init__(self, PA: PlantArrays, dist: DisturbanceSet, x0: np.ndarray) -> None:
+        self.PA, self.dist, self.x = PA, dist, x0.copy()
+
+    def truth(self, t: float, f_cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The body origin's acceleration (world), ``w_dot_B`` and the external force (world, at the
+        origin, the pendulum's pull included) and moment (body) at the start of the period."""
+        PA, x = self.PA, self.x
+        x_dot = plant_derivative(PA, x, f_cmd, t, self.dist)
+        R = quat_to_rotation(x[..., QUAT])
+        w, w_dot, c = x[..., OMEGA], x_dot[..., OMEGA], PA.c_B
+        a_o = x_dot[..., V_COM] - matvec(R, cross(w_dot, c) + cross(w, cross(w, c)))
+        f_env, tau_env = environment_wrench(PA, t, x, R, self.dist)
+        u = rotor_wrench(PA, x[..., ROTOR])[0]
+        f_env = f_env + link_force(PA, x, -u[..., None] * R[..., :, 2] + f_env)[0]  # the pendulum's pull
+        return a_o, w_dot, f_env, tau_env
+
+    def advance(self, t: float, f_cmd: np.ndarray, n_sub: int, dt: float, push: Callable[[np.ndarray], None]) -> None:
+        x = apply_instant_rotors(self.PA, self.x, f_cmd)
+        for j in range(n_sub):
+            x = rk4_step(self.PA, x, f_cmd, t + j * dt, dt, self.dist)
+            push(x)
+        self.x = x
+
+    def park(self, alive: np.ndarray, x_park: np.ndarray) -> None:
+        self.x = np.where(alive[:, None], self.x, x_park)
 
 
 @dataclass
@@ -262,7 +293,8 @@ def run_closed_loop(
     plant_rate : RK4 rate in Hz; ``plant_rate * Ts`` must be an integer.
     seed : one seed for every vehicle (the same sensor noise, a fair comparison) or one per vehicle.
     progress : called with the fraction done.
-    backend : ``"compiled"`` (numba) or ``"numpy"`` (the reference).
+    backend : ``"compiled"`` (numba), ``"numpy"`` (the reference) or ``"mujoco"`` (the NumPy controller
+        on MuJoCo's physics, an independent plant; needs the ``mujoco`` extra).
     log : ``"full"`` (every control tick), ``"decimate:K"`` (every K-th), or ``"metrics"`` (no traces,
         only the per-vehicle metrics of ``window``; for large batches).
     window : task window for the metrics (default: the whole run).
@@ -302,6 +334,10 @@ def run_closed_loop(
             raise InputError(f"window must be (t0, t1) with t0 <= t1, got {window!r}")
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "mujoco":
+        from .mjplant import require_mujoco
+
+        require_mujoco()  # before any work: a clear message when the extra is missing
     duration = scalar("duration", duration, lo=0.0, lo_open=True)
     plant_rate = scalar("plant_rate", plant_rate, lo=0.0, lo_open=True)
     sensors = SensorParams() if sensors is None else sensors
@@ -360,8 +396,14 @@ def run_closed_loop(
         dec,
         _window(window, t_grid),
     )
-    run = _run_compiled if backend == "compiled" else _run_numpy
-    rows, metrics, failures = run(setup, progress)
+    if backend == "compiled":
+        rows, metrics, failures = _run_compiled(setup, progress)
+    elif backend == "mujoco":
+        from .mjplant import MujocoPlant
+
+        rows, metrics, failures = _run_numpy(setup, progress, MujocoPlant(plants, PA, dist, x0, dt))
+    else:
+        rows, metrics, failures = _run_numpy(setup, progress)
 
     cfg = dict(config or {})
     cfg.update(
@@ -490,13 +532,14 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     return logs, _metrics_from_acc(acc, failures), failures
 
 
-def _run_numpy(s: _Setup, progress: ProgressFn | None):
-    CA, PA, dist = s.CA, s.PA, s.dist
+def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
+    """The NumPy controller flying the built-in plant, or ``plant`` (a :class:`.mjplant.MujocoPlant`)."""
+    CA, PA = s.CA, s.PA
     B = s.x0.shape[0]
     sens = SensorSuite(s.sensors, PA, s.dt)
-    x = s.x0.copy()
+    plant = _BuiltinPlant(PA, s.dist, s.x0) if plant is None else plant
     x_park = s.x0.copy()
-    sens.push(x)
+    sens.push(plant.x)
     CS = initial_controller_state(CA)
     n_rotors = PA.spins.shape[-1]
     logs = np.full((B, s.N, row_width(n_rotors)), np.nan)
@@ -515,13 +558,11 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
         thrust_prev, tau_prev = CS.thrust_prev, CS.tau_B_prev
         CS, out = controller_step(CA, CS, meas, ref)
 
-        x_dot = plant_derivative(PA, x, out.f_rotor, t, dist)
+        x = plant.x
+        a_o, w_dot, f_env, tau_env = plant.truth(t, out.f_rotor)
         R = quat_to_rotation(x[..., QUAT])
         eta = euler_from_rotation(R)
-        f_env, tau_env = environment_wrench(PA, t, x, R, dist)
-        u = rotor_wrench(PA, x[..., ROTOR])[0]
-        f_env = f_env + link_force(PA, x, -u[..., None] * R[..., :, 2] + f_env)[0]  # the pendulum's pull
-        f_lump, tau_lump = _lumped_wrench(PA, x, x_dot, R, eta, thrust_prev, tau_prev, CA.mass, CA.I_B)
+        f_lump, tau_lump = _lumped_wrench(PA, x, a_o, w_dot, R, eta, thrust_prev, tau_prev, CA.mass, CA.I_B)
         p_o, v_o = origin_kinematics(PA, x, R)
         row = {
             "p_W": p_o,
@@ -559,19 +600,16 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None):
             val = val.reshape(B, n)
             logs[alive, k, off : off + n] = val[alive]
 
-        x = apply_instant_rotors(PA, x, out.f_rotor)
-        for j in range(s.n_sub):
-            x = rk4_step(PA, x, out.f_rotor, t + j * s.dt, s.dt, dist)
-            sens.push(x)
+        plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)
 
-        code = _check_vehicles(PA, x)
+        code = _check_vehicles(PA, plant.x)
         newly = alive & (code != 0)
         if np.any(newly):
             fail_code[newly] = code[newly]
             fail_time[newly] = t + s.Ts
             alive &= ~newly
             # Park failed vehicles so that their NaNs cannot reach the others' arithmetic.
-            x = np.where(alive[:, None], x, x_park)
+            plant.park(alive, x_park)
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
             progress((k + 1) / s.N)
 

@@ -1,0 +1,404 @@
+"""MuJoCo as an independent plant: the same vehicle, payload, pendulum, ground and walls, in another engine.
+
+The model is generated here from :class:`~.plant.PlantParams` (no files are downloaded) in MuJoCo's usual
+z-up convention, so that it looks right in MuJoCo's own viewer: world ENU, body FLU. Everything crossing
+the boundary is converted with ``T_NED_ENU`` and ``T_FRD_FLU`` (:mod:`vtol_impedance.conventions`);
+the rest of the library sees the same state layout as the built-in plant (:mod:`.plant`).
+
+What MuJoCo computes itself, not from this package's equations:
+
+* rigid-body dynamics of the vehicle (a free joint) with the payload as a welded child body, so the
+  composite mass, centre of mass and inertia come from MuJoCo's own composition;
+* the pendulum: a ball joint at the vehicle's centre of mass and the bob as a body (with a 5 mm sphere's
+  inertia about its centre, 4e-5 of ``m L^2`` for the default link), so the link force is a constraint
+  force of MuJoCo's solver;
+* rotor forces: one site actuator per rotor, force along the site's ``+z`` (FLU up) and the yaw reaction
+  ``-s_i c f_i`` about it (a propeller turning counter-clockwise seen from above, ``s_i = +1``, turns the
+  body clockwise seen from above), through MuJoCo's first-order activation filter (``filter``,
+  integrated by MuJoCo's RK4 with the rest of the state; ``filterexact`` under RK4 was measured 1e-4 N
+  off the exact response); its time constant is set per control period to ``rotor_tau_up`` or
+  ``rotor_tau_down`` by the direction the command asks for;
+* ground and walls: MuJoCo's soft contacts with Coulomb friction: the ground plane touched by 1 cm
+  spheres at the two contact points of the built-in plant (the body origin, the payload), each wall by
+  its bumper (a sphere of the wall's radius around the body origin, as in :class:`.disturbances.Wall`).
+  Their stiffness and damping per unit mass are ``k / m`` and ``c / m`` of the built-in ground and wall
+  (``solref < 0`` with a constant impedance of 0.5), which makes the static stiffness about the same
+  (measured within 15 %); the force law under motion is MuJoCo's.
+
+Explicit disturbances (pushes, fans, gusts, wind) are the package's own functions of the MuJoCo state,
+evaluated at the start of each step like in the built-in plant: the force through ``xfrc_applied`` at
+the body origin, the moment through three body-frame motors on the site ``origin`` (held in the body
+frame over the step, as the built-in plant holds it). The linear rotor drag ``-k v_o`` is the free
+joint's damping on its three linear velocities (the body origin's, in the world frame), evaluated by
+MuJoCo at every stage. MuJoCo's fluid model is off (zero density and viscosity), so no drag is counted
+twice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..conventions import T_FRD_FLU, T_NED_ENU, G
+from ..errors import InputError
+from ..model.dynamics import matvec
+from ..model.kinematics import cross, quat_to_rotation
+from .disturbances import DisturbanceSet, Wall
+from .plant import OMEGA, P_COM, PEND_R, PEND_V, QUAT, ROTOR, V_COM, PlantArrays, PlantParams, origin_kinematics
+
+INSTALL_HINT = "pip install 'vtol-impedance[mujoco]'"
+#: Radius of the contact spheres; the planes are moved by it so that contact starts at the point itself.
+CONTACT_RADIUS_M = 0.01
+#: Radius of the sphere whose inertia the pendulum's bob carries (a ball joint needs a body with inertia).
+BOB_RADIUS_M = 0.005
+#: Collision bits: the ground is bit 0, wall i bit i + 1 (MuJoCo's masks have 32 bits).
+MAX_WALLS = 30
+#: MuJoCo's constraint impedance, held constant so that ``solref = (-k/m, -c/m)`` scales simply.
+IMPEDANCE = 0.5
+
+
+def require_mujoco() -> Any:
+    """The ``mujoco`` module, or a clear error saying how to install it."""
+    try:
+        import mujoco
+    except ImportError:
+        raise InputError(
+            f"the MuJoCo plant (--plant mujoco, backend='mujoco') needs the mujoco package: {INSTALL_HINT}"
+        ) from None
+    return mujoco
+
+
+def _f(x: float) -> str:
+    return repr(float(x))  # the shortest text that reads back as the same double
+
+
+def _v(a: np.ndarray) -> str:
+    return " ".join(_f(x) for x in np.ravel(a))
+
+
+def _flu(v_frd: np.ndarray) -> np.ndarray:
+    return T_FRD_FLU @ np.asarray(v_frd, dtype=float)
+
+
+def _enu(v_ned: np.ndarray) -> np.ndarray:
+    return T_NED_ENU @ np.asarray(v_ned, dtype=float)
+
+
+def _contact_attrs(stiffness: float, damping: float, mass: float) -> str:
+    """``solref``/``solimp`` for a contact of ``stiffness`` N/m and ``damping`` N s/m on a body of ``mass``.
+
+    With ``solimp`` fixed at ``d``, MuJoCo scales a negative ``solref`` by ``d^2`` and ``d``; these undo it.
+    """
+    d = IMPEDANCE
+    k, c = stiffness / mass * d * d, damping / mass * d
+    return f'solref="{-k:.10g} {-c:.10g}" solimp="{d} {d} 0.001 0.5 2"'
+
+
+def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) -> str:
+    """The MJCF text of the true vehicle ``P`` with ``walls`` (z-up: world ENU, body FLU).
+
+    Bodies: ``vehicle`` (free joint, the bare vehicle with its centre of mass at the body origin),
+    ``payload`` (welded, a point mass at ``payload_offset_B``), ``bob`` (ball joint at the composite
+    centre of mass). Sites ``rotor<i>`` carry the actuators ``rotor<i>``.
+    """
+    v = P.vehicle
+    m_b, m_p, m_l = v.mass, float(P.payload_mass), float(P.pendulum_mass)
+    r_p = np.asarray(P.payload_offset_B, dtype=float)
+    c_B = m_p * r_p / (m_b + m_p)
+    scale = np.broadcast_to(np.asarray(P.inertia_scale, dtype=float), (3,))
+    I_frd = v.inertia * np.sqrt(np.outer(scale, scale))
+    I_flu = T_FRD_FLU @ I_frd @ T_FRD_FLU
+    m_all = m_b + m_p + m_l
+    r0 = CONTACT_RADIUS_M
+    if len(walls) > MAX_WALLS:
+        raise InputError(f"the MuJoCo plant takes at most {MAX_WALLS} walls, got {len(walls)}")
+    g = v.geometry
+    pos = g.positions_B * P.arm_length_scale
+    cq = v.drag_factor * P.drag_factor_scale
+    lag = P.rotor_tau_up > 0 and P.rotor_tau_down > 0
+    out = [
+        '<mujoco model="vtol-impedance">',
+        '  <compiler angle="radian" autolimits="true"/>',
+        f'  <option timestep="{_f(timestep)}" gravity="0 0 {-G}" integrator="RK4" density="0" viscosity="0"/>',
+        "  <worldbody>",
+    ]
+    if P.ground:
+        out.append(
+            f'    <geom name="ground" type="plane" size="0 0 1" pos="0 0 {-r0}" contype="0" conaffinity="1" '
+            f'friction="1 0.005 0.0001" {_contact_attrs(P.ground_stiffness, P.ground_damping, m_all)}/>'
+        )
+    bumpers = []
+    for i, w in enumerate(walls):
+        # wall i collides only with bumper i: a sphere of the wall's radius around the body origin (as
+        # in the built-in wall), or of CONTACT_RADIUS_M with the plane moved to keep the contact point
+        n = np.asarray(w.normal_W)
+        radius = max(w.radius, r0)
+        at = np.asarray(w.position_W) + (w.radius - radius) * n
+        bit = 1 << (i + 1)
+        out.append(
+            f'    <geom name="wall{i}" type="plane" size="0 0 1" pos="{_v(_enu(at))}" zaxis="{_v(_enu(n))}" '
+            f'contype="0" conaffinity="{bit}" condim="3" friction="{w.friction:.10g} 0.005 0.0001" '
+            f"{_contact_attrs(w.stiffness, w.damping, m_all)}/>"
+        )
+        bumpers.append(
+            f'      <geom name="bumper{i}" type="sphere" size="{_f(radius)}" mass="0" contype="{bit}" '
+            'conaffinity="0" rgba="0.9 0.6 0.2 0.3"/>'
+        )
+    out += [
+        '    <body name="vehicle">',
+        '      <freejoint name="vehicle"/>',
+        f'      <inertial pos="0 0 0" mass="{_f(m_b)}" fullinertia="{_f(I_flu[0, 0])} {_f(I_flu[1, 1])} '
+        f'{_f(I_flu[2, 2])} {_f(I_flu[0, 1])} {_f(I_flu[0, 2])} {_f(I_flu[1, 2])}"/>',
+        f'      <geom name="origin" type="sphere" size="{r0}" mass="0" contype="1" conaffinity="0"/>',
+        '      <site name="origin" pos="0 0 0" size="0.01"/>',
+        *bumpers,
+    ]
+    for i, r_i in enumerate(pos):
+        out.append(f'      <site name="rotor{i}" pos="{_v(_flu(r_i))}" size="0.02"/>')
+    if m_p > 0:
+        out += [
+            f'      <body name="payload" pos="{_v(_flu(r_p))}">',
+            f'        <inertial pos="0 0 0" mass="{_f(m_p)}" diaginertia="1e-12 1e-12 1e-12"/>',
+            f'        <geom name="payload" type="sphere" size="{r0}" mass="0" contype="1" conaffinity="0"/>',
+            "      </body>",
+        ]
+    if m_l > 0:
+        L = P.pendulum_length
+        i_bob = 0.4 * m_l * BOB_RADIUS_M**2
+        out += [
+            f'      <body name="bob" pos="{_v(_flu(c_B))}">',
+            '        <joint name="link" type="ball"/>',
+            f'        <inertial pos="0 0 {_f(-L)}" mass="{_f(m_l)}" diaginertia="{_v([i_bob] * 3)}"/>',
+            f'        <geom type="capsule" fromto="0 0 0 0 0 {_f(-L)}" size="0.004" mass="0" '
+            'contype="0" conaffinity="0"/>',
+            "      </body>",
+        ]
+    out += ["    </body>", "  </worldbody>", "  <actuator>"]
+    for i, s_i in enumerate(g.spins):
+        dyn = f'dyntype="filter" dynprm="{_f(P.rotor_tau_up)}"' if lag else 'dyntype="none"'
+        out.append(
+            f'    <general name="rotor{i}" site="rotor{i}" gear="0 0 1 0 0 {_f(-s_i * cq)}" {dyn} gaintype="fixed" '
+            f'gainprm="1" biastype="none" ctrlrange="{_f(g.f_min[i])} {_f(g.f_max[i])}"/>'
+        )
+    for axis, gear in zip("xyz", np.eye(3), strict=True):  # disturbance moments, held in the body frame
+        out.append(f'    <motor name="moment_{axis}" site="origin" gear="0 0 0 {_v(gear)}" ctrllimited="false"/>')
+    out += ["  </actuator>", "</mujoco>"]
+    return "\n".join(out) + "\n"
+
+
+def scene_mjcf(P: PlantParams, disturbances: Sequence[Any] = (), timestep: float = 0.001) -> str:
+    """:func:`mjcf` with the walls found among ``disturbances`` (the others are forces applied at run time)."""
+    return mjcf(P, [d for d in disturbances if isinstance(d, Wall)], timestep)
+
+
+def _mat2quat(mj: Any, R: np.ndarray) -> np.ndarray:
+    q = np.empty(4)
+    mj.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
+    return q
+
+
+def _quat_z_to(mj: Any, u: np.ndarray) -> np.ndarray:
+    q = np.empty(4)
+    mj.mju_quatZ2Vec(q, np.ascontiguousarray(u, dtype=float))
+    return q
+
+
+class MujocoPlant:
+    """B vehicles, each its own MuJoCo model and data, stepped with held rotor commands.
+
+    ``x`` is the state of every vehicle in the layout of :mod:`.plant` (NED/FRD, composite centre of
+    mass, rotor forces, pendulum), converted from MuJoCo's after every step.
+    """
+
+    def __init__(
+        self, plants: Sequence[PlantParams], PA: PlantArrays, dist: DisturbanceSet, x0: np.ndarray, dt: float
+    ) -> None:
+        mj = require_mujoco()
+        self.mj = mj
+        self.PA = PA
+        walls = [d for d in dist.items if isinstance(d, Wall)]
+        self.forces = DisturbanceSet([d for d in dist.items if not isinstance(d, Wall)])
+        texts: dict[int, str] = {}
+        self.models = []
+        for p in plants:
+            if id(p) not in texts:
+                texts[id(p)] = mjcf(p, walls, dt)
+            m = mj.MjModel.from_xml_string(texts[id(p)])  # one each: the rotor lag is set per vehicle
+            m.dof_damping[0:3] = p.rotor_drag  # -k v_o at the origin: the free joint's linear velocity
+            self.models.append(m)
+        self.datas = [mj.MjData(m) for m in self.models]
+        m0 = self.models[0]
+        self.vehicle = mj.mj_name2id(m0, mj.mjtObj.mjOBJ_BODY, "vehicle")
+        self.bob = [mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, "bob") for m in self.models]
+        self.lag = np.array([m.actuator_dyntype[0] != mj.mjtDyn.mjDYN_NONE for m in self.models])
+        self.vehicle_geoms = [
+            {i for i in range(m.ngeom) if m.geom_bodyid[i] != 0 and m.body_rootid[m.geom_bodyid[i]] == self.vehicle}
+            for m in self.models
+        ]
+        self.n = PA.spins.shape[-1]
+        self.x = np.array(x0, dtype=float)
+        self.failed = np.zeros(len(self.datas), dtype=bool)
+        self.frozen = np.zeros(len(self.datas), dtype=bool)
+        for b in range(len(self.datas)):
+            self.set_state(b, self.x[b])
+
+    # -- state conversion -------------------------------------------------------------------------------
+    def set_state(self, b: int, x: np.ndarray) -> None:
+        """Put vehicle ``b`` in the state ``x`` (layout of :mod:`.plant`)."""
+        mj, m, d = self.mj, self.models[b], self.datas[b]
+        mj.mj_resetData(m, d)
+        PA = _index(self.PA, b)
+        R = quat_to_rotation(x[QUAT])
+        w_B = x[OMEGA]
+        c = PA.c_B
+        p_o = x[P_COM] - R @ c
+        v_o = x[V_COM] - R @ cross(w_B, c)
+        R_enu = T_NED_ENU @ R @ T_FRD_FLU
+        d.qpos[0:3] = _enu(p_o)
+        d.qpos[3:7] = _mat2quat(mj, R_enu)
+        d.qvel[0:3] = _enu(v_o)
+        d.qvel[3:6] = _flu(w_B)
+        if self.bob[b] >= 0:
+            r, rd = T_NED_ENU @ x[PEND_R], T_NED_ENU @ x[PEND_V]
+            L = np.linalg.norm(r)
+            u_B = R_enu.T @ (r / L)  # the link's direction in the vehicle's frame
+            q_rel = _quat_z_to(mj, -u_B)  # the bob hangs along the joint frame's -z
+            R_rel = np.empty(9)
+            mj.mju_quat2Mat(R_rel, q_rel)
+            R_bob = R_enu @ R_rel.reshape(3, 3)
+            w_bob_W = np.cross(r, rd) / (L * L)  # the bob's rotation with no spin about the link
+            d.qpos[7:11] = q_rel
+            d.qvel[6:9] = R_bob.T @ (w_bob_W - R_enu @ _flu(w_B))
+        if self.lag[b]:
+            d.act[:] = x[ROTOR]
+        d.ctrl[: self.n] = x[ROTOR]
+        mj.mj_forward(m, d)
+
+    def _read(self) -> np.ndarray:
+        """The state of every vehicle from MuJoCo's ``qpos``, ``qvel`` and ``act``."""
+        mj = self.mj
+        B = len(self.datas)
+        x = np.zeros_like(self.x)
+        qpos = np.array([d.qpos[:7] for d in self.datas])
+        qvel = np.array([d.qvel[:6] for d in self.datas])
+        R_enu = np.empty((B, 9))
+        for b in range(B):
+            mj.mju_quat2Mat(R_enu[b], qpos[b, 3:7])
+        R_enu = R_enu.reshape(B, 3, 3)
+        R = T_NED_ENU @ R_enu @ T_FRD_FLU
+        p_o = qpos[:, 0:3] @ T_NED_ENU.T
+        v_o = qvel[:, 0:3] @ T_NED_ENU.T
+        w_B = qvel[:, 3:6] @ T_FRD_FLU.T
+        c = self.PA.c_B
+        x[:, P_COM] = p_o + matvec(R, np.broadcast_to(c, p_o.shape))
+        x[:, V_COM] = v_o + matvec(R, cross(w_B, np.broadcast_to(c, p_o.shape)))
+        x[:, QUAT] = [_mat2quat(mj, Rb) for Rb in R]
+        x[:, OMEGA] = w_B
+        for b, d in enumerate(self.datas):
+            x[b, ROTOR] = d.act if self.lag[b] else np.clip(d.ctrl[: self.n], self.PA.f_min[b], self.PA.f_max[b])
+            if self.bob[b] >= 0:
+                q_rel, w_rel = d.qpos[7:11], d.qvel[6:9]
+                R_rel = np.empty(9)
+                mj.mju_quat2Mat(R_rel, q_rel)
+                R_bob = R_enu[b] @ R_rel.reshape(3, 3)
+                L = float(self.PA.pend_L[b])
+                r = R_bob @ np.array([0.0, 0.0, -L])
+                w_bob = R_enu[b] @ qvel[b, 3:6] + R_bob @ w_rel
+                x[b, PEND_R] = T_NED_ENU @ r
+                x[b, PEND_V] = T_NED_ENU @ np.cross(w_bob, r)
+        return x
+
+    # -- the loop's interface ---------------------------------------------------------------------------
+    def _forces(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Explicit disturbances (world force at the origin, body moment) and the origin's velocity."""
+        R = quat_to_rotation(self.x[:, QUAT])
+        p_o, v_o = origin_kinematics(self.PA, self.x, R)
+        f_W, tau_B = self.forces(t, p_o, v_o, R)
+        return f_W, np.broadcast_to(tau_B, f_W.shape), v_o
+
+    def _apply(self, t: float, f_cmd: np.ndarray) -> None:
+        """Rotor commands, and the explicit disturbances held over the next step: the force (world) through
+        ``xfrc_applied``, the moment through the body-frame actuators ``moment_*`` (held in the body
+        frame, as the built-in plant holds it)."""
+        f_W, tau_B, _ = self._forces(t)
+        n = self.n
+        for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
+            d.ctrl[:n] = f_cmd[b]
+            d.ctrl[n:] = _flu(tau_B[b])
+            if self.lag[b]:
+                target = np.clip(f_cmd[b], self.PA.f_min[b], self.PA.f_max[b])
+                m.actuator_dynprm[:n, 0] = np.where(target > d.act, self.PA.tau_up[b], self.PA.tau_down[b])
+            d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
+
+    def truth(self, t: float, f_cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What acts at the start of the period: the body origin's acceleration ``a_o_W`` and ``w_dot_B``
+        from MuJoCo's ``qacc``, and the external force (world, at the origin) and moment (body, about the
+        origin): the explicit ones applied, MuJoCo's contact forces and the pendulum link's pull."""
+        mj = self.mj
+        self._apply(t, f_cmd)
+        f_W, tau_B, v_o = self._forces(t)
+        f_W, tau_B = f_W - self.PA.rotor_drag[:, None] * v_o, tau_B.copy()
+        B = len(self.datas)
+        a_o, w_dot = np.zeros((B, 3)), np.zeros((B, 3))
+        f6 = np.zeros(6)
+        acc = np.zeros(6)
+        for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
+            mj.mj_forward(m, d)
+            mj.mj_rnePostConstraint(m, d)
+            a_o[b] = T_NED_ENU @ d.qacc[0:3]
+            w_dot[b] = T_FRD_FLU @ d.qacc[3:6]
+            R_enu = d.xmat[self.vehicle].reshape(3, 3)
+            p_o = d.xpos[self.vehicle]
+            f_c = np.zeros(3)
+            tau_c = np.zeros(3)
+            for k in range(d.ncon):
+                con = d.contact[k]
+                if con.geom1 in self.vehicle_geoms[b]:
+                    sign = -1.0
+                elif con.geom2 in self.vehicle_geoms[b]:
+                    sign = 1.0
+                else:
+                    continue
+                mj.mj_contactForce(m, d, k, f6)
+                f_world = sign * (f6[:3] @ con.frame.reshape(3, 3))  # on the vehicle
+                f_c += f_world
+                tau_c += np.cross(con.pos - p_o, f_world)
+            if self.bob[b] >= 0:
+                # MuJoCo's accelerations include gravity as an upward acceleration of the world (what an
+                # accelerometer reads), so the bob's is its proper acceleration: the link pulls the vehicle
+                # by minus the bob's mass times it.
+                mj.mj_objectAcceleration(m, d, mj.mjtObj.mjOBJ_BODY, self.bob[b], acc, 0)
+                f_link = -m.body_mass[self.bob[b]] * acc[3:6]
+                f_c += f_link
+            f_W[b] += T_NED_ENU @ f_c
+            tau_B[b] += T_FRD_FLU @ (R_enu.T @ tau_c)
+        return a_o, w_dot, f_W, tau_B
+
+    def advance(self, t: float, f_cmd: np.ndarray, n_sub: int, dt: float, push: Any) -> None:
+        """``n_sub`` MuJoCo steps with the rotor commands held; the explicit forces are evaluated at the
+        start of each step (as the built-in plant does); ``push(x)`` after each."""
+        mj = self.mj
+        for j in range(n_sub):
+            self._apply(t + j * dt, f_cmd)
+            for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
+                if not (self.failed[b] or self.frozen[b]):
+                    mj.mj_step(m, d)
+                    if d.warning[mj.mjtWarning.mjWARN_BADQACC].number > 0:
+                        self.failed[b] = True
+            self.x = self._read()
+            self.x[self.failed] = np.nan
+            push(self.x)
+
+    def park(self, alive: np.ndarray, x_park: np.ndarray) -> None:
+        """Failed vehicles go back to ``x_park`` and stay there (no more steps, no solver warnings)."""
+        for b in np.flatnonzero(~alive & ~self.frozen):
+            self.set_state(int(b), x_park[b])
+            self.failed[b] = False
+            self.frozen[b] = True
+        self.x = self._read()
+
+
+def _index(PA: PlantArrays, b: int) -> PlantArrays:
+    return PlantArrays(*(np.asarray(a)[b] for a in PA))
