@@ -11,7 +11,8 @@ Layouts (flat float64 vectors, so that one call passes few arguments):
 * shared design ``sh``: ``[Ts, filter wn, filter zeta, filter Ad (4), filter Bd (2)]`` and the estimator's
   part (:func:`vtol_impedance.compiled.estimator.design_tail`);
 * controller state ``cs`` (:func:`state_size`), measurement ``y = [p_W, v_W, eta, eta_dot]`` (12),
-  reference ``r = [p_d, v_d, a_d, psi, psi_dot, psi_ddot]`` (12) or with ``comply`` (3) appended (15),
+  reference ``r = [p_d, v_d, a_d, psi, psi_dot, psi_ddot]`` (12), or with ``comply`` appended: 3 for the
+  world axes (15) or 6 for the world axes and the Euler angles (18),
   output ``o`` (:data:`OUT_SIZE`).
 """
 
@@ -33,7 +34,8 @@ from .estimator import design_tail, estimator_update, rate_offset, sh_offsets, s
 CP_MASS, CP_I = 0, 1
 CP_KP, CP_DP, CP_KI, CP_KO, CP_DO = 10, 13, 16, 19, 22
 CP_COMP, CP_TILT, CP_LIFT, CP_ILIM, CP_SHIFT, CP_NR = 25, 26, 27, 28, 29, 30
-CP_MD, CP_DD, CP_KD, CP_CEN, CP_ROT = 31, 34, 37, 40, 41  # comply impedance (3 each), comply enabled
+CP_MD, CP_DD, CP_KD, CP_CEN = 31, 34, 37, 40  # comply impedance (3 each), comply enabled
+CP_MOD, CP_DOD, CP_KOD, CP_ROT = 41, 44, 47, 50  # comply attitude impedance (3 each)
 
 # output row; the n rotor forces come last
 O_THRUST, O_TAU, O_SAT, O_THRUST_REQ, O_TAU_REQ = 0, 1, 4, 5, 6
@@ -80,6 +82,9 @@ def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
     cp[:, CP_DD : CP_DD + 3] = P.Dd
     cp[:, CP_KD : CP_KD + 3] = P.Kd
     cp[:, CP_CEN] = P.comply_enable
+    cp[:, CP_MOD : CP_MOD + 3] = P.Mo_d
+    cp[:, CP_DOD : CP_DOD + 3] = P.Do_d
+    cp[:, CP_KOD : CP_KOD + 3] = P.Ko_d
     r0 = CP_ROT
     cp[:, r0 : r0 + 4 * nr] = P.E_pinv.reshape(B, 4 * nr)
     cp[:, r0 + 4 * nr : r0 + 8 * nr] = P.E.reshape(B, 4 * nr)
@@ -240,6 +245,17 @@ def _impedance_axis(cp, cs, r, i, m, comp, e, ev, fh, fl, fdot, lead, ig):
     return mu + lam * lead * rate
 
 
+@njit(cache=True, inline="always")
+def _attitude_axis(cp, sh, cs, r, i, tb, eta_d_ddot, de, ee, th, ilag, ird):
+    """``tau_bar`` on Euler angle ``i`` blended with ``M_o e'' + D_o e' + K_o e = tau_ext_eta``, and the
+    moment (14) cancels; both use the estimate advanced by G's delay, as
+    :func:`vtol_impedance.control.impedance.controller_step`."""
+    lam = min(max(r[15 + i], 0.0), 1.0)
+    lead = th + sh[ilag + 3 + i] * cs[ird + 3 + i]
+    comply = eta_d_ddot - (cp[CP_DOD + i] * de + cp[CP_KOD + i] * ee - lead) / cp[CP_MOD + i]
+    return (1.0 - lam) * tb + lam * comply, th + lam * (lead - th)
+
+
 def thrust_prev_index(n: int) -> int:
     """Where the held thrust sits in the controller state (the held torque follows it)."""
     return 6 * n + 21
@@ -304,9 +320,14 @@ def controller_step(cp, sh, cs, y, r, o):
     k2 = ce[2] + cp[CP_DO + 2] * de2 + cp[CP_KO + 2] * ee2
     s0, s1, s2 = _solve9(M, k0, k1, k2)
     tb0, tb1, tb2 = eddd0 - s0, eddd1 - s1, r[11] - s2
+    tc0, tc1, tc2 = th0, th1, th2  # the moment (14) cancels
+    if cp[CP_CEN] > 0.5 and r.shape[0] >= 18:  # per Euler angle, "comply" blends in its own law
+        tb0, tc0 = _attitude_axis(cp, sh, cs, r, 0, tb0, eddd0, de0, ee0, th0, ilag, ird)
+        tb1, tc1 = _attitude_axis(cp, sh, cs, r, 1, tb1, eddd1, de1, ee1, th1, ilag, ird)
+        tb2, tc2 = _attitude_axis(cp, sh, cs, r, 2, tb2, r[11], de2, ee2, th2, ilag, ird)
     QT = _t9(Q)
     cd = _mv9(C, d0, d1, d2)
-    g0, g1, g2 = _solve9(QT, cd[0] - comp * th0, cd[1] - comp * th1, cd[2] - comp * th2)
+    g0, g1, g2 = _solve9(QT, cd[0] - comp * tc0, cd[1] - comp * tc1, cd[2] - comp * tc2)
     iq = _mv9(_mm9(I, Q), tb0, tb1, tb2)
     tr0, tr1, tr2 = iq[0] + g0, iq[1] + g1, iq[2] + g2
     hb0, hb1, hb2 = _solve9(QT, th0, th1, th2)
@@ -350,7 +371,7 @@ def checked_step(cp, sh, cs, y, r, o):
     Euler singularity (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`), 3 for a
     wrong length. The explicit signature refuses anything but C-contiguous float64 arrays at dispatch
     (a float32 or strided input would otherwise compile a new, silently different specialisation)."""
-    if y.shape[0] != 12 or (r.shape[0] != 12 and r.shape[0] != 15):
+    if y.shape[0] != 12 or (r.shape[0] != 12 and r.shape[0] != 15 and r.shape[0] != 18):
         return 3
     for i in range(12):
         if not (math.isfinite(y[i]) and math.isfinite(r[i])):

@@ -118,22 +118,31 @@ class ImpedanceGains:
 
 @dataclass(frozen=True, eq=False)
 class Impedance:
-    """The translational impedance a ``comply`` controller shows, per world axis (NED):
-    ``M_d e'' + D_d e' + K_d e = f_ext`` with ``e = p - p_d``.
+    """The impedance a ``comply`` controller shows, per world axis (NED):
+    ``M_d e'' + D_d e' + K_d e = f_ext`` with ``e = p - p_d``, and per Euler angle:
+    ``M_o e_eta'' + D_o e_eta' + K_o e_eta = tau_ext_eta`` with ``e_eta = eta - eta_d`` (the moment in
+    Euler coordinates, as in eq. (5b)).
 
-    ``M`` apparent mass [kg], ``D`` damping [N s/m], ``K`` stiffness [N/m]; scalars or three values, all
-    positive. With ``M`` equal to the vehicle's mass no estimate is needed (it is a plain PD); any other
-    apparent mass needs the estimated force, fed forward with weight ``m / M - 1``: the vehicle's own
-    inertia must be cancelled in part (``M > m``: it feels heavier) or amplified (``M < m``), and only the
-    estimate says how hard it is being pushed.
+    ``M`` apparent mass [kg], ``D`` damping [N s/m], ``K`` stiffness [N/m]; ``M_o`` apparent inertia
+    [kg m^2], ``D_o`` [N m s/rad], ``K_o`` [N m/rad]; scalars or three values, all positive. The attitude
+    ones default (``None``) to the vehicle's own inertia and attitude gains. With ``M`` equal to the
+    vehicle's mass no estimate is needed (it is a plain PD); any other apparent mass needs the estimated
+    force, fed forward with weight ``m / M - 1``: the vehicle's own inertia must be cancelled in part
+    (``M > m``: it feels heavier) or amplified (``M < m``), and only the estimate says how hard it is
+    being pushed. The same holds for ``M_o`` and the estimated moment.
     """
 
     M: np.ndarray | float
     D: np.ndarray | float
     K: np.ndarray | float
+    M_o: np.ndarray | float | None = None
+    D_o: np.ndarray | float | None = None
+    K_o: np.ndarray | float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("M", "D", "K"):
+        for name in ("M", "D", "K", "M_o", "D_o", "K_o"):
+            if getattr(self, name) is None:
+                continue
             arr = _vec3(f"impedance {name}", getattr(self, name))
             if np.any(arr <= 0):
                 raise InputError(f"impedance {name} must be positive on every axis, got {arr.tolist()}")
@@ -145,4 +154,5 @@ class Impedance:
         return {"wn": wn, "zeta": self.D / (2.0 * np.sqrt(self.K * self.M))}
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {k: getattr(self, k).tolist() for k in ("M", "D", "K")}
+        names = ("M", "D", "K", "M_o", "D_o", "K_o")
+        return {k: getattr(self, k).tolist() for k in names if getattr(self, k) is not None}

@@ -172,6 +172,9 @@ class ControllerArrays(NamedTuple):
     Md: np.ndarray  # (..., 3) apparent mass of "comply", kg
     Dd: np.ndarray  # (..., 3) N s/m
     Kd: np.ndarray  # (..., 3) N/m
+    Mo_d: np.ndarray  # (..., 3) apparent inertia of "comply" per Euler angle, kg m^2
+    Do_d: np.ndarray  # (..., 3) N m s/rad
+    Ko_d: np.ndarray  # (..., 3) N m/rad
     comply_enable: np.ndarray  # (...) 1 for the "comply" variant
     est: EstimatorDesign
     filt: FilterDesign
@@ -231,6 +234,9 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         Md=col(lambda p: imp[id(p)].M),
         Dd=col(lambda p: imp[id(p)].D),
         Kd=col(lambda p: imp[id(p)].K),
+        Mo_d=col(lambda p: _or(imp[id(p)].M_o, np.diag(p.vehicle.inertia))),
+        Do_d=col(lambda p: _or(imp[id(p)].D_o, p.gains.Do)),
+        Ko_d=col(lambda p: _or(imp[id(p)].K_o, p.gains.Ko)),
         comply_enable=col(lambda p: 1.0 if p.variant == "comply" else 0.0),
         est=design(p0.estimator, p0.Ts),
         filt=design_filter(p0.attitude_filter_wn, p0.attitude_filter_zeta, p0.Ts),
@@ -274,7 +280,9 @@ def controller_step(
     # stiff rejecting law (lam = 0) with M_d e'' + D_d e' + K_d e = f_ext (lam = 1):
     # u/m = a_d - (D_d e' + K_d e) / M_d + (1/M_d - 1/m) f, with f the estimate advanced by G's
     # low-frequency delay (f_hat + lag f_hat_dot): without it the delay shows up as damping and mass.
-    lam = P.comply_enable[..., None] * np.clip(ref.comply, 0.0, 1.0)
+    comply = comply6(ref.comply)
+    lam = P.comply_enable[..., None] * np.clip(comply[..., :3], 0.0, 1.0)
+    lam_o = P.comply_enable[..., None] * np.clip(comply[..., 3:], 0.0, 1.0)
     Kp = (1.0 - lam) * P.Kp + lam * m3 * P.Kd / P.Md
     Dp = (1.0 - lam) * P.Dp + lam * m3 * P.Dd / P.Md
     f_lead = f_hat_W + P.est.lag[:3] * est.r_dot[..., :3]
@@ -309,9 +317,16 @@ def controller_step(
     e_eta_dot = eta_dot - eta_d_dot
     damp = P.Do * e_eta_dot + matvec(C, e_eta_dot) + P.Ko * e_eta
     tau_bar = eta_d_ddot - np.linalg.solve(M, damp[..., None])[..., 0]
+    # Per Euler angle, "comply" blends in M_o e'' + D_o e' + K_o e = tau_ext_eta: with (14) cancelling
+    # the moment, eta'' = tau_bar, so tau_bar is that law's acceleration. Both use the estimate advanced
+    # by G's delay (measured: with the plain estimate in (14) a 0.01 kg m^2 yaw inertia came out at 0.003).
+    tau_lead = tau_hat_eta + P.est.lag[3:] * est.r_dot[..., 3:]
+    tau_bar_comply = eta_d_ddot - (P.Do_d * e_eta_dot + P.Ko_d * e_eta - tau_lead) / P.Mo_d
+    tau_bar = (1.0 - lam_o) * tau_bar + lam_o * tau_bar_comply
+    tau_comp = tau_hat_eta + lam_o * (tau_lead - tau_hat_eta)
     QT = transpose(Q)
     tau_B_req = (
-        matvec(P.I_B @ Q, tau_bar) + np.linalg.solve(QT, (matvec(C, eta_dot) - comp * tau_hat_eta)[..., None])[..., 0]
+        matvec(P.I_B @ Q, tau_bar) + np.linalg.solve(QT, (matvec(C, eta_dot) - comp * tau_comp)[..., None])[..., 0]
     )
     tau_hat_B = np.linalg.solve(QT, tau_hat_eta[..., None])[..., 0]
 
@@ -362,15 +377,33 @@ def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _or(value: np.ndarray | None, default: np.ndarray) -> np.ndarray:
+    return default if value is None else value
+
+
+def comply6(comply: np.ndarray | float) -> np.ndarray:
+    """Comply fractions ``(..., 6)`` for ``[x, y, z, roll, pitch, yaw]`` from 1, 3 (the world axes; the
+    attitude rejects) or 6 values."""
+    c = np.asarray(comply, dtype=float)
+    if c.shape[-1:] == (6,):
+        return c
+    if c.shape[-1:] != (3,):
+        c = np.broadcast_to(c[..., None], c.shape + (3,))  # one fraction: the world axes
+    return np.concatenate([c, np.zeros_like(c)], -1)
+
+
 def _comply_input(value: object, bs: tuple[int, ...]) -> np.ndarray:
     arr = as_finite("comply (Reference.comply)", value)
-    if arr.shape not in ((), (3,), bs + (3,)):
+    if arr.shape not in ((), (3,), (6,), bs + (3,), bs + (6,)):
         raise InputError(
-            f"Reference.comply has shape {arr.shape}; give a fraction, 3 fractions (x, y, z) or {bs + (3,)}"
+            f"Reference.comply has shape {arr.shape}; give a fraction, 3 fractions (x, y, z), 6 (x, y, z, roll, "
+            f"pitch, yaw) or {bs + (6,)}"
         )
     if np.any((arr < 0) | (arr > 1)):
         raise InputError(f"Reference.comply must be within [0, 1] (0 rejects, 1 complies), got {arr.tolist()}")
-    return np.broadcast_to(arr, bs + (3,)) if arr.shape == () else arr
+    if arr.shape == ():
+        arr = np.broadcast_to(arr, (3,))  # one fraction: the world axes
+    return np.broadcast_to(comply6(arr), bs + (6,))
 
 
 def _describe(a: object) -> str:
@@ -390,7 +423,8 @@ class Controller:
     the Euler singularity) and returns a :class:`ControlOutput` (plain floats and ``(3,)`` arrays for one
     vehicle). :meth:`step_arrays` is the low-overhead path for real-time loops: flat ``y = [p_W, v_W, eta,
     eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` (float64, shape ``(12,)``, or
-    ``(15,)`` with the comply fractions appended) in, a flat
+    ``(15,)`` or ``(18,)`` with the comply fractions of the world axes, or of the world axes and the Euler
+    angles, appended) in, a flat
     output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
 
     The controller keeps what it learnt in flight (the wrench estimate, the attitude filter, the PID
@@ -436,8 +470,8 @@ class Controller:
             self._cs = self._k.initial_state(self._cp, self._n)
 
     def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
-        """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)`` or ``(15,)`` (with
-        ``comply``), C-contiguous float64.
+        """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, ``(15,)`` or
+        ``(18,)`` (with ``comply`` for x, y, z or for x, y, z, roll, pitch, yaw), C-contiguous float64.
 
         Returns the output row (a view, overwritten by the next call). Raises :class:`InputError` on a
         wrong type, dtype, shape or a non-finite value, and :class:`SingularityError` at theta = +-90 deg.
@@ -454,8 +488,8 @@ class Controller:
         if status:
             if status == 3:
                 raise InputError(
-                    "step_arrays: y and r must be C-contiguous float64 arrays of shape (12,) (r: or (15,)), got "
-                    f"{_describe(y)} and {_describe(r)}"
+                    "step_arrays: y and r must be C-contiguous float64 arrays of shape (12,) (r: or (15,) or (18,)), "
+                    f"got {_describe(y)} and {_describe(r)}"
                 )
             if status == 2:
                 raise SingularityError(f"pitch theta = {np.degrees(y[7]):.3f} deg is at the Euler singularity")
@@ -538,7 +572,7 @@ class Controller:
                 np.broadcast_to(ref.v_W, (B, 3)),
                 np.broadcast_to(ref.a_W, (B, 3)),
                 np.stack([np.broadcast_to(v, bs).reshape(B) for v in (ref.psi, ref.psi_dot, ref.psi_ddot)], -1),
-                np.broadcast_to(ref.comply, bs + (3,)).reshape(B, 3),
+                np.broadcast_to(ref.comply, bs + (6,)).reshape(B, 6),
             ],
             -1,
         )

@@ -142,20 +142,23 @@ class Trajectory:
     segments: tuple[Segment, ...]
     yaw0: float = 0.0
     yaw_steps: tuple[tuple[float, float], ...] = ()
-    comply0: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    comply_switches: tuple[tuple[float, int, float], ...] = ()
+    comply0: tuple[float, ...] = (0.0, 0.0, 0.0)  # x, y, z (and roll, pitch, yaw: 0 if not given)
+    comply_switches: tuple[tuple[float, int, float], ...] = ()  # (time s, axis 0..5, fraction)
     blend_s: float = 0.5
     _t0: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.segments:
             raise InputError("a trajectory needs at least one segment")
-        c0 = as_finite("comply0", self.comply0, (3,))
-        if c0.shape != (3,) or np.any((c0 < 0) | (c0 > 1)):
-            raise InputError(f"comply0 must be three fractions in [0, 1] (x, y, z), got {self.comply0!r}")
+        c0 = as_finite("comply0", self.comply0)
+        if c0.shape not in ((3,), (6,)) or np.any((c0 < 0) | (c0 > 1)):
+            raise InputError(
+                f"comply0 must be 3 (x, y, z) or 6 (and roll, pitch, yaw) fractions in [0, 1], got {self.comply0!r}"
+            )
+        object.__setattr__(self, "comply0", tuple(float(c) for c in np.concatenate([c0, np.zeros(6 - c0.size)])))
         for sw in self.comply_switches:
-            if len(sw) != 3 or not isinstance(sw[1], int | np.integer) or not 0 <= sw[1] <= 2 or not 0 <= sw[2] <= 1:
-                raise InputError(f"a comply switch is (time s, axis 0|1|2, fraction 0..1), got {sw!r}")
+            if len(sw) != 3 or not isinstance(sw[1], int | np.integer) or not 0 <= sw[1] <= 5 or not 0 <= sw[2] <= 1:
+                raise InputError(f"a comply switch is (time s, axis 0..5, fraction 0..1), got {sw!r}")
             scalar("comply switch time", sw[0], lo=0.0)
         scalar("blend_s", self.blend_s, lo=0.0)
         durations = [scalar("segment duration", s.duration, lo=0.0) for s in self.segments]
@@ -174,7 +177,8 @@ class Trajectory:
         return self._t0.copy()
 
     def comply_at(self, t: np.ndarray) -> np.ndarray:
-        """The comply fraction per world axis at the times ``t``, ``(N, 3)``: each switch moves an axis from
+        """The comply fraction per axis ``[x, y, z, roll, pitch, yaw]`` at the times ``t``, ``(N, 6)``: each
+        switch moves an axis from
         its current fraction to the new one along a minimum-jerk blend of ``blend_s`` seconds."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         out = np.tile(np.asarray(self.comply0, dtype=float), (t.size, 1))
@@ -188,11 +192,11 @@ class Trajectory:
         return out
 
     def sample_many(self, t: np.ndarray) -> np.ndarray:
-        """Rows ``[p_W (3), v_W (3), a_W (3), psi, psi_dot, psi_ddot, comply (3)]`` at the times ``t``,
-        shape ``(N, 15)``."""
+        """Rows ``[p_W (3), v_W (3), a_W (3), psi, psi_dot, psi_ddot, comply (6)]`` at the times ``t``,
+        shape ``(N, 18)``."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        out = np.zeros((t.size, 15))
-        out[:, 12:15] = self.comply_at(t)
+        out = np.zeros((t.size, 18))
+        out[:, 12:18] = self.comply_at(t)
         seg = np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self.segments))
         for i, segment in enumerate(self.segments):
             m = seg == i

@@ -31,10 +31,11 @@ class Reference(NamedTuple):
     """Desired flat outputs: position ``p_W`` (m), velocity ``v_W`` (m/s), acceleration ``a_W`` (m/s^2), each
     ``(..., 3)`` in the world NED frame, and yaw ``psi`` (rad) with two derivatives.
 
-    ``comply`` (per world axis, 0..1) chooses the interaction behaviour of a controller built with
-    ``variant="comply"``: 0 rejects the external force (PD+C, stiff), 1 yields to it with the set
-    impedance ``M_d, D_d, K_d``, values in between blend the two (a switch ramps through them, so the
-    commands never jump). Other variants ignore it.
+    ``comply`` (0..1 per world axis ``[x, y, z]``, or per world axis and Euler angle ``[x, y, z, roll,
+    pitch, yaw]``; with three the attitude rejects) chooses the interaction behaviour of a controller
+    built with ``variant="comply"``: 0 rejects the external force or moment (PD+C, stiff), 1 yields to
+    it with the set impedance (``M_d, D_d, K_d``; ``M_o, D_o, K_o``), values in between blend the two (a
+    switch ramps through them, so the commands never jump). Other variants ignore it.
 
     Everything but ``p_W`` defaults to zero, so ``Reference(np.array([0, 0, -1.0]))`` holds a point 1 m up
     with the nose north.

@@ -125,6 +125,17 @@ GUST = replace(
     disturbances=({"kind": "gust", "mean_speed": 1.0, "amplitude": 5.0, "start": 12.0, "length": 2.0, "sigma_w": 0.3},),
 )
 
+TWIST = replace(
+    CASE_A,
+    name="twist-v1",
+    description="Interaction: hovering, a hand twists the vehicle about its vertical axis (a half-sine moment of "
+    "0.03 N m over 1 s at t = 4 s); reject (pdc) holds the heading, comply yields in yaw with M_o 0.01 kg m^2, "
+    "D_o 0.04 N m s/rad, K_o 0.04 N m/rad and comes back.",
+    trajectory=TrajectorySpec(kind="hover", start_on_ground=False, hover_duration=12.0),
+    interaction=InteractionSpec(comply=(0.0, 0.0, 0.0), comply_attitude=(0.0, 0.0, 1.0), M_o=0.01, D_o=0.04, K_o=0.04),
+    disturbances=({"kind": "push", "torque_B": (0.0, 0.0, 0.03), "t_on": 4.0, "duration": 1.0},),
+)
+
 PENDULUM = replace(
     CASE_A,
     name="pendulum-v1",
@@ -146,6 +157,6 @@ PAPER_CASES: tuple[str, ...] = ("case-a-payload", "case-b-fan", "case-c-circle")
 
 for _spec in (
     CASE_A, CASE_B, CASE_C, OPERATOR_PUSH, YAW_STEP, OPERATOR_PUSH_2, WALL_CONTACT, GUST, PENDULUM, OPERATOR_PUSH_3,
-    WALL_CONTACT_2,
+    WALL_CONTACT_2, TWIST,
 ):  # fmt: skip
     register(_spec)

@@ -105,21 +105,27 @@ class ControlSpec:
     thrust_shift_max: float = THRUST_SHIFT_MAX
 
 
-AXES = ("x", "y", "z")
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 BEHAVIOURS = {"reject": 0.0, "comply": 1.0}
 
 
 @dataclass(frozen=True)
 class InteractionSpec:
-    """Impedance of the ``comply`` controller per world axis (``M`` kg, ``D`` N s/m, ``K`` N/m) and its
-    behaviour: ``comply`` gives the initial fraction per axis (1 yields with the impedance, 0 rejects like
-    PD+C), ``switches`` changes it in flight, ``[[time_s, "x"|"y"|"z", "comply"|"reject"], ...]``, each
-    ramped over ``blend_s`` seconds so that the commands never jump."""
+    """Impedance of the ``comply`` controller per world axis (``M`` kg, ``D`` N s/m, ``K`` N/m) and per
+    Euler angle (``M_o`` kg m^2, ``D_o`` N m s/rad, ``K_o`` N m/rad) and its behaviour: ``comply`` and
+    ``comply_attitude`` give the initial fraction per world axis and per Euler angle (1 yields with the
+    impedance, 0 rejects like PD+C), ``switches`` changes them in flight, ``[[time_s, axis, "comply"|
+    "reject"], ...]`` with axis one of x, y, z, roll, pitch, yaw, each ramped over ``blend_s`` seconds so
+    that the commands never jump."""
 
     M: float | Vec3 = 2.0
     D: float | Vec3 = 6.0
     K: float | Vec3 = 5.0
+    M_o: float | Vec3 = 0.01
+    D_o: float | Vec3 = 0.04
+    K_o: float | Vec3 = 0.04
     comply: Vec3 = (1.0, 1.0, 1.0)
+    comply_attitude: Vec3 = (0.0, 0.0, 0.0)
     switches: tuple[tuple[float, str, str], ...] = ()
     blend_s: float = 0.5
 
@@ -136,7 +142,10 @@ def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
         if not isinstance(t, int | float) or isinstance(t, bool) or not np.isfinite(t) or t < 0:
             raise ScenarioError(f"interaction switch time must be a number >= 0 s, got {t!r}")
         if axis not in AXES:
-            raise ScenarioError(f"interaction switch axis {axis!r} does not exist; the axes are x, y, z (world NED)")
+            raise ScenarioError(
+                f"interaction switch axis {axis!r} does not exist; the axes are x, y, z (world NED) and roll, "
+                "pitch, yaw (Euler angles)"
+            )
         if beh not in BEHAVIOURS:
             raise ScenarioError(f"interaction switch behaviour {beh!r} is not one of {', '.join(BEHAVIOURS)}")
         out.append((float(t), str(axis), str(beh)))
@@ -262,7 +271,8 @@ def build(spec: ScenarioSpec) -> Built:
     dists = tuple(from_dict(d) for d in spec.disturbances)
     it = spec.interaction
     switches = tuple((t, AXES.index(axis), BEHAVIOURS[beh]) for t, axis, beh in it.switches)
-    traj = replace(traj, comply0=tuple(float(c) for c in it.comply), comply_switches=switches, blend_s=it.blend_s)
+    comply0 = tuple(float(c) for c in (*it.comply, *it.comply_attitude))
+    traj = replace(traj, comply0=comply0, comply_switches=switches, blend_s=it.blend_s)
     return Built(plant, traj, dists, sensors, float(duration), window, phases, start)
 
 
@@ -288,7 +298,7 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
         attitude_filter_wn=c.attitude_filter_wn,
         integral_limit=c.integral_limit,
         thrust_shift_max=c.thrust_shift_max,
-        impedance=Impedance(M=spec.interaction.M, D=spec.interaction.D, K=spec.interaction.K),
+        impedance=Impedance(**{k: getattr(spec.interaction, k) for k in ("M", "D", "K", "M_o", "D_o", "K_o")}),
     )
 
 
@@ -371,13 +381,20 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "interaction.M": (0.0, 1e6, True),
     "interaction.D": (0.0, 1e6, True),
     "interaction.K": (0.0, 1e6, True),
+    "interaction.M_o": (0.0, 1e6, True),
+    "interaction.D_o": (0.0, 1e6, True),
+    "interaction.K_o": (0.0, 1e6, True),
     "interaction.comply": (0.0, 1.0, False),
+    "interaction.comply_attitude": (0.0, 1.0, False),
     "interaction.blend_s": (0.0, 100.0, False),
     "trajectory.move_offset": (-1e4, 1e4, False),
     "trajectory.move_duration": (0.0, 1e6, True),
     "trajectory.move_hold": (0.0, 1e6, False),
 }
-_GAIN_KEYS = ("control.Kp", "control.Dp", "control.Ki", "interaction.M", "interaction.D", "interaction.K")
+_GAIN_KEYS = (
+    "control.Kp", "control.Dp", "control.Ki", "interaction.M", "interaction.D", "interaction.K", "interaction.M_o",
+    "interaction.D_o", "interaction.K_o",
+)  # fmt: skip
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,99}$")
 
 

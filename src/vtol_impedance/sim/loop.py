@@ -229,7 +229,7 @@ class _Setup:
     dist: DisturbanceSet
     sensors: SensorParams
     noise: NoiseSource
-    refs: np.ndarray  # (N, 15): Trajectory.sample_many
+    refs: np.ndarray  # (N, 18): Trajectory.sample_many
     x0: np.ndarray  # (B, state_size(n))
     Ts: float
     dt: float
@@ -554,7 +554,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
         t = k * s.Ts
         meas = sens.measure(noise[:, k % BLOCK_TICKS])
         r = s.refs[k]
-        ref = Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:15])
+        ref = Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:18])
         thrust_prev, tau_prev = CS.thrust_prev, CS.tau_B_prev
         CS, out = controller_step(CA, CS, meas, ref)
 
