@@ -156,6 +156,13 @@ def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str,
         "rotor lag, drag, disturbances), computed from the true motion. 'limited' is the share of the time in "
         "which the rotor allocation or the tilt limit gave something up.",
     ]
+    if any(r.config.get("backend") == "mujoco" for r in results.values()):
+        from .io import _versions
+
+        notes.append(
+            f"Plant: MuJoCo {_versions()['mujoco']} (an independent physics engine; the model flown is "
+            "<scenario>.mjcf.xml). The true external force includes MuJoCo's contact and link forces."
+        )
     configs = {k: r.config for k, r in results.items()}
     seeds = [r.config.get("seed") for r in results.values()]
     head, rows = table_rows(metrics)
@@ -251,6 +258,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
         for spec, res in zip(specs, results_list, strict=True):
             results[spec.name] = res
             figs = _write_case(res, folder, spec.name, not args.no_plots)
+            if backend == "mujoco":
+                _write_mjcf(spec, folder)
             figures[spec.name] = [p for p in figs if p.suffix == ".png"]
         _finish(folder, "Ruggiero et al. (ICRA 2014) case studies, simulated", results, figures, args.quiet)
     if not args.quiet:

@@ -337,7 +337,9 @@ class MujocoPlant:
         from MuJoCo's ``qacc``, and the external force (world, at the origin) and moment (body, about the
         origin): the explicit ones applied, MuJoCo's contact forces and the pendulum link's pull."""
         mj = self.mj
-        self._apply(t, f_cmd)
+        # the rotors as they are at this instant (the new command acts from the next step on, as in the
+        # built-in plant; it matters for rotors without lag, whose force is the command itself)
+        self._apply(t, self.x[:, ROTOR])
         f_W, tau_B, v_o = self._forces(t)
         f_W, tau_B = f_W - self.PA.rotor_drag[:, None] * v_o, tau_B.copy()
         B = len(self.datas)
