@@ -105,6 +105,15 @@ def _single(backend: str, duration: float) -> dict[str, float]:
     return {"sim_seconds": duration, "wall": wall, "real_time_factor": duration / wall}
 
 
+def _mujoco(duration: float) -> dict[str, float] | str:
+    """The same flight on MuJoCo's physics (the NumPy controller), if the extra is installed."""
+    try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        return "not installed (pip install 'vtol-impedance[mujoco]')"
+    return _single("mujoco", duration)
+
+
 def _latency(calls: int) -> dict[str, float]:
     import warnings
 
@@ -221,6 +230,7 @@ def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -
     log("single vehicle, case C realistic, PD+C ...")
     res["single_compiled"] = _single("compiled", 5.0 if quick else 46.0)
     res["single_numpy"] = _single("numpy", 1.0 if quick else 5.0)
+    res["single_mujoco"] = _mujoco(1.0 if quick else 5.0)
     log("controller + estimator step latency ...")
     res["latency"] = _latency(2000 if quick else 50000)
     log("wrench estimation on a flight log ...")
@@ -243,6 +253,13 @@ def table(res: dict[str, Any]) -> str:
         "-----------------------------------------------  ----------------",
         f"single vehicle, case C realistic, compiled       {sc['real_time_factor']:10.0f} x real time",
         f"single vehicle, case C realistic, NumPy ref.     {sn['real_time_factor']:10.2f} x real time",
+    ]
+    smj = res.get("single_mujoco")
+    if isinstance(smj, dict):
+        lines.append(f"single vehicle, case C realistic, MuJoCo plant   {smj['real_time_factor']:10.2f} x real time")
+    elif smj:
+        lines.append(f"MuJoCo plant                                     {smj}")
+    lines += [
         f"step_arrays latency, median / p99                {lat['step_arrays_median_us']:6.2f} / "
         f"{lat['step_arrays_p99_us']:.2f} us",
         f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us",
