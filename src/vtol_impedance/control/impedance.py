@@ -46,7 +46,7 @@ from ..model.mixer import THRUST_SHIFT_MAX, allocate
 from ..model.vehicle import VehicleParams, load_preset
 from .attitude_filter import FilterDesign, FilterState, design_filter, filter_step
 from .gains import Impedance, ImpedanceGains
-from .signals import ControlOutput, Measurement, Reference
+from .signals import ControlOutput, Measurement, Reference, comply6
 from .thrust import thrust_and_attitude
 
 #: Default bandwidth of the second-order filter on the desired roll and pitch, rad/s. Chosen by the
@@ -381,17 +381,6 @@ def _or(value: np.ndarray | None, default: np.ndarray) -> np.ndarray:
     return default if value is None else value
 
 
-def comply6(comply: np.ndarray | float) -> np.ndarray:
-    """Comply fractions ``(..., 6)`` for ``[x, y, z, roll, pitch, yaw]`` from 1, 3 (the world axes; the
-    attitude rejects) or 6 values."""
-    c = np.asarray(comply, dtype=float)
-    if c.shape[-1:] == (6,):
-        return c
-    if c.shape[-1:] != (3,):
-        c = np.broadcast_to(c[..., None], c.shape + (3,))  # one fraction: the world axes
-    return np.concatenate([c, np.zeros_like(c)], -1)
-
-
 def _comply_input(value: object, bs: tuple[int, ...]) -> np.ndarray:
     arr = as_finite("comply (Reference.comply)", value)
     if arr.shape not in ((), (3,), (6,), bs + (3,), bs + (6,)):
@@ -401,8 +390,6 @@ def _comply_input(value: object, bs: tuple[int, ...]) -> np.ndarray:
         )
     if np.any((arr < 0) | (arr > 1)):
         raise InputError(f"Reference.comply must be within [0, 1] (0 rejects, 1 complies), got {arr.tolist()}")
-    if arr.shape == ():
-        arr = np.broadcast_to(arr, (3,))  # one fraction: the world axes
     return np.broadcast_to(comply6(arr), bs + (6,))
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, as_finite, positive, scalar
-from .signals import Reference
+from .signals import Reference, comply6
 
 
 def _smooth5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,7 +155,7 @@ class Trajectory:
             raise InputError(
                 f"comply0 must be 3 (x, y, z) or 6 (and roll, pitch, yaw) fractions in [0, 1], got {self.comply0!r}"
             )
-        object.__setattr__(self, "comply0", tuple(float(c) for c in np.concatenate([c0, np.zeros(6 - c0.size)])))
+        object.__setattr__(self, "comply0", tuple(float(c) for c in comply6(c0)))
         for sw in self.comply_switches:
             if len(sw) != 3 or not isinstance(sw[1], int | np.integer) or not 0 <= sw[1] <= 5 or not 0 <= sw[2] <= 1:
                 raise InputError(f"a comply switch is (time s, axis 0..5, fraction 0..1), got {sw!r}")

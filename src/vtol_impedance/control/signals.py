@@ -27,6 +27,17 @@ class Measurement(NamedTuple):
     omega_B: np.ndarray | None = None
 
 
+def comply6(comply: np.ndarray | float) -> np.ndarray:
+    """Comply fractions ``(..., 6)`` for ``[x, y, z, roll, pitch, yaw]`` from 1, 3 (the world axes; the
+    attitude rejects) or 6 values."""
+    c = np.asarray(comply, dtype=float)
+    if c.shape[-1:] == (6,):
+        return c
+    if c.shape[-1:] != (3,):
+        c = np.broadcast_to(c[..., None], c.shape + (3,))  # one fraction: the world axes
+    return np.concatenate([c, np.zeros_like(c)], -1)
+
+
 class Reference(NamedTuple):
     """Desired flat outputs: position ``p_W`` (m), velocity ``v_W`` (m/s), acceleration ``a_W`` (m/s^2), each
     ``(..., 3)`` in the world NED frame, and yaw ``psi`` (rad) with two derivatives.

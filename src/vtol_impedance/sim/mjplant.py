@@ -249,10 +249,9 @@ class MujocoPlant:
         """Put vehicle ``b`` in the state ``x`` (layout of :mod:`.plant`)."""
         mj, m, d = self.mj, self.models[b], self.datas[b]
         mj.mj_resetData(m, d)
-        PA = _index(self.PA, b)
         R = quat_to_rotation(x[QUAT])
         w_B = x[OMEGA]
-        c = PA.c_B
+        c = np.asarray(self.PA.c_B)[b]
         p_o = x[P_COM] - R @ c
         v_o = x[V_COM] - R @ cross(w_B, c)
         R_enu = T_NED_ENU @ R @ T_FRD_FLU
@@ -318,11 +317,11 @@ class MujocoPlant:
         f_W, tau_B = self.forces(t, p_o, v_o, R)
         return f_W, np.broadcast_to(tau_B, f_W.shape), v_o
 
-    def _apply(self, t: float, f_cmd: np.ndarray) -> None:
+    def _apply(self, t: float, f_cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rotor commands, and the explicit disturbances held over the next step: the force (world) through
         ``xfrc_applied``, the moment through the body-frame actuators ``moment_*`` (held in the body
         frame, as the built-in plant holds it)."""
-        f_W, tau_B, _ = self._forces(t)
+        f_W, tau_B, v_o = self._forces(t)
         n = self.n
         for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
             d.ctrl[:n] = f_cmd[b]
@@ -331,6 +330,7 @@ class MujocoPlant:
                 target = np.clip(f_cmd[b], self.PA.f_min[b], self.PA.f_max[b])
                 m.actuator_dynprm[:n, 0] = np.where(target > d.act, self.PA.tau_up[b], self.PA.tau_down[b])
             d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
+        return f_W, tau_B, v_o
 
     def truth(self, t: float, f_cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What acts at the start of the period: the body origin's acceleration ``a_o_W`` and ``w_dot_B``
@@ -339,8 +339,7 @@ class MujocoPlant:
         mj = self.mj
         # the rotors as they are at this instant (the new command acts from the next step on, as in the
         # built-in plant; it matters for rotors without lag, whose force is the command itself)
-        self._apply(t, self.x[:, ROTOR])
-        f_W, tau_B, v_o = self._forces(t)
+        f_W, tau_B, v_o = self._apply(t, self.x[:, ROTOR])
         f_W, tau_B = f_W - self.PA.rotor_drag[:, None] * v_o, tau_B.copy()
         B = len(self.datas)
         a_o, w_dot = np.zeros((B, 3)), np.zeros((B, 3))
@@ -400,7 +399,3 @@ class MujocoPlant:
             self.failed[b] = False
             self.frozen[b] = True
         self.x = self._read()
-
-
-def _index(PA: PlantArrays, b: int) -> PlantArrays:
-    return PlantArrays(*(np.asarray(a)[b] for a in PA))
