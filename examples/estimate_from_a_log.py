@@ -39,17 +39,21 @@ def write_ros_style_csv(path: Path, duration: float = 30.0) -> dict:
         "tx": tau[:, 0], "ty": tau[:, 1], "tz": tau[:, 2],
     }  # fmt: skip
     np.savetxt(path, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="")
-    return {"t": t, "f_lumped_W": r["f_lumped_W"][0], "f_hat_sim": r["f_hat_W"][0]}
+    est = r.config["controllers"][0]["estimator"]  # what ran in flight: its bandwidth and timing
+    return {"t": t, "f_lumped_W": r["f_lumped_W"][0], "f_hat_sim": r["f_hat_W"][0]}, est
 
 
 def run(folder: Path = Path("results/example-estimate"), duration: float = 30.0) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
-    truth = write_ros_style_csv(folder / "flight.csv", duration)
+    truth, est = write_ros_style_csv(folder / "flight.csv", duration)
     rc = cli(
         [
             "estimate", str(folder / "flight.csv"), "--vehicle", "pelican",
             "--world", "enu", "--body", "flu", "--quat-order", "xyzw", "--angle-unit", "deg",
             "--column", "t_s=time", "--column", "vx=vel_x", "--column", "vy=vel_y", "--column", "vz=vel_z",
+            # the estimator that flew: its bandwidth, the latencies it aligned to, its rotor model
+            "--wn", str(est["wn"][0]), "--velocity-delay", str(est["velocity_delay"]),
+            "--attitude-delay", str(est["attitude_delay"]), "--rotor-tau", str(est["rotor_tau"]),
             "--zero-phase", "--out", str(folder / "estimate"),
         ]
     )  # fmt: skip

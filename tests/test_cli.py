@@ -1,6 +1,7 @@
 """The command-line interface end to end on shortened scenarios, including its errors."""
 
 import csv
+import json
 import shutil
 import subprocess
 import sys
@@ -8,6 +9,7 @@ import sys
 import pytest
 
 from vtol_impedance.cli import main
+from vtol_impedance.scenarios.spec import PAPER_CONTROL
 from vtol_impedance.sim import Result
 
 
@@ -111,7 +113,17 @@ def test_errors_are_clear(argv, msg, capsys, tmp_path):
 
 
 def test_slow_control_rate_warns_about_the_estimator(tmp_path, capsys):
-    argv = ["run", "case-a-payload", "--set", "control.rate=10", "--set", "plant_rate=1000", "--duration", "0.5"]
+    argv = [
+        "run",
+        "case-a-payload",
+        "--set",
+        "control.rate=10",
+        "--set",
+        "plant_rate=1000",
+        "--duration",
+        "0.5",
+        *(f"--set={k}={json.dumps(v)}" for k, v in PAPER_CONTROL.items()),
+    ]  # bandwidths by hand: no design
     with pytest.warns(UserWarning, match="Ts"):
         assert main(argv + ["--no-plots", "--quiet", "--out", str(tmp_path)]) == 0
 

@@ -67,7 +67,7 @@ def hold_command(ctrl, u, tau_B):
     if ctrl.backend == "numpy":
         ctrl.state = ctrl.state._replace(thrust_prev=np.asarray(u, float), tau_B_prev=np.asarray(tau_B, float))
     else:
-        i = kernels.thrust_prev_index(ctrl._n)
+        i = kernels.thrust_prev_index(ctrl.arrays.est.Ad.shape[-1])
         ctrl._cs[0, i] = u
         ctrl._cs[0, i + 1 : i + 4] = tau_B
 

@@ -1,4 +1,4 @@
-"""Command-line interface: ``vtol-impedance {paper,run,compare,estimate,sweep,sweep-report,tune,bench,list}``.
+"""Command-line interface: ``vtol-impedance {paper,run,compare,margins,estimate,sweep,sweep-report,tune,bench,list}``.
 
 Heavy modules are imported inside the commands so that ``--help`` answers at once.
 """
@@ -141,7 +141,14 @@ def _write_mjcf(spec: Any, folder: Any) -> Path:
     return write_text(folder.path(f"{spec.name}.mjcf.xml"), scene_mjcf(b.plant, b.disturbances, 1.0 / spec.plant_rate))
 
 
-def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str, list[Path]], quiet: bool) -> None:
+def _finish(
+    folder: Any,
+    title: str,
+    results: dict[str, Any],
+    figures: dict[str, list[Path]],
+    quiet: bool,
+    extra_tables: list[Any] = (),  # type: ignore[assignment]
+) -> None:
     from .analysis.metrics import compute_metrics
     from .analysis.report import table_rows, text_table, write_html, write_tables
 
@@ -167,7 +174,8 @@ def _finish(folder: Any, title: str, results: dict[str, Any], figures: dict[str,
     seeds = [r.config.get("seed") for r in results.values()]
     head, rows = table_rows(metrics)
     table = ("Metrics", head, rows)
-    write_html(folder.staging, title, tables=[table], figures=figures, notes=notes, config=configs, seed=seeds)
+    write_html(folder.staging, title, tables=[table, *extra_tables], figures=figures, notes=notes, config=configs,
+               seed=seeds)  # fmt: skip
     final = folder.commit(configs, seed=seeds)
     print(text_table(metrics))
     failed = [f"{c}/{r['controller']}" for c, rs in metrics.items() for r in rs if r["failure"]]
@@ -183,6 +191,91 @@ def _seed(args: argparse.Namespace) -> int | None:
     if args.seed is not None and not 0 <= args.seed < 2**63:
         raise InputError(f"--seed must be a whole number in [0, 2^63), got {args.seed}")
     return args.seed
+
+
+def _preflight(specs: list[Any], variants: list[str], quiet: bool) -> dict[str, Any]:
+    """The margin check before a flight: margins of every controller at each scenario's operating point,
+    and one warning (on stderr) naming what falls short of the thresholds. Returns the reports per
+    scenario, for the run folder's figures and report."""
+    from .robust import Thresholds, TrimError
+    from .scenarios.margins import scenario_margins, warnings_of
+
+    out, lines = {}, []
+    for spec in specs:
+        try:
+            reports = scenario_margins(spec, variants)
+        except TrimError as exc:  # the flight may still show what happens; say why there are no margins
+            lines.append(f"  {spec.name}: no margins, {exc}")
+            out[spec.name] = {}
+            continue
+        out[spec.name] = reports
+        lines += [f"  {spec.name}, {w}" for w in warnings_of(reports)]
+    if lines:
+        t = Thresholds()
+        print(
+            f"warning: stability margins below the thresholds ({t.phase_deg:g} deg phase, {t.gain_db:g} dB gain, "
+            f"damping {t.damping:g}) at the operating point; this controller can do worse than its baseline "
+            "here (see the margins figures and report in the results folder, or 'vtol-impedance margins'):\n"
+            + "\n".join(lines),
+            file=sys.stderr,
+        )
+    return out
+
+
+def _write_margins(reports: dict[str, Any], folder: Any, stem: str, plots: bool) -> tuple[list[Path], list[Any]]:
+    """Figures, ``<stem>.margins.json`` and the report tables of one scenario's margins."""
+    from .analysis.margin_plots import margin_rows, margins_json, plot_margins, pole_rows
+    from .io import write_text
+
+    if not reports:
+        return [], []
+    files = [write_text(folder.path(f"{stem}.margins.json"), json.dumps(margins_json(reports), indent=1))]
+    if plots:
+        files += plot_margins(reports, folder.staging, f"{stem}_margins")
+    tables = [
+        (f"{stem}: stability at the operating point", *pole_rows(reports)),
+        (f"{stem}: margins per loop", *margin_rows(reports)),
+    ]
+    return files, tables
+
+
+def cmd_margins(args: argparse.Namespace) -> int:
+    """Stability margins of a scenario's controllers at its operating point: table, figures, report."""
+    from .analysis.margin_plots import text_margins
+    from .analysis.report import write_html
+    from .io import RunFolder
+    from .scenarios import check
+    from .scenarios.margins import check_variants, scenario_margins, warnings_of
+
+    spec = _load_spec(args.scenario, args.set, None, args.ideal)
+    variants = check_variants([c.strip() for c in args.controllers.split(",") if c.strip()])
+    check(spec, variants)
+    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"margins-{spec.name}"
+    with RunFolder(out) as folder:
+        if not args.quiet:
+            print(f"linearising {spec.name} for {', '.join(variants)} ...", file=sys.stderr)
+        reports = scenario_margins(spec, variants)
+        files, tables = _write_margins(reports, folder, spec.name, not args.no_plots)
+        warn = warnings_of(reports)
+        notes = [
+            "Each loop is broken with the others closed; L is closed by 1 + L. Gain margins up and down: a loop "
+            "around a double integrator also destabilises when its gain falls. An unstable closed loop shows no "
+            "margins.",
+            "Operating point: hover at the reference where the task window starts, on the true plant, under the "
+            "disturbances' mean wrench there (module vtol_impedance.scenarios.margins).",
+        ] + ([f"Below the thresholds: {w}" for w in warn] or ["Every controller meets the thresholds."])
+        write_html(folder.staging, f"Stability margins: {spec.name}", tables=tables,
+                   figures={spec.name: [p for p in files if p.suffix == ".png"]}, notes=notes,
+                   config={"scenario": spec.to_dict()}, seed=spec.seed)  # fmt: skip
+        final = folder.commit({"scenario": spec.to_dict()}, seed=spec.seed)
+    print(text_margins(reports))
+    for w in warn:
+        print(f"below the thresholds: {w}")
+    if not warn:
+        print("every controller meets the thresholds")
+    if not args.quiet:
+        print(f"results written to {final}", file=sys.stderr)
+    return 0
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -213,19 +306,22 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     backend = _backend(args)
     t0 = time.perf_counter()
     with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / spec.name) as folder:
+        margins = _preflight([spec], variants, args.quiet)
         _announce_compile(backend, args.quiet)
         result = _run_case(spec, variants, seed, args.quiet, backend)
         if args.animate and not args.quiet:
             print("drawing the animation ...", file=sys.stderr)
         figs = _write_case(result, folder, spec.name, not args.no_plots, args.animate)
+        mfiles, mtables = _write_margins(margins[spec.name], folder, spec.name, not args.no_plots)
         if backend == "mujoco":
             figs.append(_write_mjcf(spec, folder))
         _finish(
             folder,
             f"vtol-impedance: {spec.name}",
             {spec.name: result},
-            {spec.name: [p for p in figs if p.suffix in (".png", ".gif")]},
+            {spec.name: [p for p in figs + mfiles if p.suffix in (".png", ".gif")]},
             args.quiet,
+            mtables,
         )
     if not args.quiet:
         print(f"wall time {time.perf_counter() - t0:.1f} s", file=sys.stderr)
@@ -236,10 +332,12 @@ def cmd_paper(args: argparse.Namespace) -> int:
     from .errors import InputError
     from .io import RunFolder
     from .scenarios import PAPER_CASES, check
+    from .scenarios.spec import PAPER_CONTROL
 
     if args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
-    specs = [_load_spec(n, args.set, args.duration, args.ideal) for n in PAPER_CASES]
+    tuning = [] if args.tuning == "design" else [f"{k}={json.dumps(v)}" for k, v in PAPER_CONTROL.items()]
+    specs = [_load_spec(n, tuning + args.set, args.duration, args.ideal) for n in PAPER_CASES]
     variants = ["pd", "pid", "pdc"]
     seed = _seed(args)
     for spec in specs:
@@ -247,6 +345,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     backend = _backend(args)
     t0 = time.perf_counter()
     with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / "paper") as folder:
+        margins = _preflight(specs, variants, args.quiet)
         if not args.quiet:
             print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
         _announce_compile(backend, args.quiet)
@@ -255,13 +354,19 @@ def cmd_paper(args: argparse.Namespace) -> int:
         results_list = _run_parallel(jobs_args, jobs) if jobs > 1 else [_run_case_job(a) for a in jobs_args]
         results: dict[str, Any] = {}
         figures: dict[str, list[Path]] = {}
+        mtables: list[Any] = []
         for spec, res in zip(specs, results_list, strict=True):
             results[spec.name] = res
             figs = _write_case(res, folder, spec.name, not args.no_plots)
+            mfiles, tabs = _write_margins(margins[spec.name], folder, spec.name, not args.no_plots)
+            mtables += tabs
             if backend == "mujoco":
                 _write_mjcf(spec, folder)
-            figures[spec.name] = [p for p in figs if p.suffix == ".png"]
-        _finish(folder, "Ruggiero et al. (ICRA 2014) case studies, simulated", results, figures, args.quiet)
+            figures[spec.name] = [p for p in figs + mfiles if p.suffix == ".png"]
+        title = "Ruggiero et al. (ICRA 2014) case studies, simulated" + (
+            " (the paper's controller)" if args.tuning == "paper" else " (this tool's robust defaults)"
+        )
+        _finish(folder, title, results, figures, args.quiet, mtables)
     if not args.quiet:
         print(f"wall time {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
@@ -335,7 +440,10 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     )  # fmt: skip
     raw = read_log(log, **({} if is_ulog else csv_options))
     flight = resample(raw, args.rate, args.max_gap, args.start, args.end)
-    params = EstimatorParams(wn=args.wn, zeta=args.zeta, order=args.order, prototype=args.prototype)
+    params = EstimatorParams(
+        wn=args.wn, zeta=args.zeta, order=args.order, prototype=args.prototype, velocity_delay=args.velocity_delay,
+        attitude_delay=args.attitude_delay, rotor_tau=args.rotor_tau,
+    )  # fmt: skip
     est = estimate(
         flight, mass, inertia, params,
         zero_phase_too=args.zero_phase,
@@ -516,6 +624,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("paper", help="all three case studies with PD, PID and PD+C: figures, table, report")
     common(sp)
     sp.add_argument(
+        "--tuning",
+        choices=["paper", "design"],
+        default="paper",
+        help="the paper's controller as printed (default: attitude 8 rad/s, estimator 10 rad/s, no timing "
+        "alignment), or this tool's robust design (README, 'Stability margins')",
+    )
+    sp.add_argument(
         "--jobs", type=int, default=1, help="parallel processes (the compiled backend is fast; plotting dominates)"
     )
     sp.set_defaults(func=cmd_paper)
@@ -533,6 +648,23 @@ def build_parser() -> argparse.ArgumentParser:
     common(sp)
     sp.add_argument("--animate", action="store_true", help="also write <scenario>.gif (3D, with the force arrows)")
     sp.set_defaults(func=lambda a: cmd_run(a, [c.strip() for c in a.controllers.split(",") if c.strip()]))
+
+    sp = sub.add_parser(
+        "margins",
+        help="stability margins of a scenario's controllers (the sampled loop linearised): table, Bode, "
+        "Nyquist, poles, report",
+        description="Linearises the closed loop the simulator flies at the scenario's operating point (hover at the "
+        "task's reference, true plant, sensor latencies, rotor lag) and reports per loop the phase, gain and delay "
+        "margins and the sensitivity peak, and the closed-loop poles; see the README, 'Stability margins'.",
+    )
+    sp.add_argument("scenario", help="registered name (see 'list') or a .toml scenario file")
+    sp.add_argument("--controllers", default="pd,pid,pdc", help="comma-separated (default: pd,pid,pdc)")
+    sp.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario value")
+    sp.add_argument("--ideal", action="store_true", help="the ideal plant and sensors (no lag, no latency)")
+    sp.add_argument("--out", default=None, help=f"results folder (default: {DEFAULT_OUT}/margins-<scenario>)")
+    sp.add_argument("--no-plots", action="store_true", help="skip figures")
+    sp.add_argument("--quiet", action="store_true", help="no progress output")
+    sp.set_defaults(func=cmd_margins)
 
     sp = sub.add_parser(
         "estimate",
@@ -568,6 +700,27 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--zeta", type=float, default=1.0, help="damping of eq. (10) (paper: 1)")
     g.add_argument("--order", type=int, default=2, help="filter order (2: eq. (10))")
     g.add_argument("--prototype", default="zeta", choices=["zeta", "binomial", "butterworth"])
+    g.add_argument(
+        "--velocity-delay",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="latency of the logged velocity against the commands, s (the estimator aligns to it)",
+    )
+    g.add_argument(
+        "--attitude-delay",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="latency of the logged attitude and rates against the commands, s",
+    )
+    g.add_argument(
+        "--rotor-tau",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="rotor time constant: the commands pass through a first-order rotor model, s",
+    )
     g.add_argument("--zero-phase", action="store_true", help="also the offline forward-backward estimate")
     g.add_argument("--quiet-segment", default=None, metavar="T0,T1", help="report the mean estimate here (bias)")
     g.add_argument("--remove-bias", action="store_true", help="subtract the quiet-segment bias")

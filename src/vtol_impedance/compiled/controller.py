@@ -55,9 +55,9 @@ def out_size(n_rotors: int) -> int:
     return O_F + n_rotors
 
 
-def state_size(n: int) -> int:
-    """Controller state length for an order-``n`` estimator (including ``n + 12`` scratch slots)."""
-    return state_length(n)
+def state_size(sh: np.ndarray) -> int:
+    """Controller state length for the shared design ``sh`` (including ``n + 12`` scratch slots)."""
+    return int(state_length(sh))
 
 
 def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
@@ -101,10 +101,10 @@ def pack_controller(P: ControllerArrays) -> tuple[np.ndarray, np.ndarray]:
     return cp, sh
 
 
-def initial_state(cp: np.ndarray, n: int) -> np.ndarray:
-    """Fresh controller states ``(B, state_size(n))``: nothing started, previous thrust = m g."""
-    cs = np.zeros((cp.shape[0], state_size(n)))
-    cs[:, 6 * n + 21] = cp[:, CP_MASS] * G
+def initial_state(cp: np.ndarray, sh: np.ndarray) -> np.ndarray:
+    """Fresh controller states ``(B, state_size(sh))``: nothing started, previous thrust = m g."""
+    cs = np.zeros((cp.shape[0], state_size(sh)))
+    cs[:, thrust_prev_index(int(sh[9]))] = cp[:, CP_MASS] * G
     return cs
 
 
@@ -246,12 +246,12 @@ def _impedance_axis(cp, cs, r, i, m, comp, e, ev, fh, fl, fdot, lead, ig):
 
 
 @njit(cache=True, inline="always")
-def _attitude_axis(cp, sh, cs, r, i, tb, eta_d_ddot, de, ee, th, ilag, ird):
+def _attitude_axis(cp, sh, cs, r, i, tb, eta_d_ddot, de, ee, th, ilag, ird, la):
     """``tau_bar`` on Euler angle ``i`` blended with ``M_o e'' + D_o e' + K_o e = tau_ext_eta``, and the
-    moment (14) cancels; both use the estimate advanced by G's delay, as
+    moment (14) cancels; both use the estimate advanced by G's delay and the attitude latency ``la``, as
     :func:`vtol_impedance.control.impedance.controller_step`."""
     lam = min(max(r[15 + i], 0.0), 1.0)
-    lead = th + sh[ilag + 3 + i] * cs[ird + 3 + i]
+    lead = th + (sh[ilag + 3 + i] + la) * cs[ird + 3 + i]
     comply = eta_d_ddot - (cp[CP_DOD + i] * de + cp[CP_KOD + i] * ee - lead) / cp[CP_MOD + i]
     return (1.0 - lam) * tb + lam * comply, th + lam * (lead - th)
 
@@ -282,9 +282,10 @@ def controller_step(cp, sh, cs, y, r, o):
     # the force estimate with G's low-frequency delay taken out (used by "comply"): f_hat + lag f_hat_dot
     ilag = sh_offsets(n)[5]
     ird = rate_offset(n)
-    fl0 = fh0 + sh[ilag] * cs[ird]
-    fl1 = fh1 + sh[ilag + 1] * cs[ird + 1]
-    fl2 = fh2 + sh[ilag + 2] * cs[ird + 2]
+    lv, la = Ts * sh[ilag + 6], Ts * sh[ilag + 7]  # the latencies the force and moment channels see
+    fl0 = fh0 + (sh[ilag] + lv) * cs[ird]
+    fl1 = fh1 + (sh[ilag + 1] + lv) * cs[ird + 1]
+    fl2 = fh2 + (sh[ilag + 2] + lv) * cs[ird + 2]
     lead = 2.0 * fz / fwn  # the attitude filter's delay: how late the force follows the command
 
     # position impedance (18a), compensation, eq. (16)
@@ -322,9 +323,9 @@ def controller_step(cp, sh, cs, y, r, o):
     tb0, tb1, tb2 = eddd0 - s0, eddd1 - s1, r[11] - s2
     tc0, tc1, tc2 = th0, th1, th2  # the moment (14) cancels
     if cp[CP_CEN] > 0.5 and r.shape[0] >= 18:  # per Euler angle, "comply" blends in its own law
-        tb0, tc0 = _attitude_axis(cp, sh, cs, r, 0, tb0, eddd0, de0, ee0, th0, ilag, ird)
-        tb1, tc1 = _attitude_axis(cp, sh, cs, r, 1, tb1, eddd1, de1, ee1, th1, ilag, ird)
-        tb2, tc2 = _attitude_axis(cp, sh, cs, r, 2, tb2, r[11], de2, ee2, th2, ilag, ird)
+        tb0, tc0 = _attitude_axis(cp, sh, cs, r, 0, tb0, eddd0, de0, ee0, th0, ilag, ird, la)
+        tb1, tc1 = _attitude_axis(cp, sh, cs, r, 1, tb1, eddd1, de1, ee1, th1, ilag, ird, la)
+        tb2, tc2 = _attitude_axis(cp, sh, cs, r, 2, tb2, r[11], de2, ee2, th2, ilag, ird, la)
     QT = _t9(Q)
     cd = _mv9(C, d0, d1, d2)
     g0, g1, g2 = _solve9(QT, cd[0] - comp * tc0, cd[1] - comp * tc1, cd[2] - comp * tc2)

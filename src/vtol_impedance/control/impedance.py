@@ -264,28 +264,40 @@ def initial_controller_state(P: ControllerArrays) -> ControllerState:
     )
 
 
-def controller_step(
-    P: ControllerArrays, S: ControllerState, meas: Measurement, ref: Reference
-) -> tuple[ControllerState, ControlOutput]:
-    """One control period: estimator, eqs. (18a), (16), filter, (18b), (14), allocation. Pure function."""
+class PositionStage(NamedTuple):
+    """What the estimator and the position loop hand to the attitude loop in one period."""
+
+    est: EstimatorState  # the estimator's new state
+    f_hat_W: np.ndarray  # (..., 3) eq. (11), world NED, N
+    tau_hat_eta: np.ndarray  # (..., 3) eq. (11), Euler coordinates, N m
+    thrust_request: np.ndarray  # (...) eq. (16), N
+    rp_d: np.ndarray  # (..., 2) desired roll and pitch of eq. (16) before the filter, rad
+    tilt_limited: np.ndarray  # (...) the tilt or lift bound of eq. (16) acted
+    mu_bar: np.ndarray  # (..., 3) eq. (16), m/s^2
+    lam_o: np.ndarray  # (..., 3) comply fraction per Euler angle
+
+
+def position_step(P: ControllerArrays, S: ControllerState, meas: Measurement, ref: Reference) -> PositionStage:
+    """Steps 1-4 of :func:`controller_step`: the estimator, eqs. (6)-(13), the position impedance (18a) with
+    the estimate fed forward, and eq. (16) for the thrust and the desired roll and pitch. Pure function."""
     m = P.mass
     m3 = m[..., None]
     comp = P.compensate[..., None]
 
     est, w_hat = estimator_step(P.est, S.est, meas.eta, meas.eta_dot, meas.v_W, S.thrust_prev, S.tau_B_prev, m, P.I_B)
     f_hat_W = w_hat[..., :3]
-    tau_hat_eta = w_hat[..., 3:]
 
     # Position impedance (18a), compensation, eq. (16) solved in NED. Per axis, "comply" blends the
     # stiff rejecting law (lam = 0) with M_d e'' + D_d e' + K_d e = f_ext (lam = 1):
     # u/m = a_d - (D_d e' + K_d e) / M_d + (1/M_d - 1/m) f, with f the estimate advanced by G's
-    # low-frequency delay (f_hat + lag f_hat_dot): without it the delay shows up as damping and mass.
+    # low-frequency delay and its measurement's latency (f_hat + lead f_hat_dot, EstimatorDesign.lead):
+    # without it the delay shows up as damping and mass.
     comply = comply6(ref.comply)
     lam = P.comply_enable[..., None] * np.clip(comply[..., :3], 0.0, 1.0)
     lam_o = P.comply_enable[..., None] * np.clip(comply[..., 3:], 0.0, 1.0)
     Kp = (1.0 - lam) * P.Kp + lam * m3 * P.Kd / P.Md
     Dp = (1.0 - lam) * P.Dp + lam * m3 * P.Dd / P.Md
-    f_lead = f_hat_W + P.est.lag[:3] * est.r_dot[..., :3]
+    f_lead = f_hat_W + P.est.lead[:3] * est.r_dot[..., :3]
     e_p = meas.p_W - ref.p_W
     e_v = meas.v_W - ref.v_W
     mu = ref.a_W - (Dp * e_v + Kp * e_p + (1.0 - lam) * P.Ki * S.integral) / m3
@@ -300,10 +312,23 @@ def controller_step(
     rate = -P.Dd * acc / P.Md + (1.0 / P.Md - 1.0 / m3) * est.r_dot[..., :3]
     mu_bar = mu_bar + lam * lead * rate
     thrust_req, phi_d, theta_d, tilt_limited = thrust_and_attitude(mu_bar, ref.psi, m, P.tilt_max, P.min_lift_accel)
+    return PositionStage(
+        est, f_hat_W, w_hat[..., 3:], thrust_req, np.stack([phi_d, theta_d], -1), tilt_limited, mu_bar, lam_o
+    )
+
+
+def attitude_step(
+    P: ControllerArrays, S: ControllerState, meas: Measurement, ref: Reference, pos: PositionStage
+) -> tuple[ControllerState, ControlOutput]:
+    """Steps 5-8 of :func:`controller_step`: the filter on the desired roll and pitch, the attitude
+    impedance (18b), the torque (14) with the estimated moment fed forward, and the allocation. Pure
+    function; ``pos`` is :func:`position_step`'s output for the same period."""
+    comp = P.compensate[..., None]
+    est, tau_hat_eta, lam_o = pos.est, pos.tau_hat_eta, pos.lam_o
 
     # Desired attitude: filtered roll/pitch, planned yaw.
-    filt, rp_d, rp_d_dot, rp_d_ddot = filter_step(P.filt, S.filt, np.stack([phi_d, theta_d], -1))
-    psi = np.broadcast_to(ref.psi, phi_d.shape)
+    filt, rp_d, rp_d_dot, rp_d_ddot = filter_step(P.filt, S.filt, pos.rp_d)
+    psi = np.broadcast_to(ref.psi, rp_d.shape[:-1])
     eta_d = np.concatenate([rp_d, psi[..., None]], -1)
     eta_d_dot = np.concatenate([rp_d_dot, np.broadcast_to(ref.psi_dot, psi.shape)[..., None]], -1)
     eta_d_ddot = np.concatenate([rp_d_ddot, np.broadcast_to(ref.psi_ddot, psi.shape)[..., None]], -1)
@@ -320,7 +345,7 @@ def controller_step(
     # Per Euler angle, "comply" blends in M_o e'' + D_o e' + K_o e = tau_ext_eta: with (14) cancelling
     # the moment, eta'' = tau_bar, so tau_bar is that law's acceleration. Both use the estimate advanced
     # by G's delay (measured: with the plain estimate in (14) a 0.01 kg m^2 yaw inertia came out at 0.003).
-    tau_lead = tau_hat_eta + P.est.lag[3:] * est.r_dot[..., 3:]
+    tau_lead = tau_hat_eta + P.est.lead[3:] * est.r_dot[..., 3:]
     tau_bar_comply = eta_d_ddot - (P.Do_d * e_eta_dot + P.Ko_d * e_eta - tau_lead) / P.Mo_d
     tau_bar = (1.0 - lam_o) * tau_bar + lam_o * tau_bar_comply
     tau_comp = tau_hat_eta + lam_o * (tau_lead - tau_hat_eta)
@@ -330,10 +355,11 @@ def controller_step(
     )
     tau_hat_B = np.linalg.solve(QT, tau_hat_eta[..., None])[..., 0]
 
-    alloc = allocate(thrust_req, tau_B_req, P.E, P.E_pinv, P.f_min, P.f_max, P.thrust_shift_max)
+    alloc = allocate(pos.thrust_request, tau_B_req, P.E, P.E_pinv, P.f_min, P.f_max, P.thrust_shift_max)
 
     # PID anti-windup: freeze while saturated or tilt-limited, and bound |Ki int e_p| per axis.
-    freeze = (alloc.saturated | tilt_limited)[..., None]
+    e_p = meas.p_W - ref.p_W
+    freeze = (alloc.saturated | pos.tilt_limited)[..., None]
     integral = np.where(freeze, S.integral, S.integral + P.Ts * e_p)
     bound = P.integral_limit[..., None] / np.maximum(P.Ki, 1e-12)
     integral = np.clip(integral, -bound, bound)
@@ -344,19 +370,27 @@ def controller_step(
         tau_B=alloc.tau_B,
         f_rotor=alloc.f,
         saturated=alloc.saturated,
-        thrust_request=thrust_req,
+        thrust_request=pos.thrust_request,
         tau_B_request=tau_B_req,
-        f_hat_W=f_hat_W,
+        f_hat_W=pos.f_hat_W,
         tau_hat_eta=tau_hat_eta,
         tau_hat_B=tau_hat_B,
         eta_d=eta_d,
         eta_d_dot=eta_d_dot,
-        mu_bar=mu_bar,
-        tilt_limited=tilt_limited,
+        mu_bar=pos.mu_bar,
+        tilt_limited=pos.tilt_limited,
         rp_scale=alloc.rp_scale,
         yaw_scale=alloc.yaw_scale,
     )
     return state, out
+
+
+def controller_step(
+    P: ControllerArrays, S: ControllerState, meas: Measurement, ref: Reference
+) -> tuple[ControllerState, ControlOutput]:
+    """One control period: estimator, eqs. (18a), (16) (:func:`position_step`), then filter, (18b), (14)
+    and allocation (:func:`attitude_step`). Pure function."""
+    return attitude_step(P, S, meas, ref, position_step(P, S, meas, ref))
 
 
 class ControllerWarning(UserWarning):
@@ -437,7 +471,6 @@ class Controller:
             batch = self.arrays if self.arrays.batch_shape else compile_controllers([params])  # type: ignore[list-item]
             self._k = kernels
             self._cp, self._sh = kernels.pack_controller(batch)
-            self._n = batch.est.Ad.shape[-1]
             self._nr = batch.E.shape[-1]
             self._out = np.zeros((self._cp.shape[0], kernels.out_size(self._nr)))
         self.reset()
@@ -454,7 +487,7 @@ class Controller:
         self.state = initial_controller_state(self.arrays)
         self._warned: set[str] = set()
         if self.backend == "compiled":
-            self._cs = self._k.initial_state(self._cp, self._n)
+            self._cs = self._k.initial_state(self._cp, self._sh)
 
     def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
         """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, ``(15,)`` or

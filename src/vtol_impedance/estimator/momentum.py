@@ -22,6 +22,29 @@ is stable for every ``wn * Ts`` (the eigenvalues are ``exp(p_i Ts)``). What ``Ts
 resolution: a bandwidth near the Nyquist rate passes the differenced measurement noise straight
 through, so ``|p| Ts > 0.5`` warns and ``|p| Ts >= pi`` is refused.
 
+Timing (beyond the paper)
+-------------------------
+On a real vehicle the inputs are not simultaneous: motion capture reports the velocity ``d_v`` seconds
+late (20 ms over WiFi in the paper's setup), the IMU the attitude ``d_a`` late, and the rotors produce
+the commanded thrust and torque only after their spin-up lag. Read at face value, the momentum change
+of a period is then compared with the attitude and command of another period: a rolling vehicle seems
+pushed sideways (about 1 N per rad of roll for the paper's Pelican) and the rotor lag and inertia error
+come back as a moment a quarter period late. That is enough to take the last degrees of phase margin
+from the paper's loop (see :mod:`vtol_impedance.robust`). With ``EstimatorParams(velocity_delay,
+attitude_delay, rotor_tau)`` the estimator aligns what it compares:
+
+* the commands go through a first-order model of the rotors (time constant ``rotor_tau``, exact for
+  commands held over each period): ``a_bar_j = c_j + (a_j - c_j) (tau/Ts)(1 - exp(-Ts/tau))`` is the
+  mean actuator output over period ``j``;
+* the moment channel integrates over ``[t_{k-1} - d_a, t_k - d_a]``, the window its rates belong to,
+  with the actuator mean over that window (linear interpolation of ``a_bar`` at ``d_a / Ts`` periods);
+* the force channel integrates over the velocity's window ``[t_{k-1} - d_v, t_k - d_v]``, with the
+  actuator mean there and the attitude at its two ends, interpolated in the attitude history at
+  ``(d_v - d_a) / Ts`` periods (attitude older than the velocity is not extrapolated: that lag is
+  clamped at zero).
+
+With the defaults (all zero) this is exactly the scheme above.
+
 Order n (the paper: "with small modifications to (11), any order"): ``G(s)`` is any all-pole filter of
 unit DC gain, ``G(s) = prod(-p_i) / prod(s - p_i)``; ``order=1`` is the classic first-order momentum
 observer of De Luca et al., ``order=2`` with ``(wn, zeta)`` is eq. (10), and higher orders use a
@@ -38,9 +61,14 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import InputError, as_finite, positive, scalar
-from ..model.dynamics import generalized_momentum, momentum_rate_known
+from ..model.dynamics import generalized_momentum, momentum_rate_angular, momentum_rate_linear
+from ..model.kinematics import wrap_angle
 
 _PROTOTYPES = ("zeta", "binomial", "butterworth")
+
+
+#: Longest measurement delay or rotor time constant the estimator aligns to, s (it keeps that much history).
+MAX_DELAY_S = 1.0
 
 
 class EstimatorBandwidthWarning(UserWarning):
@@ -65,6 +93,12 @@ class EstimatorParams:
     prototype : ``"zeta"`` (order 2, eq. (10)), ``"binomial"`` (n poles at ``-wn``) or ``"butterworth"``.
     poles : optional explicit poles, shape ``(n,)`` or ``(6, n)``, all with negative real part;
         complex poles must come in conjugate pairs. Overrides ``wn``/``prototype``.
+    velocity_delay, attitude_delay : age (s) of the velocity and of the attitude and its rates when they
+        reach the estimator; the force channel is evaluated on the velocity's time window and the moment
+        channel on the attitude's (module docstring, "Timing"). 0 (default): taken as simultaneous, as in
+        the paper.
+    rotor_tau : time constant (s) of the first-order rotor model the commands pass through before they
+        enter eq. (8); 0 (default): the commands are taken as produced at once, as in the paper.
     """
 
     wn: np.ndarray | float = 10.0
@@ -72,8 +106,13 @@ class EstimatorParams:
     order: int = 2
     prototype: str = "zeta"
     poles: np.ndarray | None = None
+    velocity_delay: float = 0.0
+    attitude_delay: float = 0.0
+    rotor_tau: float = 0.0
 
     def __post_init__(self) -> None:
+        for name in ("velocity_delay", "attitude_delay", "rotor_tau"):
+            object.__setattr__(self, name, scalar(f"estimator {name}", getattr(self, name), lo=0.0, hi=MAX_DELAY_S))
         object.__setattr__(self, "wn", _six("estimator wn", self.wn))
         object.__setattr__(self, "zeta", _six("estimator zeta", self.zeta))
         if not isinstance(self.order, int | np.integer) or self.order < 1:
@@ -135,6 +174,9 @@ class EstimatorParams:
             "order": int(self.order),
             "prototype": self.prototype,
             "poles": None if self.poles is None else [[str(c) for c in row] for row in self.poles],
+            "velocity_delay": self.velocity_delay,
+            "attitude_delay": self.attitude_delay,
+            "rotor_tau": self.rotor_tau,
         }
 
 
@@ -145,6 +187,14 @@ class EstimatorDesign(NamedTuple):
     filter's derivative; ``CB = 0`` from order 2 on), and ``lag`` the filter's delay at low frequency,
     ``-G'(0) = sum_i 1/(-p_i)`` (``2 zeta / wn`` for eq. (10)): ``r + lag r_dot`` is the estimate with that
     delay taken out, to first order.
+
+    ``lead`` (6,) s: how late the estimate is at low frequency: ``lag`` plus the latency of the
+    measurement each channel is evaluated on (``dv Ts`` for the force, ``da Ts`` for the moment); the
+    comply law advances the estimate by it.
+
+    Timing (module docstring): ``dv``, ``da`` are the velocity and attitude delays in periods, ``d_att``
+    the attitude lag of the force channel ``max(dv - da, 0)``; ``alpha = exp(-Ts/rotor_tau)`` and
+    ``gamma = (rotor_tau/Ts)(1 - alpha)`` the rotor model (both 0 without one); ``H`` the history length.
     """
 
     Ad: np.ndarray  # (6, n, n)
@@ -154,6 +204,16 @@ class EstimatorDesign(NamedTuple):
     CA: np.ndarray | None = None  # (6, n)
     CB: np.ndarray | None = None  # (6,)
     lag: np.ndarray | None = None  # (6,) s
+    dv: float = 0.0
+    da: float = 0.0
+    d_att: float = 0.0
+    alpha: float = 0.0
+    gamma: float = 0.0
+    H: int = 3
+
+    @property
+    def lead(self) -> np.ndarray:
+        return self.lag + self.Ts * np.repeat([self.dv, self.da], 3)
 
 
 def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
@@ -194,12 +254,18 @@ def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
         C[i, 0] = coeffs[-1]
         CA[i] = C[i] @ A
         CB[i] = C[i, n - 1] if n == 1 else 0.0  # B = e_n: only order 1 feeds w straight into r_dot
-    return EstimatorDesign(Ad, Bd, C, Ts, CA, CB, lag)
+    dv, da = params.velocity_delay / Ts, params.attitude_delay / Ts
+    alpha = float(np.exp(-Ts / params.rotor_tau)) if params.rotor_tau > 0 else 0.0
+    gamma = params.rotor_tau / Ts * (1.0 - alpha) if params.rotor_tau > 0 else 0.0
+    H = int(np.floor(max(dv, da, max(dv - da, 0.0) + 1.0) + 1e-9)) + 2
+    return EstimatorDesign(Ad, Bd, C, Ts, CA, CB, lag, dv, da, max(dv - da, 0.0), alpha, gamma, H)
 
 
 class EstimatorState(NamedTuple):
-    """Filter state ``x (..., 6, n)``, the previous sample's momentum, attitude and rates, and the
-    estimate's rate of change ``r_dot (..., 6)`` at the last sample."""
+    """Filter state ``x (..., 6, n)``, the previous sample's momentum, attitude and rates, the estimate's
+    rate of change ``r_dot (..., 6)`` at the last sample, and the timing history: the rotor model's
+    output ``act (..., 4)`` (thrust, body torque) now, its mean over each past period ``act_hist
+    (..., H, 4)`` and the past attitudes ``eta_hist (..., H, 3)``, most recent first."""
 
     x: np.ndarray
     q_prev: np.ndarray
@@ -207,13 +273,38 @@ class EstimatorState(NamedTuple):
     eta_dot_prev: np.ndarray
     started: bool
     r_dot: np.ndarray | None = None
+    act: np.ndarray | None = None
+    act_hist: np.ndarray | None = None
+    eta_hist: np.ndarray | None = None
 
 
 def initial_state(des: EstimatorDesign, batch_shape: tuple[int, ...] = ()) -> EstimatorState:
     n = des.Ad.shape[-1]
     z3 = np.zeros(batch_shape + (3,))
     z6 = np.zeros(batch_shape + (6,))
-    return EstimatorState(np.zeros(batch_shape + (6, n)), z6, z3, z3, False, z6)
+    return EstimatorState(
+        np.zeros(batch_shape + (6, n)),
+        z6,
+        z3,
+        z3,
+        False,
+        z6,
+        np.zeros(batch_shape + (4,)),
+        np.zeros(batch_shape + (des.H, 4)),
+        np.zeros(batch_shape + (des.H, 3)),
+    )
+
+
+def history_at(hist: np.ndarray, d: float, angles: bool = False) -> np.ndarray:
+    """The history ``hist (..., H, k)`` (most recent first) at ``d`` periods back, linearly interpolated.
+
+    For per-period means of a held signal this is also the mean over a window ``d`` periods back.
+    ``angles``: interpolate across the +-pi wrap.
+    """
+    i = int(np.floor(d + 1e-9))
+    g = d - i
+    a, b = hist[..., i, :], hist[..., i + 1, :]
+    return a + g * (wrap_angle(b - a) if angles else b - a)
 
 
 def estimator_step(
@@ -240,15 +331,31 @@ def estimator_step(
     state, wrench_hat : ``wrench_hat (..., 6) = [f_hat_ext_W; tau_hat_ext_eta]``; zero at the first call.
     """
     q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)
-    if not state.started:
-        return EstimatorState(state.x, q, eta, eta_dot, True, np.zeros(q.shape)), np.zeros(q.shape)
-    beta_a = momentum_rate_known(state.eta_prev, state.eta_dot_prev, thrust_prev, tau_B_prev, mass, I_B)
-    beta_b = momentum_rate_known(eta, eta_dot, thrust_prev, tau_B_prev, mass, I_B)
-    w_bar = (q - state.q_prev) / des.Ts - 0.5 * (beta_a + beta_b)
+    cmd = np.concatenate([np.asarray(thrust_prev, dtype=float)[..., None], np.asarray(tau_B_prev, dtype=float)], -1)
+    if not state.started:  # the history starts filled with the present
+        act_hist = np.broadcast_to(cmd[..., None, :], cmd.shape[:-1] + (des.H, 4)).copy()
+        eta_hist = np.broadcast_to(eta[..., None, :], eta.shape[:-1] + (des.H, 3)).copy()
+        zero = np.zeros(q.shape)
+        return EstimatorState(state.x, q, eta, eta_dot, True, zero, cmd, act_hist, eta_hist), zero
+    # The command held over the period that just ended, through the rotor model: its mean over the period.
+    a_bar = cmd + (state.act - cmd) * des.gamma
+    act = cmd + (state.act - cmd) * des.alpha
+    act_hist = np.concatenate([a_bar[..., None, :], state.act_hist[..., :-1, :]], -2)
+    eta_hist = np.concatenate([eta[..., None, :], state.eta_hist[..., :-1, :]], -2)
+    # Moment channel on the attitude's window, force channel on the velocity's (module docstring).
+    tau_w = history_at(act_hist, des.da)[..., 1:]
+    u_w = history_at(act_hist, des.dv)[..., 0]
+    eta_a = history_at(eta_hist, des.d_att + 1.0, angles=True)
+    eta_b = history_at(eta_hist, des.d_att, angles=True)
+    beta_lin = momentum_rate_linear(eta_a, u_w, mass) + momentum_rate_linear(eta_b, u_w, mass)
+    beta_ang = momentum_rate_angular(state.eta_prev, state.eta_dot_prev, tau_w, I_B) + momentum_rate_angular(
+        eta, eta_dot, tau_w, I_B
+    )
+    w_bar = (q - state.q_prev) / des.Ts - 0.5 * np.concatenate([beta_lin, beta_ang], -1)
     x = np.einsum("cij,...cj->...ci", des.Ad, state.x) + des.Bd * w_bar[..., None]
     r = np.einsum("ci,...ci->...c", des.C, x)
     r_dot = np.einsum("ci,...ci->...c", des.CA, x) + des.CB * w_bar
-    return EstimatorState(x, q, eta, eta_dot, True, r_dot), r
+    return EstimatorState(x, q, eta, eta_dot, True, r_dot, act, act_hist, eta_hist), r
 
 
 def check_inputs(eta: np.ndarray, eta_dot: np.ndarray, v_W: np.ndarray) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
-from ..model.dynamics import generalized_momentum, momentum_rate_known
+from ..model.dynamics import generalized_momentum, momentum_rate_angular, momentum_rate_linear
 from .momentum import EstimatorDesign
 
 
@@ -32,22 +32,46 @@ def momentum_residual(
     mass: float,
     I_B: np.ndarray,
     Ts: float,
+    des: EstimatorDesign | None = None,
 ) -> np.ndarray:
     """``w_bar (N, 6)``: the mean external wrench ``[f_ext_W; tau_ext_eta]`` over each period.
 
     ``w_bar_k = (q_k - q_{k-1}) / Ts - (beta(eta_{k-1}, u_{k-1}) + beta(eta_k, u_{k-1})) / 2`` with ``q`` of
     eq. (6) and ``beta`` of eq. (8); ``thrust[k]``, ``tau_B[k]`` are the commands held from ``k`` to ``k + 1``.
-    ``w_bar_0 = 0`` (no previous sample).
+    ``w_bar_0 = 0`` (no previous sample). With a design ``des`` whose timing is set (velocity and attitude
+    delays, rotor model), the commands pass through the rotor model and each channel is evaluated on its
+    own window, exactly as :func:`~vtol_impedance.estimator.momentum.estimator_step` does (before the
+    first sample the history holds the first sample).
     """
     m = np.asarray(mass, dtype=float)
     q = generalized_momentum(v_W, eta, eta_dot, m, I_B)
     w = np.zeros(q.shape)
     if len(q) < 2:
         return w
-    u, tau = thrust[:-1], tau_B[:-1]
-    beta_a = momentum_rate_known(eta[:-1], eta_dot[:-1], u, tau, m, I_B)
-    beta_b = momentum_rate_known(eta[1:], eta_dot[1:], u, tau, m, I_B)
-    w[1:] = np.diff(q, axis=0) / Ts - 0.5 * (beta_a + beta_b)
+    cmd = np.column_stack([thrust, tau_B])
+    dv, da, d_att, alpha, gamma = (0.0,) * 5 if des is None else (des.dv, des.da, des.d_att, des.alpha, des.gamma)
+    # the rotor model at each sample, a_{j+1} = alpha a_j + (1 - alpha) c_j from a_0 = c_0, and its mean
+    # output over each period
+    a = np.empty_like(cmd)
+    a[0] = cmd[0]
+    a[1:] = scipy.signal.lfilter([1.0 - alpha], [1.0, -alpha], cmd[:-1], axis=0, zi=alpha * cmd[:1])[0]
+    a_bar = cmd + (a - cmd) * gamma
+    k = np.arange(1, len(q), dtype=float)
+
+    def at(series: np.ndarray, pos: np.ndarray) -> np.ndarray:  # fractional rows, clamped at the start
+        pos = np.maximum(pos, 0.0)
+        return np.column_stack([np.interp(pos, np.arange(len(series)), series[:, j]) for j in range(series.shape[1])])
+
+    u_w = at(a_bar[:, :1], k - 1.0 - dv)[:, 0]
+    tau_w = at(a_bar[:, 1:], k - 1.0 - da)
+    unwrapped = np.unwrap(eta, axis=0)
+    eta_a = at(unwrapped, k - d_att - 1.0)
+    eta_b = at(unwrapped, k - d_att)
+    beta_lin = momentum_rate_linear(eta_a, u_w, m) + momentum_rate_linear(eta_b, u_w, m)
+    beta_ang = momentum_rate_angular(eta[:-1], eta_dot[:-1], tau_w, I_B) + momentum_rate_angular(
+        eta[1:], eta_dot[1:], tau_w, I_B
+    )
+    w[1:] = np.diff(q, axis=0) / Ts - 0.5 * np.concatenate([beta_lin, beta_ang], -1)
     return w
 
 

@@ -193,7 +193,7 @@ def estimate(
     tau_in = np.zeros_like(flight.v_W) if tau is None else tau
     w = None
     if backend == "numpy" or zero_phase_too:
-        w = momentum_residual(flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts)
+        w = momentum_residual(flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts, des)
     if backend == "compiled":
         from ..compiled.estimator import estimate_log, pack_design
 

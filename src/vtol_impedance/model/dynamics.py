@@ -77,12 +77,22 @@ def momentum_rate_known(
 
     ``beta = [-u R(eta) e3 + m g_W;  Q^T tau_B + C^T eta_dot]``, so that ``q_dot = beta + [f_ext_W; tau_ext_eta]``.
     """
+    return np.concatenate(
+        [momentum_rate_linear(eta, thrust, mass), momentum_rate_angular(eta, eta_dot, tau_B, I_B)], -1
+    )
+
+
+def momentum_rate_linear(eta: np.ndarray, thrust: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """The linear part of ``beta`` in eq. (8): ``-u R(eta) e3 + m g_W`` (world NED, N)."""
     R = rotation_zyx(eta)
-    lin = -np.asarray(thrust, dtype=float)[..., None] * R[..., :, 2] + np.asarray(mass)[..., None] * GRAVITY_W
+    return -np.asarray(thrust, dtype=float)[..., None] * R[..., :, 2] + np.asarray(mass)[..., None] * GRAVITY_W
+
+
+def momentum_rate_angular(eta: np.ndarray, eta_dot: np.ndarray, tau_B: np.ndarray, I_B: np.ndarray) -> np.ndarray:
+    """The angular part of ``beta`` in eq. (8): ``Q^T tau_B + C^T eta_dot`` (Euler coordinates, N m)."""
     Q = euler_rate_matrix_Q(eta)
     C = coriolis_matrix_C(eta, eta_dot, I_B)
-    ang = matvec(transpose(Q), tau_B) + matvec(transpose(C), eta_dot)
-    return np.concatenate([lin, ang], -1)
+    return matvec(transpose(Q), tau_B) + matvec(transpose(C), eta_dot)
 
 
 def euler_moment_from_body(tau_B: np.ndarray, eta: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from ..errors import InputError, ScenarioError
 from ..estimator.momentum import EstimatorParams
 from ..model.mixer import THRUST_SHIFT_MAX
 from ..model.vehicle import load_preset
+from ..robust.design import DesignError, Timing, design
 from ..sim.disturbances import Disturbance, from_dict
 from ..sim.plant import PlantParams
 from ..sim.sensors import SensorParams
@@ -87,22 +88,54 @@ class PlantSpec:
 
 @dataclass(frozen=True)
 class ControlSpec:
-    """Controller and estimator settings. Defaults are the paper's (Sec. VI.A-B)."""
+    """Controller and estimator settings.
+
+    The position impedance (``Kp``, ``Dp``, and ``Ki`` for PID) and the rate are the paper's (Sec. VI.A-B).
+    The bandwidths left at ``None`` (``"design"`` in a file or ``--set``) are chosen by
+    :func:`vtol_impedance.robust.design` for the nominal vehicle, the position impedance and the timing
+    the controller assumes, so that the margins hold (README, "Stability margins"); a number sets one by
+    hand. :data:`PAPER_CONTROL` is the paper's own choice (``vtol-impedance paper`` flies it).
+
+    ``wn_o``, ``wn_o_yaw``: attitude bandwidths (roll/pitch, yaw), rad/s, ``zeta_o`` their damping;
+    ``estimator_timing``: align the estimator to the latencies the controller assumes and pass its
+    commands through the rotor model (:mod:`vtol_impedance.estimator.momentum`, "Timing");
+    ``velocity_delay``, ``attitude_delay``: those latencies (s; ``None``: the sensor model's, as a real
+    system reads them off its timestamps); ``rotor_tau``: the rotors' nominal time constant (s), what the
+    controller assumes (the true plant's are ``plant.rotor_tau_up``/``down``).
+    """
 
     rate: float = 100.0
     Kp: float | Vec3 = 16.0
     Dp: float | Vec3 = 12.0
     Ki: float | Vec3 = PAPER_KI
-    wn_o: float = 8.0
+    wn_o: float | None = None
+    wn_o_yaw: float | None = None
     zeta_o: float = 1.0
-    estimator_wn: float = 10.0
+    estimator_wn: float | None = None
     estimator_zeta: float = 1.0
     estimator_order: int = 2
     estimator_prototype: str = "zeta"
-    attitude_filter_wn: float = ATTITUDE_FILTER_WN
+    estimator_timing: bool = True
+    attitude_filter_wn: float | None = None
+    velocity_delay: float | None = None
+    attitude_delay: float | None = None
+    rotor_tau: float = 0.019
     tilt_max_deg: float = 35.0
     integral_limit: float = 3.0
     thrust_shift_max: float = THRUST_SHIFT_MAX
+
+
+#: The paper's controller (Sec. VI.A; the attitude filter's bandwidth, which the paper does not give, is
+#: this project's earlier default): what ``vtol-impedance paper`` flies, as ``--set`` assignments.
+PAPER_CONTROL: dict[str, Any] = {
+    "control.wn_o": 8.0,
+    "control.wn_o_yaw": 8.0,
+    "control.attitude_filter_wn": ATTITUDE_FILTER_WN,
+    "control.estimator_wn": 10.0,
+    "control.estimator_timing": False,
+}
+#: Control settings chosen by the design when left at ``None``.
+DESIGNED = ("wn_o", "wn_o_yaw", "attitude_filter_wn", "estimator_wn")
 
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -276,17 +309,52 @@ def build(spec: ScenarioSpec) -> Built:
     return Built(plant, traj, dists, sensors, float(duration), window, phases, start)
 
 
+def assumed_timing(spec: ScenarioSpec) -> Timing:
+    """The latencies and rotor time constant the scenario's controller assumes (``control.velocity_delay``,
+    ``attitude_delay`` or, unset, the sensor model's; ``control.rotor_tau``)."""
+    c, sens = spec.control, (SensorParams.ideal() if spec.ideal else spec.sensors)
+    return Timing(
+        sens.mocap_delay if c.velocity_delay is None else c.velocity_delay,
+        sens.imu_delay if c.attitude_delay is None else c.attitude_delay,
+        c.rotor_tau,
+    )
+
+
+def resolved_control(spec: ScenarioSpec) -> ControlSpec:
+    """``spec.control`` with every designed bandwidth filled in (:func:`vtol_impedance.robust.design`)."""
+    c = spec.control
+    if all(getattr(c, k) is not None for k in DESIGNED):
+        return c
+    try:
+        d = design(load_preset(spec.vehicle), c.Kp, c.Dp, c.rate, assumed_timing(spec))
+    except DesignError as exc:
+        raise ScenarioError(
+            f"{exc} (to fly it anyway, set control.wn_o, control.wn_o_yaw, control.attitude_filter_wn and "
+            "control.estimator_wn by hand)"
+        ) from None
+    chosen = {"wn_o": d.wn_o, "wn_o_yaw": d.wn_o_yaw, "attitude_filter_wn": d.attitude_filter_wn,
+              "estimator_wn": d.estimator_wn}  # fmt: skip
+    return replace(c, **{k: v for k, v in chosen.items() if getattr(c, k) is None})
+
+
 def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
     """The nominal controller of a scenario: the preset vehicle, never the true plant."""
-    c = spec.control
+    c = resolved_control(spec)
     vehicle = load_preset(spec.vehicle)
-    att = ImpedanceGains.from_natural(vehicle.mass, vehicle.inertia, 1.0, 1.0, c.wn_o, c.zeta_o)
-    gains = ImpedanceGains(Kp=c.Kp, Dp=c.Dp, Ko=att.Ko, Do=att.Do, Ki=c.Ki if variant == "pid" else 0.0)
+    w = np.array([c.wn_o, c.wn_o, c.wn_o_yaw])
+    I = np.diag(vehicle.inertia)  # noqa: E741
+    gains = ImpedanceGains(
+        Kp=c.Kp, Dp=c.Dp, Ko=w**2 * I, Do=2.0 * c.zeta_o * w * I, Ki=c.Ki if variant == "pid" else 0.0
+    )
+    t = assumed_timing(spec)
     est = EstimatorParams(
         wn=c.estimator_wn,
         zeta=c.estimator_zeta,
         order=int(c.estimator_order),
         prototype=c.estimator_prototype,
+        velocity_delay=t.velocity_delay if c.estimator_timing else 0.0,
+        attitude_delay=t.attitude_delay if c.estimator_timing else 0.0,
+        rotor_tau=t.rotor_tau if c.estimator_timing else 0.0,
     )
     return ControllerParams(
         vehicle=vehicle,
@@ -323,6 +391,8 @@ def checked(spec: ScenarioSpec, variants: tuple[str, ...] | list[str]) -> tuple[
     b = build(spec)
     if b.duration < 1.0 / rate:
         raise ScenarioError(f"duration {b.duration:g} s is shorter than one control period (1/{rate:g} Hz)")
+    for d in b.disturbances:
+        d.check_start(b.start_W)
     return b, [controller_params(spec, v) for v in variants]
 
 
@@ -370,6 +440,10 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "control.Dp": (0.0, 1e6, True),
     "control.Ki": (0.0, 1e6, False),
     "control.wn_o": (0.0, 1e4, True),
+    "control.wn_o_yaw": (0.0, 1e4, True),
+    "control.velocity_delay": (0.0, 1.0, False),
+    "control.attitude_delay": (0.0, 1.0, False),
+    "control.rotor_tau": (0.0, 1.0, False),
     "control.zeta_o": (0.0, 100.0, True),
     "control.estimator_wn": (0.0, 1e5, True),
     "control.estimator_zeta": (0.0, 100.0, True),
@@ -412,6 +486,8 @@ def _check_range(path: str, value: Any) -> None:
     if key not in RANGES:
         return
     lo, hi, lo_open = RANGES[key]
+    if value is None:  # "design" / "auto"
+        return
     for v in value if isinstance(value, tuple) else (value,):
         if v < lo or v > hi or (lo_open and v == lo):
             rng = f"{'(' if lo_open else '['}{lo}, {hi}]"
@@ -431,8 +507,18 @@ def _gain_value(path: str, value: Any) -> Any:
     return value
 
 
+#: Keys whose default ``None`` means "chosen for you" (designed, or from the sensor model); ``"design"`` or
+#: ``"auto"`` sets them back to that.
+_OPTIONAL = {"control.wn_o", "control.wn_o_yaw", "control.attitude_filter_wn", "control.estimator_wn",
+             "control.velocity_delay", "control.attitude_delay"}  # fmt: skip
+
+
 def _coerce(path: str, current: Any, value: Any) -> Any:
     """Convert ``value`` to the type of ``current`` or raise a clear error."""
+    if path in _OPTIONAL:
+        if isinstance(value, str) and value in ("design", "auto"):
+            return None
+        current = 0.0  # otherwise a number
     if isinstance(current, bool):
         if isinstance(value, bool):
             return value

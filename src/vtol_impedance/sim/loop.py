@@ -475,7 +475,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     cp, sh = pack_controller(CA)
     pp = pack_plant(s.PA)
     codes, dparams, series = pack_disturbances(s.dist.items)
-    CS = ctrl_initial_state(cp, CA.est.Ad.shape[-1])
+    CS = ctrl_initial_state(cp, sh)
     suite = SensorSuite(s.sensors, s.PA, s.dt)
     H = max(suite.k_mocap, suite.k_imu) + 1
     hist = np.empty((B, H, s.x0.shape[1]))

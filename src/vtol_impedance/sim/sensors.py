@@ -67,15 +67,7 @@ class SensorSuite:
     def measure(self, noise: np.ndarray) -> Measurement:
         """Measurement from the delayed states plus ``sigma * noise``; ``noise (..., 12)`` are standard
         normals ordered ``[position (3), velocity (3), attitude (3), gyro (3)]``."""
-        xm = self._ago(self.k_mocap)
-        p_o, v_o = origin_kinematics(self.plant, xm)
-        xi = self._ago(self.k_imu)
-        eta_true = euler_from_rotation(quat_to_rotation(xi[..., QUAT]))
-        p = self.params
-        eta = eta_true + p.att_noise * noise[..., 6:9]
-        omega = xi[..., OMEGA] + p.gyro_noise * noise[..., 9:12]
-        eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega[..., None])[..., 0]
-        return Measurement(p_o + p.pos_noise * noise[..., 0:3], v_o + p.vel_noise * noise[..., 3:6], eta, eta_dot)
+        return measurement(self.plant, self._ago(self.k_mocap), self._ago(self.k_imu), self.sigma, noise)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -99,3 +91,26 @@ class NoiseSource:
         for b, g in enumerate(self.gens):
             g.standard_normal(out=out[b])
         return out
+
+
+def measurement(
+    plant: PlantArrays,
+    x_mocap: np.ndarray,
+    x_imu: np.ndarray,
+    sigma: np.ndarray | None = None,
+    noise: np.ndarray | None = None,
+) -> Measurement:
+    """What the sensors report: the body origin's position and velocity from the plant state ``x_mocap``
+    (motion capture), the attitude and the Euler rates ``Q(eta)^{-1} omega_B`` from ``x_imu`` (IMU), plus
+    ``sigma [pos, vel, att, gyro] * noise (..., 12)`` when given (noise-free otherwise)."""
+    p_o, v_o = origin_kinematics(plant, x_mocap)
+    eta = euler_from_rotation(quat_to_rotation(x_imu[..., QUAT]))
+    omega = x_imu[..., OMEGA]
+    if noise is not None:
+        s = np.zeros(4) if sigma is None else sigma
+        p_o = p_o + s[0] * noise[..., 0:3]
+        v_o = v_o + s[1] * noise[..., 3:6]
+        eta = eta + s[2] * noise[..., 6:9]
+        omega = omega + s[3] * noise[..., 9:12]
+    eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega[..., None])[..., 0]
+    return Measurement(p_o, v_o, eta, eta_dot)

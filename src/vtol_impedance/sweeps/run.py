@@ -36,6 +36,32 @@ from ..io import FolderLock, write_text, write_with
 from .spec import Sweep, Unit
 
 METRICS = ("rms_ep_cm", "max_ep_cm", "ss_ep_cm", "rms_ev_cms", "rms_f_err_N", "rms_tau_err_mNm", "sat_pct")
+#: Stability-margin columns of every flight row (``margins = true``, the default): the point's controller
+#: linearised at the scenario's operating point (:mod:`vtol_impedance.scenarios.margins`).
+MARGINS = ("margin_stable", "pm_min_deg", "gm_min_db", "dm_min_ms", "ms_max", "growth_rate", "damping_min", "margin_ok")
+
+
+def point_margins(spec: Any, controllers: list[str]) -> dict[str, dict[str, float]]:
+    """The margin columns of one sweep point, per controller (``nan`` where it cannot hover)."""
+    from ..robust import TrimError
+    from ..scenarios.margins import scenario_margins
+
+    try:
+        reports = scenario_margins(spec, controllers)
+    except TrimError:
+        nan = float("nan")
+        return {c: {k: nan for k in MARGINS} | {"margin_stable": 0.0, "margin_ok": 0.0} for c in controllers}
+    out = {}
+    for c, r in reports.items():
+        s = r.summary()
+        out[c] = {
+            "margin_stable": s["stable"], "pm_min_deg": s["pm_min_deg"], "gm_min_db": s["gm_min_db"],
+            "dm_min_ms": s["dm_min_ms"], "ms_max": s["ms_max"], "growth_rate": s["growth_rate"],
+            "damping_min": s["damping_min"], "margin_ok": float(not r.violations()),
+        }  # fmt: skip
+    return out
+
+
 SWEEP_FILE = "sweep.json"
 
 
@@ -57,6 +83,9 @@ def run_units(sweep: Sweep, units: Iterable[Unit], backend: str = "compiled") ->
     rows.update({a.key: [] for a in sweep.axes})
     rows.update({m: [] for m in METRICS})
     rows.update(diverged=[], failure_reason=[], failure_time_s=[])
+    if sweep.margins:
+        rows.update({m: [] for m in MARGINS})
+    margins_of: dict[int, dict[str, dict[str, float]]] = {}
     traces: dict[str, list] | None = None
     if sweep.traces:
         traces = {k: [] for k in ("unit", "controller", "t_s", "ep_norm_m", "fx_hat_N", "fy_hat_N", "fz_hat_N",
@@ -67,7 +96,12 @@ def run_units(sweep: Sweep, units: Iterable[Unit], backend: str = "compiled") ->
         with warnings.catch_warnings():  # a study may mean to go near the sampling rate; the spec counts them
             warnings.simplefilter("ignore", EstimatorBandwidthWarning)
             r = simulate(spec, sweep.controllers, seed=u.seed, backend=backend, log=log)
+        if sweep.margins and u.point not in margins_of:  # once per point: the seed does not change them
+            margins_of[u.point] = point_margins(spec, sweep.controllers)
         for b, row in enumerate(compute_metrics(r)):
+            if sweep.margins:
+                for k, v in margins_of[u.point][sweep.controllers[b]].items():
+                    rows[k].append(v)
             rows["unit"].append(u.index)
             rows["point"].append(u.point)
             rows["repeat"].append(u.repeat)

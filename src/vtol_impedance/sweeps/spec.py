@@ -1,5 +1,7 @@
 """Sweep specifications: a base scenario, fixed overrides, axes over any scenario value, controllers and
-seeds; resolved into a fixed list of flight units before any work starts.
+seeds; resolved into a fixed list of flight units before any work starts. Every flight row also carries
+the controller's stability margins at the point (``margins = true``, the default; about 0.3 s per point
+and controller, once per point whatever the seeds).
 
 A sweep file (TOML)::
 
@@ -18,6 +20,7 @@ A sweep file (TOML)::
     "control.rate" = [20, 50, 100, 200, 500]                       # values
     "control.estimator_wn" = {min = 2.0, max = 40.0, n = 8, log = true}   # a range
     "payload.offset_B[0]" = {min = 0.0, max = 0.05, n = 6}         # one component of a vector value
+    "plant.rotor_tau_up,plant.rotor_tau_down" = [[0.01, 0.02], [0.02, 0.04]]   # keys that move together
 
 A range gives ``n`` values (grid, zip) or the interval to draw from (random, log-uniform with
 ``log = true``); a list is used as is (grid, zip) or drawn from (random).
@@ -51,7 +54,7 @@ from ..scenarios.spec import ScenarioSpec, check, check_name
 
 MODES = ("grid", "zip", "random")
 KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "samples", "chunk", "traces",
-        "max_flights", "set", "axes")  # fmt: skip
+        "max_flights", "margins", "set", "axes")  # fmt: skip
 MAX_FLIGHTS = 200_000
 _INDEXED = re.compile(r"^(?P<key>[A-Za-z_][\w.]*)\[(?P<i>\d)\]$")
 
@@ -69,7 +72,15 @@ def _get(spec: ScenarioSpec, key: str) -> Any:
 
 
 def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
-    """``set_value`` plus one component of a vector value: ``payload.offset_B[0]``."""
+    """``set_value`` plus one component of a vector value (``payload.offset_B[0]``) and joint keys:
+    ``"plant.rotor_tau_up,plant.rotor_tau_down"`` set from a list of as many values."""
+    if "," in key:
+        keys = [k.strip() for k in key.split(",")]
+        if not isinstance(value, list | tuple) or len(value) != len(keys):
+            raise ScenarioError(f"{key}: a joint axis takes {len(keys)} values per point, got {value!r}")
+        for k, v in zip(keys, value, strict=True):
+            spec = set_param(spec, k, v)
+        return spec
     m = _INDEXED.match(key)
     if m is None:
         return set_value(spec, key, value)
@@ -161,6 +172,7 @@ class Sweep:
     chunk: int
     traces: int
     source: dict[str, Any] = field(default_factory=dict)
+    margins: bool = True  # margin columns in every flight row
     fast_estimator_points: list[int] = field(default_factory=list)  # |p| Ts > 0.5: noise barely filtered
 
     @property
@@ -201,6 +213,7 @@ class Sweep:
             "seed": self.seed,
             "chunk": self.chunk,
             "traces": self.traces,
+            "margins": self.margins,
         }
 
     def digest(self) -> str:
@@ -254,6 +267,9 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
     chunk = int(scalar("chunk", data.get("chunk", 8), lo=1, hi=100_000, integer=True))
     traces = int(scalar("traces", data.get("traces", 0), lo=0, hi=1_000_000, integer=True))
     max_flights = int(scalar("max_flights", data.get("max_flights", MAX_FLIGHTS), lo=1, integer=True))
+    margins = data.get("margins", True)
+    if not isinstance(margins, bool):
+        raise InputError(f"margins must be true or false, got {margins!r}")
     raw_axes = data.get("axes", {})
     if not isinstance(raw_axes, dict) or not raw_axes:
         raise InputError("a sweep needs [axes]: at least one scenario value to vary")
@@ -286,7 +302,7 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
         points = [{a.key: a.draw(rng) for a in axes} for _ in range(n_points)]
     sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
-                  source=data)  # fmt: skip
+                  source=data, margins=margins)  # fmt: skip
     if check_points:
         for i in range(len(points)):
             with warnings.catch_warnings(record=True) as caught:

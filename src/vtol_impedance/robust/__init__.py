@@ -1,0 +1,30 @@
+"""Robustness by design: the closed loop linearised for any vehicle, its stability margins, and a design
+rule for bandwidths that keep them."""
+
+from .linear import (
+    LOOPS,
+    LinearLoop,
+    OperatingPoint,
+    TrimError,
+    equivalent_rotor_tau,
+    linearize,
+    operating_point,
+    rotor_lag_describing_function,
+)
+from .margins import LoopMargins, MarginReport, Thresholds, loop_margins, margins
+
+__all__ = [
+    "LOOPS",
+    "LoopMargins",
+    "MarginReport",
+    "Thresholds",
+    "loop_margins",
+    "margins",
+    "LinearLoop",
+    "OperatingPoint",
+    "TrimError",
+    "equivalent_rotor_tau",
+    "linearize",
+    "operating_point",
+    "rotor_lag_describing_function",
+]

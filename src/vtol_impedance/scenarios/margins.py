@@ -1,0 +1,85 @@
+"""Stability margins of a scenario's controllers at its operating point (:mod:`vtol_impedance.robust`).
+
+The operating point is a hover at the reference where the task window starts (its yaw and comply
+fractions), on the scenario's true plant with its payload, inertia, rotor and sensor timing, under the
+mean wrench of its disturbances over the task window evaluated there (at rest, level): a fan's steady
+push, the payload's weight. What the disturbances do beyond their mean (turbulence, a push's duration,
+a fan's or wall's dependence on position) is not in the linear model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..model.kinematics import rotation_zyx
+from ..robust import MarginReport, Thresholds, linearize, margins
+from .spec import Built, ScenarioSpec, checked
+
+#: Times at which the disturbances are averaged over the task window.
+N_AVERAGE = 64
+
+
+def steady_wrench(built: Built, p_W: np.ndarray, psi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean force (world, N) and moment (body, N m) of the disturbances over the task window, at rest at
+    ``p_W`` with the level attitude of yaw ``psi``."""
+    f, tau = np.zeros(3), np.zeros(3)
+    if not built.disturbances:
+        return f, tau
+    t0, t1 = built.window
+    times = np.linspace(t0, t1, N_AVERAGE) if t1 > t0 else np.array([t0])
+    R = rotation_zyx(np.array([0.0, 0.0, psi]))
+    prepared = [d.prepare(built.duration + 1.0, 1e-3, np.random.default_rng(0)) for d in built.disturbances]
+    for t in times:
+        for d in prepared:
+            fd, td = d(float(t), p_W, np.zeros(3), R)
+            f += np.asarray(fd, dtype=float) / len(times)
+            tau += np.asarray(td, dtype=float) / len(times)
+    return f, tau
+
+
+def operating_point_of(built: Built) -> dict[str, Any]:
+    """Where a scenario's margins are taken: the reference at the start of its task window."""
+    row = built.trajectory.sample_many(np.array([built.window[0]]))[0]
+    p, psi = row[0:3], float(row[9])
+    f, tau = steady_wrench(built, p, psi)
+    return {"p_W": p, "psi": psi, "comply": row[12:18], "force_W": f, "torque_B": tau}
+
+
+def scenario_margins(spec: ScenarioSpec, variants: Sequence[str] = ("pd", "pid", "pdc")) -> dict[str, MarginReport]:
+    """Margins of each controller variant of ``spec`` (see the module docstring)."""
+    from threadpoolctl import threadpool_limits
+
+    built, ctrls = checked(spec, list(variants))
+    op = operating_point_of(built)
+    out = {}
+    with threadpool_limits(limits=1, user_api="blas"):  # the same numbers whatever the thread count
+        for variant, ctrl in zip(variants, ctrls, strict=True):
+            loop = linearize(ctrl, built.plant, built.sensors, plant_rate=spec.plant_rate, **op)
+            out[variant] = margins(loop, label=variant)
+    return out
+
+
+def warnings_of(reports: dict[str, MarginReport], thresholds: Thresholds | None = None) -> list[str]:
+    """One line per controller that falls short of ``thresholds``."""
+    from ..control.impedance import DISPLAY_NAMES
+
+    out = []
+    for variant, r in reports.items():
+        v = r.violations(thresholds)
+        if v:
+            out.append(f"{DISPLAY_NAMES.get(variant, variant)}: " + "; ".join(v))
+    return out
+
+
+def check_variants(variants: Any) -> list[str]:
+    from ..control.impedance import VARIANTS
+
+    variants = [variants] if isinstance(variants, str) else list(variants)
+    bad = [v for v in variants if v not in VARIANTS]
+    if bad or not variants:
+        raise InputError(f"unknown controller variant(s) {bad or variants}; choose from {sorted(VARIANTS)}")
+    return variants
