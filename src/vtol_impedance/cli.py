@@ -506,6 +506,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             "near the sampling rate (|p| Ts > 0.5): measurement noise is barely filtered there",
             file=sys.stderr,
         )
+    _preflight([sweep.base], sweep.controllers, args.quiet)  # the base point; every point's margins are in its rows
     t0 = time.perf_counter()
     folder, computed = run_sweep(
         sweep, _sweep_out(args, sweep.name), args.workers, args.scheduler, args.backend, args.restart, where,
@@ -538,6 +539,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from .sweeps.tune import best_scenario_toml, load_tuning, trials_csv, tune
 
     t = load_tuning(args.spec)
+    _preflight([t.base_spec()], [t.controller], args.quiet)
     out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"tune-{t.name}"
     with RunFolder(out) as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))

@@ -89,7 +89,8 @@ def plot_bode(reports: dict[str, MarginReport], path: Path, title: str = "") -> 
             style = dict(color=LOOP_COLORS.get(name), ls=STYLES.get(variant, "-"), lw=1.1)
             ax[0, col].semilogx(w, 20 * np.log10(np.abs(H)), label=f"{_label(variant)}, {name}", **style)
             ph = np.degrees(np.unwrap(np.angle(H)))
-            ph -= 360.0 * np.floor((ph[0] + 270.0) / 360.0)  # start in [-270, 90) deg
+            c = int(np.argmin(np.abs(np.log(np.abs(H)))))  # the gain crossover: its phase in [-360, 0) deg
+            ph -= 360.0 * np.floor(ph[c] / 360.0 + 1.0)
             ax[1, col].semilogx(w, ph, **style)
     for col, name in enumerate(("rotor commands (thrust, torques)", "attitude references (roll, pitch)")):
         ax[0, col].axhline(0.0, color="k", lw=0.6)
@@ -97,6 +98,7 @@ def plot_bode(reports: dict[str, MarginReport], path: Path, title: str = "") -> 
         ax[0, col].set_title(name, fontsize=10)
         ax[0, col].set_ylim(-40, 60)
         ax[1, col].set_ylim(-540, 180)
+        ax[1, col].set_xlim(1e-2, np.pi / float(next(iter(reports.values())).info["control_period_s"]))
         ax[1, col].set_xlabel("frequency [rad/s]")
         for a in ax[:, col]:
             a.grid(alpha=0.3, which="both")

@@ -54,6 +54,7 @@ from ..control.impedance import (
     position_step,
 )
 from ..control.signals import Measurement, Reference
+from ..conventions import GRAVITY_W
 from ..errors import InputError, as_finite, scalar
 from ..model.kinematics import euler_from_rotation, quat_derivative, quat_to_rotation
 from ..model.mixer import allocate
@@ -370,6 +371,13 @@ def _live(su: _Setup, s: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _trim(su: _Setup, force_W: Any, torque_B: Any) -> tuple[OperatingPoint, _Setup, Any]:
     steady = _steady(force_W, torque_B)
+    need = float(np.linalg.norm((su.PA.mass + su.PA.pend_m) * GRAVITY_W + np.asarray(force_W, dtype=float)))
+    have = float(np.sum(su.PA.f_max))
+    if need > have:
+        raise TrimError(
+            f"the vehicle cannot hover here: it needs {need:.3g} N of thrust (its true mass with the payload and the "
+            f"steady force), and its rotors give at most {have:.3g} N"
+        )
     fn = _controller_fn(su)
     c = su.coords
     s0 = flatten_state(su.template)

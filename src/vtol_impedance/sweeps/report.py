@@ -158,7 +158,7 @@ def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
     cols = s["cols"]
     xs = _axis_values(s["rows"], axis)
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    key = np.array([json.dumps(v) for v in cols[axis]])
+    key = np.array([v if isinstance(v, str) else json.dumps(v) for v in cols[axis]])  # vectors: stored as JSON
     vals = cols[s["metric"]].astype(float)
     failed = cols["diverged"].astype(bool)
     top = np.nanmax(np.where(failed, np.nan, vals)) if np.any(~failed) else 1.0
@@ -193,6 +193,64 @@ def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
     return _save(fig, path)
 
 
+#: A flight "oscillates" when its RMS position error exceeds this (cm) or it failed: what the margin
+#: check is judged against (README, "Stability margins").
+OSCILLATING_CM = 0.5
+
+
+def margin_agreement(s: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Per controller: how often the linear model's verdict (closed loop unstable) agrees with the flights
+    (RMS |e_p| above :data:`OSCILLATING_CM` or failed), and the counts behind it."""
+    cols = s["cols"]
+    out = {}
+    for c in s["controllers"]:
+        sel = cols["controller"] == c
+        rms = cols["rms_ep_cm"][sel].astype(float)
+        osc = cols["diverged"][sel].astype(bool) | ~(rms <= OSCILLATING_CM)
+        unstable = cols["margin_stable"][sel].astype(float) < 0.5
+        out[c] = {"cells": int(sel.sum()), "oscillating": int(osc.sum()), "unstable": int(unstable.sum()),
+                  "agreement": float(np.mean(osc == unstable)) if sel.any() else float("nan")}  # fmt: skip
+    return out
+
+
+def plot_margin_check(s: dict[str, Any], path: Path) -> Path | None:
+    """PD+C over PD at every point against the worst phase margin the check computed for PD+C there:
+    right of the threshold the check passes, and compensation should not be worse than PD (ratio <= 1);
+    unstable points (no margin) are drawn at the left edge."""
+    cols = s["cols"]
+    if "pm_min_deg" not in cols or not {"pd", "pdc"} <= set(s["controllers"]):
+        return None
+    from ..analysis.plots import _save, plt
+    from ..robust import Thresholds
+
+    m = s["metric"]
+    pdc, pd = cols["controller"] == "pdc", cols["controller"] == "pd"
+    key = lambda sel: list(zip(cols["unit"][sel].tolist(), strict=True))  # noqa: E731
+    if key(pdc) != key(pd):
+        return None
+    ratio = cols[m][pdc].astype(float) / np.maximum(cols[m][pd].astype(float), 1e-12)
+    pm = cols["pm_min_deg"][pdc].astype(float)
+    stable = cols["margin_stable"][pdc].astype(float) > 0.5
+    ok = cols["margin_ok"][pdc].astype(float) > 0.5
+    failed = cols["diverged"][pdc].astype(bool)
+    ratio = np.where(failed | ~np.isfinite(ratio), 1e3, ratio)
+    x = np.where(stable, pm, -5.0)
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    for sel, colour, label in ((ok, "tab:blue", "the check passes"), (~ok & stable, "tab:orange", "thin margins"),
+                               (~stable, "tab:red", "unstable (drawn at -5 deg)")):  # fmt: skip
+        ax.plot(x[sel], ratio[sel], "o", ms=4, color=colour, alpha=0.7, label=f"{label} ({int(sel.sum())})")
+    t = Thresholds()
+    ax.axvline(t.phase_deg, color="k", lw=0.8)
+    ax.axhline(1.0, color="k", lw=0.6, ls="--")
+    ax.set_yscale("log")
+    ax.set_xlabel("PD+C's worst phase margin at the point [deg] (from the linear model)")
+    ax.set_ylabel(f"{METRIC_LABELS[m]}: PD+C / PD (failed: top)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{s['sweep']['name']}: is compensation worse than PD where the check passes?", fontsize=10)
+    return _save(fig, path)
+
+
 def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, y: str | None = None) -> list[Path]:
     """Summary CSV, figures, ``report.html`` and ``manifest.json`` into the sweep folder."""
     from ..analysis.report import write_html
@@ -224,6 +282,9 @@ def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, 
             figs.append(comp)
     for i, a in enumerate(axes):
         figs.append(plot_against(s, folder / f"against-axis{i}.png", a))
+    check = plot_margin_check(s, folder / "margin-check.png")
+    if check is not None:
+        figs.append(check)
     files += figs
     table_rows = [
         [str(r["point"]), LABELS.get(r["controller"], r["controller"])]
@@ -237,6 +298,15 @@ def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, 
         f"{len(s['controllers'])} controllers; metric {METRIC_LABELS[metric]} over each scenario's task window.",
         f"{fails} point/controller pairs had failed flights (red x in the figures); they are left out of the means.",
     ]
+    if "margin_stable" in s["cols"]:
+        for c, a in margin_agreement(s).items():
+            if c in ("pd", "pid"):  # their RMS holds the payload's sag: "above 0.5 cm" is no oscillation test
+                continue
+            notes.append(
+                f"{LABELS.get(c, c)}: the linear model calls {a['unstable']} of {a['cells']} flights unstable; "
+                f"{a['oscillating']} oscillated (RMS |e_p| above {OSCILLATING_CM} cm or failed): agreement "
+                f"{100 * a['agreement']:.1f} %."
+            )
     files.append(
         write_html(
             folder, f"Sweep {s['sweep']['name']}",

@@ -19,10 +19,14 @@ A tuning file (TOML)::
     metric = "rms_ep_cm"           # per flight, over the task window
     saturation_weight = 0.1        # added per % of the window spent at a limit
     failure_penalty = 1000.0       # replaces the metric of a flight that failed
+    min_phase_margin_deg = 20.0    # optional constraint: the stability margins of every member's loop
+    margin_penalty = 1000.0        # added for a member whose loop is unstable or below that phase margin
 
 Cost of a trial = mean over the population of ``metric + saturation_weight * sat_pct`` (or
-``failure_penalty`` for a failed flight). The best gains are written as a scenario file (``best.toml``)
-that ``vtol-impedance run`` flies directly.
+``failure_penalty`` for a failed flight), plus ``margin_penalty`` for every member whose linearised loop
+(:mod:`vtol_impedance.robust`) is unstable or keeps less than ``min_phase_margin_deg`` (only computed when
+that constraint is set: about 0.3 s per member and trial). The best gains are written as a scenario file
+(``best.toml``) that ``vtol-impedance run`` flies directly.
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from .run import METRICS, Executor, warm_up
 from .spec import _INDEXED, Axis, _axis, _flatten, _get, from_dict
 
 KEYS = ("name", "description", "base", "controller", "trials", "seed", "population", "set", "search", "spread", "cost")
-COST_KEYS = ("metric", "saturation_weight", "failure_penalty")
+COST_KEYS = ("metric", "saturation_weight", "failure_penalty", "min_phase_margin_deg", "margin_penalty")
 
 
 def _optuna():
@@ -100,6 +104,17 @@ class Tuning:
     metric: str
     saturation_weight: float
     failure_penalty: float
+    min_phase_margin_deg: float = 0.0
+    margin_penalty: float = 1000.0
+
+    def base_spec(self) -> Any:
+        """The scenario every trial starts from: the base with the fixed overrides."""
+        from .spec import _base, set_param
+
+        spec = _base(self.data, self.where)
+        for k, v in _flatten(self.data.get("set", {})).items():
+            spec = set_param(spec, k, v)
+        return spec
 
     def trial_sweep(self, params: dict[str, float]) -> dict[str, Any]:
         """The sweep description flying ``params`` on the whole population (one point per member)."""
@@ -114,6 +129,7 @@ class Tuning:
         return {
             "name": self.name, "base": self.data["base"], "controllers": [self.controller], "seeds": seeds,
             "seed": self.seed, "mode": "zip", "chunk": 1, "set": fixed, "axes": axes,
+            "margins": self.min_phase_margin_deg > 0.0,
         }  # fmt: skip
 
 
@@ -150,6 +166,9 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
         search=search, spread=spread, metric=metric,
         saturation_weight=float(scalar("saturation_weight", cost.get("saturation_weight", 0.0), lo=0.0)),
         failure_penalty=float(scalar("failure_penalty", cost.get("failure_penalty", 1000.0), lo=0.0)),
+        min_phase_margin_deg=float(scalar("min_phase_margin_deg", cost.get("min_phase_margin_deg", 0.0), lo=0.0,
+                                          hi=90.0)),
+        margin_penalty=float(scalar("margin_penalty", cost.get("margin_penalty", 1000.0), lo=0.0)),
     )  # fmt: skip
     # every corner of the search box must be a valid scenario, checked now
     for corner in ({a.key: a.lo if a.values is None else a.values[0] for a in search},
@@ -163,8 +182,15 @@ def trial_cost(t: Tuning, rows: dict[str, list]) -> tuple[float, dict[str, float
     sat = np.asarray(rows["sat_pct"], dtype=float)
     failed = np.asarray(rows["diverged"], dtype=bool) | ~np.isfinite(vals)
     per = np.where(failed, t.failure_penalty, vals + t.saturation_weight * np.nan_to_num(sat))
-    return float(per.mean()), {"metric_mean": float(np.nanmean(np.where(failed, np.nan, vals))) if (~failed).any()
-                               else float("nan"), "failed": int(failed.sum())}  # fmt: skip
+    parts = {"metric_mean": float(np.nanmean(np.where(failed, np.nan, vals))) if (~failed).any() else float("nan"),
+             "failed": int(failed.sum())}  # fmt: skip
+    if t.min_phase_margin_deg > 0.0:
+        stable = np.asarray(rows["margin_stable"], dtype=float) > 0.5
+        pm = np.asarray(rows["pm_min_deg"], dtype=float)
+        short = ~stable | ~(pm >= t.min_phase_margin_deg)
+        per = per + np.where(short, t.margin_penalty, 0.0)
+        parts["below_margin"] = int(short.sum())
+    return float(per.mean()), parts
 
 
 def tune(
@@ -200,11 +226,11 @@ def tune(
 
 def best_scenario_toml(t: Tuning, best: dict[str, Any]) -> str:
     """A scenario file: the base, the fixed overrides and the best values (vectors written whole)."""
-    from .spec import _base, set_param
+    from .spec import set_param
 
-    spec = _base(t.data, t.where)
+    spec = t.base_spec()
     fixed = _flatten(t.data.get("set", {}))
-    for k, v in {**fixed, **best}.items():
+    for k, v in best.items():
         spec = set_param(spec, k, v)
     keys = []
     for k in [*fixed, *best]:
