@@ -60,7 +60,7 @@ def test_run_report_renders(tmp_path):
     shutil.copy(out / "report.html", alone)
     info = _render(alone, ARTIFACTS / "report-compare.png")
     _self_contained(alone, info)
-    assert len(info["images"]) == 3  # errors, inputs, wrench
+    assert len(info["images"]) == 6  # errors, inputs, wrench; the margins: Bode, Nyquist, poles
     assert info["tables"][0] == 4  # header + PD, PID, PD+C
 
 

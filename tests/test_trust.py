@@ -191,6 +191,7 @@ def test_manifest_binds_the_files(tmp_path):
     assert set(m["files"]) == {
         "case-a-payload-v1.npz",
         "case-a-payload-v1.config.json",
+        "case-a-payload-v1.margins.json",
         "metrics.csv",
         "metrics.md",
         "report.html",

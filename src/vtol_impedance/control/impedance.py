@@ -49,11 +49,12 @@ from .gains import Impedance, ImpedanceGains
 from .signals import ControlOutput, Measurement, Reference, comply6
 from .thrust import thrust_and_attitude
 
-#: Default bandwidth of the second-order filter on the desired roll and pitch, rad/s. Chosen by the
-#: measurement of ``examples/attitude_filter_bandwidth.py`` (README, "Python API"): on the paper's
-#: realistic plant, below 20 rad/s the compensated loop lags (case B error x3.5 at 15 rad/s), above
-#: 30 rad/s torque peaks grow and from 35 rad/s the loop closed through the estimate and the 20 ms motion
-#: capture latency oscillates (diverges at 45); 25 rad/s sits in the middle of that window.
+#: Bandwidth of the second-order filter on the desired roll and pitch in the paper's setup, rad/s (the
+#: paper does not give it). Chosen by the measurement of ``examples/attitude_filter_bandwidth.py`` with the
+#: paper's 8 rad/s attitude loop: below 20 rad/s the compensated loop lags (case B error x3.5 at 15 rad/s),
+#: above 30 rad/s torque peaks grow and from 35 rad/s the loop closed through the estimate and the 20 ms
+#: motion capture latency oscillates; 25 rad/s sits in the middle of that window. The scenarios' default
+#: is designed with the attitude loop for each vehicle (:func:`vtol_impedance.robust.design`).
 ATTITUDE_FILTER_WN = 25.0
 
 VARIANTS: dict[str, str] = {

@@ -1,6 +1,7 @@
 """Robustness by design: the closed loop linearised for any vehicle, its stability margins, and a design
 rule for bandwidths that keep them."""
 
+from .design import Design, DesignError, Timing, design, designed_controller
 from .linear import (
     LOOPS,
     LinearLoop,
@@ -15,6 +16,11 @@ from .margins import LoopMargins, MarginReport, Thresholds, loop_margins, margin
 
 __all__ = [
     "LOOPS",
+    "Design",
+    "DesignError",
+    "Timing",
+    "design",
+    "designed_controller",
     "LoopMargins",
     "MarginReport",
     "Thresholds",

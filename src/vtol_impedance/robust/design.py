@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from ..control.gains import ImpedanceGains
-from ..control.impedance import ATTITUDE_FILTER_WN, ControllerParams
+from ..control.impedance import ControllerParams
 from ..errors import InputError, scalar
 from ..estimator.momentum import EstimatorParams
 from ..model.vehicle import VehicleParams
@@ -360,4 +360,4 @@ def designed_controller(
     return replace(base, **kw) if kw else base
 
 
-__all__ = ["ATTITUDE_FILTER_WN", "Design", "DesignError", "Thresholds", "Timing", "design", "designed_controller"]
+__all__ = ["Design", "DesignError", "Timing", "design", "designed_controller"]
