@@ -146,3 +146,25 @@ def test_circle_start_without_ramp_with_rotor_limits():
     assert r.failures[0] is None
     e = np.linalg.norm(r.e_p[0], axis=-1)
     assert e[r.t > 6].max() < 0.15
+
+
+def test_case_c_metrics_cover_the_two_laps_only():
+    """The task window of case C, computed here from its definition: take-off at 1 s for 4 s, 5 s hover,
+    a 2 s ramp, two laps of 2 pi m at 0.5 m/s, a 2 s ramp down; the landing after it is not in the metrics
+    (its error would raise the maximum): the maximum is the one over that window, from the traces."""
+    from vtol_impedance.analysis.metrics import compute_metrics
+
+    r = simulate(get("case-c-circle"), ["pd"])
+    t0 = 1.0 + 4.0 + 5.0
+    c = get("case-c-circle").trajectory
+    circle = (
+        c.circle_ramp
+        + (c.circle_laps * 2 * np.pi * c.circle_radius - c.circle_speed * c.circle_ramp) / c.circle_speed
+        + c.circle_ramp
+    )
+    t1 = t0 + circle
+    assert r.config["window"] == pytest.approx([t0, t1], abs=0.02)
+    inside = (r.t >= t0) & (r.t <= t1)
+    e = np.linalg.norm(r.e_p[0], axis=-1)
+    assert compute_metrics(r)[0]["max_ep_cm"] == pytest.approx(100 * e[inside].max(), rel=1e-9)
+    assert e[r.t > t1 + 3.0].max() > e[inside].max()  # the landing does err more: it must stay out

@@ -61,6 +61,17 @@ def test_pure_yaw_gives_no_roll_or_pitch(name):
         assert tau[2] == pytest.approx(yaw)
 
 
+def test_hex_layout_numbering():
+    """Rotor 1 forward, then every 60 deg towards the right (+y in FRD), spins alternating from +."""
+    g = LAYOUT_VEHICLES["hex"].geometry
+    a = np.radians(60.0)
+    want = 0.25 * np.array([[1, 0], [np.cos(a), np.sin(a)], [-np.cos(a), np.sin(a)], [-1, 0], [-np.cos(a), -np.sin(a)],
+                            [np.cos(a), -np.sin(a)]])  # fmt: skip
+    np.testing.assert_allclose(g.positions_B[:, :2], want, atol=1e-15)
+    assert g.spins.tolist() == [1, -1, 1, -1, 1, -1]
+    assert load_preset("hexarotor").geometry.spins.tolist() == [1, -1, 1, -1, 1, -1]
+
+
 def test_plus_layout_is_eq4_numbering_and_x_layout_numbering():
     g = LAYOUT_VEHICLES["plus"].geometry
     np.testing.assert_allclose(g.positions_B[:, :2], [[-0.21, 0], [0, -0.21], [0.21, 0], [0, 0.21]], atol=1e-15)
@@ -81,11 +92,38 @@ def requests(draw):
     return v, u, tau, shift
 
 
-@given(requests())
-def test_allocation_limits_bound_and_priorities(req):
+def compiled_allocate(v, u, tau, shift):
+    """The compiled backend's allocator (``compiled.controller._allocate``) behind NumPy's signature."""
+    from types import SimpleNamespace
+
+    from vtol_impedance.compiled import controller as kernels
+    from vtol_impedance.control import ControllerParams
+    from vtol_impedance.control.impedance import compile_controllers
+
+    cp, _ = kernels.pack_controller(compile_controllers([ControllerParams.paper("pd", vehicle=v)]))
+    row = cp[0].copy()
+    row[kernels.CP_SHIFT] = shift
+    o = np.zeros(kernels.OUT_SIZE)
+    sat, rp, ys = kernels._allocate(row, float(u), float(tau[0]), float(tau[1]), float(tau[2]), o)
+    f = o[kernels.O_F : kernels.O_F + v.n_rotors].copy()
+    thrust, tau_B = mix(f, v.geometry.E)
+    return SimpleNamespace(f=f, thrust=thrust, tau_B=tau_B, saturated=sat, rp_scale=rp, yaw_scale=ys)
+
+
+ALLOCATORS = {
+    "numpy": lambda v, u, tau, shift: allocate(
+        u, tau, v.geometry.E, v.geometry.E_pinv, v.geometry.f_min, v.geometry.f_max, shift
+    ),  # fmt: skip
+    "compiled": compiled_allocate,
+}
+
+
+@pytest.mark.parametrize("backend", sorted(ALLOCATORS))
+@given(req=requests())
+def test_allocation_limits_bound_and_priorities(backend, req):
     v, u, tau, shift = req
     g = v.geometry
-    a = allocate(u, tau, g.E, g.E_pinv, g.f_min, g.f_max, shift)
+    a = ALLOCATORS[backend](v, u, tau, shift)
     assert np.all(a.f >= g.f_min - 1e-9) and np.all(a.f <= g.f_max + 1e-9)
     u_out, tau_out = mix(a.f, g.E)
     np.testing.assert_allclose([a.thrust, *a.tau_B], [u_out, *tau_out], atol=1e-9)

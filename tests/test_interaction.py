@@ -402,3 +402,33 @@ def test_pendulum_longer_than_the_altitude_is_refused(tmp_path, capsys):
         simulate(spec, ["pd"])
     rc = main(["run", "pendulum", "--set", "plant.pendulum_length=1.6", "--out", str(tmp_path / "o"), "--no-plots"])
     assert rc == 2 and "pendulum (1.6 m) is longer" in capsys.readouterr().err
+
+
+def test_gust_turbulence_correlates_over_the_standard_length_in_metres():
+    """MIL-F-8785C low altitude, written here from the standard: at h = 10 ft the longitudinal scale is
+    L_u = h / (0.177 + 0.000823 h)^1.2 = 75.6 ft = 23.05 m; the gust's series (through rotor drag) must
+    decorrelate to 1/e after L_u / V (in metres and m/s), not after the same number in feet."""
+    h_ft, V, drag = 10.0, 2.0, 0.18
+    L_u = h_ft / (0.177 + 0.000823 * h_ft) ** 1.2 * 0.3048
+    g = Gust(direction_W=(1.0, 0.0, 0.0), mean_speed=V, amplitude=0.0, start=0.0, length=1.0, sigma_w=0.5,
+             altitude=h_ft * 0.3048, drag=drag)  # fmt: skip
+    dt = 0.05
+    p = g.prepare(40_000.0, dt, np.random.default_rng(7))
+    u = p._series[:, 0] / drag - V  # the longitudinal turbulence
+    u = u - u.mean()
+    lag = int(round(L_u / V / dt))
+    rho = np.mean(u[:-lag] * u[lag:]) / np.mean(u * u)
+    assert rho == pytest.approx(np.exp(-1.0), abs=0.06)
+
+
+def test_wall_contact_agrees_between_backends():
+    """The wall's force law flown by both backends (pressed against it, complying): the same motion."""
+    spec = set_value(get("wall-contact"), "trajectory.start_on_ground", False)
+    for key, value in (("duration", 6.0), ("trajectory.hover_duration", 0.5), ("trajectory.move_duration", 2.0),
+                       ("interaction.switches", []), ("interaction.comply", [1.0, 0.0, 0.0])):  # fmt: skip
+        spec = set_value(spec, key, value)
+    a = simulate(spec, ["comply"], backend="numpy")
+    b = simulate(spec, ["comply"], backend="compiled")
+    assert -a["f_ext_W"][0, :, 0].min() > 0.5  # it did touch and press
+    np.testing.assert_allclose(a["p_W"], b["p_W"], atol=1e-8)
+    np.testing.assert_allclose(a["f_ext_W"], b["f_ext_W"], atol=1e-6)

@@ -154,3 +154,32 @@ def test_batched_plant_equals_single(rng):
         for k in range(50):
             x1 = rk4_step(P1, x1, cmd[i], k * 1e-3, 1e-3)
         np.testing.assert_allclose(xb[i], x1, rtol=1e-13, atol=1e-14)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "compiled", "mujoco"])
+def test_a_zero_time_constant_removes_only_its_own_direction(backend):
+    """``rotor_tau_down = 0``: a rotor drops at once to a lower command but still spins up with its lag
+    (the flown rotor force against the first-order response, by hand), on every plant."""
+    from vtol_impedance.control.reference import Hold, Trajectory
+    from vtol_impedance.control import ControllerParams
+    from vtol_impedance.sim import run_closed_loop
+    from vtol_impedance.sim.sensors import SensorParams
+
+    if backend == "mujoco":
+        pytest.importorskip("mujoco")
+    plant = PlantParams(VEH, rotor_tau_up=0.05, rotor_tau_down=0.0, ground=False)
+    traj = Trajectory((Hold((0.0, 0.0, -2.0), 1.0),))
+    from vtol_impedance.sim.disturbances import from_dict
+
+    wobble = from_dict({"kind": "sinusoid", "torque_B": [0.05, 0.0, 0.0], "freq_hz": 2.0})
+    r = run_closed_loop(plant, [ControllerParams.paper("pd")], traj, 0.6, [wobble], sensors=SensorParams.ideal(),
+                        backend=backend, start_W=np.array([0.0, 0.0, -2.0]))  # fmt: skip
+    cmd, f = r["f_rotor_cmd"][0], r["f_rotor"][0]  # the command issued at each tick, the force then
+    k = np.arange(1, len(r.t))
+    down = cmd[k - 1] < f[k - 1] - 1e-6
+    up = cmd[k - 1] > f[k - 1] + 1e-6
+    assert down.any() and up.any()
+    # down: at the command by the next tick; up: one period of the 50 ms lag towards it
+    np.testing.assert_allclose(f[k][down], cmd[k - 1][down], atol=1e-6)
+    expect = cmd[k - 1] + (f[k - 1] - cmd[k - 1]) * np.exp(-0.01 / 0.05)
+    np.testing.assert_allclose(f[k][up], expect[up], atol=2e-3 if backend == "mujoco" else 1e-6)

@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -310,3 +311,67 @@ def test_unreachable_scheduler_fails_before_the_folder_exists(tmp_path, capsys):
     out = tmp_path / "s"
     assert main(["sweep", str(spec), "--scheduler", "tcp://127.0.0.1:1", "--out", str(out), "--quiet"]) == 2
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_chunk_of_another_sweep_or_a_corrupt_one_is_recomputed(reference, tmp_path, capsys):
+    """Resuming checks each chunk by its content (the sweep's digest and the chunk index written into the
+    file), not by its name: a chunk copied from another sweep, a truncated file and one with the wrong
+    rows are moved to rejected/ and computed again, and the dataset is the reference's."""
+    out, other = tmp_path / "s", tmp_path / "o"
+    run_sweep(from_dict(SMALL), out, show_progress=False)
+    run_sweep(from_dict({**SMALL, "seed": 99}), other, show_progress=False)
+    chunks = sorted((out / "chunks").glob("*.parquet"))
+    (other / "chunks" / chunks[0].name).replace(chunks[0])  # same name, another sweep's rows
+    chunks[1].write_bytes(chunks[1].read_bytes()[:100])  # truncated
+    _, computed = run_sweep(from_dict(SMALL), out, show_progress=False)
+    assert computed == 2
+    assert sorted(p.name for p in (out / "rejected").iterdir()) == [chunks[0].name, chunks[1].name]
+    _same(read_dataset(out), reference)
+    # the report refuses a foreign chunk by content too
+    (other / "chunks" / chunks[2].name).replace(chunks[2])
+    with pytest.raises(InputError, match="belongs to another sweep"):
+        summarise(out)
+
+
+def test_workers_are_capped_by_the_machine_and_addresses_checked(capsys):
+    ex = Executor(100_000)
+    assert ex.workers == (os.cpu_count() or 1) and "capped" in ex.note
+    for bad in ("not-an-address", "tcp://host:99999", "", "tcp://"):
+        with pytest.raises(InputError, match="not a Dask scheduler address"):
+            Executor(None, bad)
+    with pytest.raises(InputError, match="whole number"):
+        Executor(2.5)  # type: ignore[arg-type]
+
+
+def _tuning(tmp_path, search: str, extra: str = "") -> Path:
+    spec = tmp_path / "tune.toml"
+    spec.write_text(
+        'name = "tune-t"\nbase = "case-a-payload"\ncontroller = "pdc"\ntrials = 3\nseed = 1\npopulation = 1\n'
+        f"{extra}[set]\ntrajectory.hover_duration = 1.0\n[search]\n{search}\n"
+    )
+    return spec
+
+
+def test_tune_never_writes_a_best_that_failed(tmp_path, capsys, monkeypatch):
+    """Every trial's flights fail (the failure detector forced on): no best.toml, a clear error."""
+    import vtol_impedance.sweeps.tune as tune_mod
+
+    real = tune_mod.trial_cost
+    monkeypatch.setattr(tune_mod, "trial_cost",
+                        lambda t, rows: real(t, {**rows, "diverged": [True] * len(rows["diverged"])}))  # fmt: skip
+    out = tmp_path / "o"
+    assert main(["tune", str(_tuning(tmp_path, '"control.Kp" = {min = 8.0, max = 30.0}')), "--out", str(out),
+                 "--quiet"]) == 2  # fmt: skip
+    assert "no best.toml is written" in capsys.readouterr().err and not out.exists()
+
+
+def test_tune_names_its_folder_once_and_says_when_the_best_sits_on_a_bound(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    spec = _tuning(tmp_path, '"control.Kp" = {min = 30.0, max = 31.0}\n"control.estimator_prototype" = ["zeta"]')
+    assert main(["tune", str(spec), "--quiet"]) == 0
+    assert (tmp_path / "results" / "tune-t" / "best.toml").is_file()  # not results/tune-tune-t
+    err = capsys.readouterr().err
+    assert "sits on the search range" in err or "control.Kp" not in err
+    bad = _tuning(tmp_path, '"control.estimator_prototype" = ["zeta", "bogus"]')
+    assert main(["tune", str(bad), "--quiet", "--out", str(tmp_path / "b")]) == 2
+    assert "bogus" in capsys.readouterr().err and not (tmp_path / "b").exists()

@@ -113,6 +113,10 @@ def test_output_location_is_checked_before_the_work(tmp_path, capsys):
     assert main(["run", "case-a-payload", "--quiet", "--duration", "0.2", "--out", str(tmp_path / "mine")]) == 2
     assert "no vtol-impedance run wrote" in capsys.readouterr().err
     assert (tmp_path / "mine" / "thesis.tex").read_text() == "precious"
+    # a mount point cannot be swapped as a whole: refused before the flight, not after it
+    t0 = time.perf_counter()
+    assert main(["run", "case-a-payload", "--quiet", "--out", "/proc"]) == 2
+    assert "is a mount point" in capsys.readouterr().err and time.perf_counter() - t0 < 5.0
 
 
 def test_full_disk_is_an_error_not_a_traceback(tmp_path, capsys, monkeypatch):
@@ -262,6 +266,32 @@ def test_step_arrays_checks_type_shape_and_dtype():
             ctrl.step_arrays(bad, r)
     with pytest.raises(InputError, match="vehicle"):
         ctrl.step_arrays(y, r, vehicle=3)
+    comply = Controller(ControllerParams.paper("comply"))
+    with pytest.raises(InputError, match=r"comply fractions must be within \[0, 1\]"):
+        comply.step_arrays(y, np.concatenate([r, [1.5, 0.0, 0.0]]))
+    # finite but beyond any vehicle: refused, and the state is not poisoned
+    huge = y.copy()
+    huge[3] = 1e308
+    with pytest.raises(InputError, match="beyond any vehicle"):
+        ctrl.step_arrays(huge, r)
+    assert np.all(np.isfinite(ctrl.step_arrays(y, r)))
+    numpy_ctrl = Controller(ControllerParams.paper("pdc"), backend="numpy")
+    with pytest.raises(InputError, match="beyond any vehicle"):
+        numpy_ctrl.step(Measurement(np.array([0.0, 0.0, 1e308]), np.zeros(3), np.zeros(3), np.zeros(3)),
+                        Reference(np.array([0.0, 0.0, -1.0])))  # fmt: skip
+    out = numpy_ctrl.step(Measurement(np.array([0.0, 0.0, -1.0]), np.zeros(3), np.zeros(3), np.zeros(3)),
+                          Reference(np.array([0.0, 0.0, -1.0])))  # fmt: skip
+    assert np.all(np.isfinite(out.f_rotor))
+
+
+def test_events_after_the_end_warn_and_winds_beyond_any_vehicle_are_refused(tmp_path, capsys):
+    args = ["run", "operator-push", "--duration", "2", "--quiet", "--no-plots", "--out", str(tmp_path / "o")]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "the push disturbance at 10 s" in err and "after the flight ends (2 s)" in err
+    assert err.count("after the flight ends") == 1  # once, however often the scenario is checked
+    assert main(["run", "gust", "--set", "disturbances.0.amplitude=200", "--out", str(tmp_path / "g")]) == 2
+    assert "beyond any multirotor's flight envelope" in capsys.readouterr().err
 
 
 def test_reference_and_start_shapes_are_checked():

@@ -490,8 +490,13 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _default_out(kind: str, name: str) -> Path:
+    """``results/<kind>-<name>``, without doubling the kind when the name already starts with it."""
+    return Path(DEFAULT_OUT) / (name if name.startswith(f"{kind}-") else f"{kind}-{name}")
+
+
 def _sweep_out(args: argparse.Namespace, name: str) -> Path:
-    return Path(args.out) if args.out else Path(DEFAULT_OUT) / f"sweep-{name}"
+    return Path(args.out) if args.out else _default_out("sweep", name)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -536,17 +541,29 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from .analysis.plots import _save, plt
     from .analysis.report import write_html
     from .io import RunFolder, write_text
-    from .sweeps.tune import best_scenario_toml, load_tuning, trials_csv, tune
+    from .sweeps.tune import _optuna, best_scenario_toml, bound_notes, load_tuning, trials_csv, tune
 
+    _optuna()  # a missing extra is said at once, before anything compiles
     t = load_tuning(args.spec)
     _preflight([t.base_spec()], [t.controller], args.quiet)
-    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"tune-{t.name}"
+    out = Path(args.out) if args.out else _default_out("tune", t.name)
     with RunFolder(out) as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
         res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log)
         write_text(folder.path("trials.csv"), trials_csv(res["trials"]))
+        best_row = min(res["trials"], key=lambda r: r["cost"])
+        if best_row["failed"] or best_row.get("below_margin", 0):
+            from .errors import VtolImpedanceError
+
+            margin = " and within the phase margin" if best_row.get("below_margin") else ""
+            raise VtolImpedanceError(
+                f"no trial flew every member of the population without failing{margin} (the best had "
+                f"{best_row['failed']} failed flights): no best.toml is written; widen or move the search ranges, "
+                "or soften the population"
+            )
         toml_text = best_scenario_toml(t, res["best"])
         write_text(folder.path("best.toml"), toml_text)
+        notes = bound_notes(t, res["best"])
         costs = [r["cost"] for r in res["trials"]]
         fig, ax = plt.subplots(figsize=(7, 4))
         ax.plot(range(1, len(costs) + 1), costs, "o", ms=3, color="gray", label="trial")
@@ -559,13 +576,17 @@ def cmd_tune(args: argparse.Namespace) -> int:
         ax.legend()
         fig_path = _save(fig, folder.path("history.png"))
         keys = list(res["best"])
-        rows = [[str(i + 1)] + [f"{r[k]:.4g}" for k in keys] + [f"{r['cost']:.4g}", str(r["failed"])]
+        fmt = lambda v: f"{v:.4g}" if isinstance(v, int | float) else str(v)  # noqa: E731
+        rows = [[str(i + 1)] + [fmt(r[k]) for k in keys] + [fmt(r["cost"]), str(r["failed"])]
                 for i, r in enumerate(res["trials"])]  # fmt: skip
         write_html(folder.staging, f"Tuning {t.name}", tables=[("Trials", ["trial", *keys, "cost", "failed"], rows)],
-                   figures={"Search": [fig_path]}, notes=[f"Best cost {res['cost']:.4g}; best.toml:", toml_text],
+                   figures={"Search": [fig_path]},
+                   notes=[f"Best cost {res['cost']:.4g}; best.toml:", toml_text, *notes],
                    config=t.data, seed=t.seed)  # fmt: skip
         final = folder.commit(t.data, seed=t.seed)
     print(toml_text, end="")
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
     if not args.quiet:
         print(f"best cost {res['cost']:.4g}; results written to {final}", file=sys.stderr)
     return 0
@@ -791,13 +812,24 @@ def main(argv: list[str] | None = None) -> int:
     import signal
 
     args = build_parser().parse_args(argv)
+    import warnings
+
     from .errors import VtolImpedanceError
 
     previous = signal.getsignal(signal.SIGTERM)
     if threading_main():
         signal.signal(signal.SIGTERM, _terminate)
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings():
+            seen: set[str] = set()
+
+            def show(message: Any, *rest: Any, **kw: Any) -> None:  # one line, once, no source path
+                if str(message) not in seen:
+                    seen.add(str(message))
+                    print(f"warning: {message}", file=sys.stderr)
+
+            warnings.showwarning = show
+            return int(args.func(args))
     except VtolImpedanceError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

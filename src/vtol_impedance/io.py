@@ -109,9 +109,10 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def check_output_folder(final: Path) -> Path:
+def check_output_folder(final: Path, swapped: bool = True) -> Path:
     """Refuse, before any work, an output folder that cannot hold a run: a path through or onto a regular
-    file, or an existing folder with files that no run of this tool wrote (no ``manifest.json``)."""
+    file, a mount point when the folder is ``swapped`` as a whole, or an existing folder with files that no
+    run of this tool wrote (no ``manifest.json``)."""
     from .errors import InputError
 
     final = Path(final)
@@ -119,6 +120,14 @@ def check_output_folder(final: Path) -> Path:
         if parent.exists() and not parent.is_dir():
             where = "is" if parent == final else f"has {parent} in its path, which is"
             raise InputError(f"output folder {final} {where} a regular file, not a folder; choose another --out")
+    mounted = final.exists() and (
+        os.path.ismount(final) or final.stat().st_dev != final.absolute().parent.stat().st_dev
+    )
+    if swapped and mounted:
+        raise InputError(
+            f"output folder {final} is a mount point (a volume, a USB stick): a run replaces its folder as a "
+            f"whole, which a mount point cannot be; give a folder inside it, e.g. --out {final / 'run'}"
+        )
     if final.exists() and any(final.iterdir()) and not (final / MANIFEST).exists():
         raise InputError(
             f"output folder {final} already holds files that no vtol-impedance run wrote (no {MANIFEST}); "

@@ -364,22 +364,32 @@ def controller_step(cp, sh, cs, y, r, o):
 
 
 _ROW = "float64[::1]"
+#: Largest magnitude accepted per measurement ``y = [p_W (m), v_W (m/s), eta (rad), eta_dot (rad/s)]`` and
+#: reference ``r = [p_d (m), v_d (m/s), a_d (m/s^2), psi (rad), psi_dot (rad/s), psi_ddot (rad/s^2)]``:
+#: far beyond any multirotor, well inside float64 (a 1e308 would overflow the arithmetic).
+PLAUSIBLE = np.array([1e6] * 3 + [1e4] * 3 + [1e3] * 3 + [1e4] * 3)
+PLAUSIBLE_REF = np.array([1e6] * 3 + [1e4] * 3 + [1e5] * 3 + [1e3, 1e4, 1e5])
 
 
 @njit(f"int64({_ROW}, {_ROW}, {_ROW}, {_ROW}, {_ROW}, {_ROW})", cache=True)
 def checked_step(cp, sh, cs, y, r, o):
     """:func:`controller_step` after input checks; returns 0, or 1 for a non-finite input, 2 at the
     Euler singularity (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`), 3 for a
-    wrong length. The explicit signature refuses anything but C-contiguous float64 arrays at dispatch
-    (a float32 or strided input would otherwise compile a new, silently different specialisation)."""
+    wrong length, 4 for a comply fraction outside [0, 1], 5 for a value beyond :data:`PLAUSIBLE` (finite
+    but no vehicle's: it would poison the controller's state). The explicit signature refuses anything
+    but C-contiguous float64 arrays at dispatch (a float32 or strided input would otherwise compile a new,
+    silently different specialisation)."""
     if y.shape[0] != 12 or (r.shape[0] != 12 and r.shape[0] != 15 and r.shape[0] != 18):
         return 3
     for i in range(12):
         if not (math.isfinite(y[i]) and math.isfinite(r[i])):
             return 1
+    for i in range(12):
+        if abs(y[i]) > PLAUSIBLE[i] or abs(r[i]) > PLAUSIBLE_REF[i]:
+            return 5
     for i in range(12, r.shape[0]):
         if not (0.0 <= r[i] <= 1.0):
-            return 1
+            return 4
     if abs(math.cos(y[7])) < SINGULARITY_COS_EPS:
         return 2
     controller_step(cp, sh, cs, y, r, o)

@@ -141,7 +141,7 @@ def run_block(
         fcmd = np.empty(nr)
         w1, w2, w3, w4, wt = np.empty(ns), np.empty(ns), np.empty(ns), np.empty(ns), np.empty(ns)
         i_thr = thrust_idx
-        lagless = pp_b[PP_TUP] <= 0 or pp_b[PP_TDN] <= 0
+        up_now, down_now = pp_b[PP_TUP] <= 0, pp_b[PP_TDN] <= 0  # directions without lag
         for k in range(k0, k1):
             t = k * Ts
             # sensors: delayed state, noise drawn outside
@@ -236,9 +236,11 @@ def run_block(
                     row[ROW_BASE + nr + i] = x[13 + i]
 
             # hold the command over the period
-            if lagless:
+            if up_now or down_now:  # a rotor follows its command at once in a direction without lag
                 for i in range(nr):
-                    x[13 + i] = min(max(fcmd[i], pp_b[PP_ROT + 4 * nr + i]), pp_b[PP_ROT + 5 * nr + i])
+                    g = min(max(fcmd[i], pp_b[PP_ROT + 4 * nr + i]), pp_b[PP_ROT + 5 * nr + i])
+                    if (up_now and g > x[13 + i]) or (down_now and g < x[13 + i]):
+                        x[13 + i] = g
             for j in range(n_sub):
                 disturbance_at(pp_b, x, t + j * dt, codes, dparams, series, dist)
                 rk4_step(pp_b, x, fcmd, dist, dt, w1, w2, w3, w4, wt, env_w)

@@ -412,6 +412,16 @@ def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _plausible(name: str, value: np.ndarray, limit: float) -> np.ndarray:
+    """Refuse a finite value beyond any vehicle's (it would overflow the arithmetic and poison the state)."""
+    if np.any(np.abs(value) > limit):
+        raise InputError(
+            f"{name} = {np.asarray(value).tolist()} is beyond any vehicle's (|{name}| <= {limit:g}); the "
+            "controller's state is unchanged"
+        )
+    return value
+
+
 def _or(value: np.ndarray | None, default: np.ndarray) -> np.ndarray:
     return default if value is None else value
 
@@ -514,6 +524,13 @@ class Controller:
                 )
             if status == 2:
                 raise SingularityError(f"pitch theta = {np.degrees(y[7]):.3f} deg is at the Euler singularity")
+            if status == 4:
+                raise InputError(f"comply fractions must be within [0, 1] (0 rejects, 1 complies), got {r[12:]}")
+            if status == 5:
+                raise InputError(
+                    f"a measurement or reference beyond any vehicle's (|p| <= 1e6 m, |v| <= 1e4 m/s, |eta| <= 1e3 rad, "
+                    f"rates <= 1e4 rad/s): y = {y}, r = {r}; the controller's state is unchanged"
+                )
             raise InputError(f"non-finite measurement or reference: y = {y}, r = {r}")
         return out
 
@@ -521,13 +538,15 @@ class Controller:
         if not isinstance(meas, Measurement):
             raise InputError(f"step expects a Measurement, got {type(meas).__name__}")
         p_W, v_W, eta = (_vec_input(n, v, bs) for n, v in (("p_W", meas.p_W), ("v_W", meas.v_W), ("eta", meas.eta)))
+        for name, v, lim in (("p_W", p_W, 1e6), ("v_W", v_W, 1e4), ("eta", eta, 1e3)):
+            _plausible(name, v, lim)
         if (meas.eta_dot is None) == (meas.omega_B is None):
             raise InputError("Measurement needs exactly one of eta_dot (Euler rates) or omega_B (gyro body rates)")
         check_euler_regular(eta)
         if meas.eta_dot is not None:
-            eta_dot = _vec_input("eta_dot", meas.eta_dot, bs)
+            eta_dot = _plausible("eta_dot", _vec_input("eta_dot", meas.eta_dot, bs), 1e4)
         else:
-            omega_B = _vec_input("omega_B", meas.omega_B, bs)
+            omega_B = _plausible("omega_B", _vec_input("omega_B", meas.omega_B, bs), 1e4)
             eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B[..., None])[..., 0]
         return Measurement(p_W, v_W, eta, eta_dot)
 
@@ -546,9 +565,12 @@ class Controller:
             _scalar_input("psi_ddot_d", ref.psi_ddot, bs),
             _comply_input(ref.comply, bs),
         )
-        for name, v in zip(("p_d", "v_d", "a_d"), ref[:3], strict=True):
+        for name, v, lim in zip(("p_d", "v_d", "a_d"), ref[:3], (1e6, 1e4, 1e5), strict=True):
             if v.shape[:-1] not in ((), bs):
                 raise InputError(f"reference {name} has shape {v.shape}; this controller expects (3,) or {bs + (3,)}")
+            _plausible(name, v, lim)
+        for name, v, lim in zip(("psi_d", "psi_dot_d", "psi_ddot_d"), ref[3:6], (1e3, 1e4, 1e5), strict=True):
+            _plausible(name, v, lim)
         if self.backend == "numpy":
             self.state, out = controller_step(self.arrays, self.state, meas, ref)
         else:

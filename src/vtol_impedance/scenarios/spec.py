@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import tomllib
+import warnings
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -391,9 +392,25 @@ def checked(spec: ScenarioSpec, variants: tuple[str, ...] | list[str]) -> tuple[
     b = build(spec)
     if b.duration < 1.0 / rate:
         raise ScenarioError(f"duration {b.duration:g} s is shorter than one control period (1/{rate:g} Hz)")
+    late = [f"the {raw['kind']} disturbance at {d.starts_at():g} s" for d, raw in zip(b.disturbances,
+            spec.disturbances, strict=True) if d.starts_at() >= b.duration]  # fmt: skip
+    late += [f"the interaction switch at {t:g} s ({axis} to {beh})" for t, axis, beh in spec.interaction.switches
+             if t >= b.duration]  # fmt: skip
+    if spec.trajectory.yaw_step_time >= b.duration:
+        late.append(f"the yaw step at {spec.trajectory.yaw_step_time:g} s")
+    if late:  # a shortened run (--duration) does this on purpose: say it, do not refuse it
+        warnings.warn(
+            f"{'; '.join(late)}: after the flight ends ({b.duration:g} s), never happening in this run",
+            ScenarioWarning,
+            stacklevel=2,
+        )
     for d in b.disturbances:
         d.check_start(b.start_W)
     return b, [controller_params(spec, v) for v in variants]
+
+
+class ScenarioWarning(UserWarning):
+    """Something in a scenario will not happen as written (an event after the end of the flight)."""
 
 
 # --------------------------------------------------------------------------- overrides and TOML

@@ -20,6 +20,10 @@ from ..model.kinematics import cross
 
 Vec3 = tuple[float, float, float]
 
+#: Largest wind speed accepted, m/s (steady, gust peak, or turbulence 3 sigma): beyond any multirotor's
+#: flight envelope (the strongest small multirotors are rated to about 20 m/s).
+MAX_WIND_M_S = 50.0
+
 #: Codes and parameter-vector length of the compiled encoding (see ``Disturbance.encode``).
 CODE = {"constant": 0, "step": 1, "ramp": 2, "sinusoid": 3, "push": 4, "noise": 5, "fan": 6, "wall": 7}
 ENC_PARAMS = 16
@@ -41,6 +45,10 @@ class Disturbance:
 
     def check_start(self, p_W: np.ndarray) -> None:
         """Refuse a start the disturbance cannot begin from (a wall through the vehicle); default: any."""
+
+    def starts_at(self) -> float:
+        """When it first acts, s (a disturbance that starts after the flight ends is refused)."""
+        return 0.0
 
     def __call__(self, t: float, p_W: np.ndarray, v_W: np.ndarray, R_WB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
@@ -106,6 +114,9 @@ class StepWrench(ConstantWrench):
     def profile(self, t: float) -> float:
         return 1.0 if self.t_on <= t < self.t_off else 0.0
 
+    def starts_at(self) -> float:
+        return float(self.t_on)
+
     def _timing(self) -> tuple[float, ...]:
         return (self.t_on, self.t_off)
 
@@ -126,6 +137,9 @@ class RampWrench(ConstantWrench):
     def profile(self, t: float) -> float:
         return float(np.clip((t - self.t_start) / (self.t_end - self.t_start), 0.0, 1.0))
 
+    def starts_at(self) -> float:
+        return float(self.t_start)
+
     def _timing(self) -> tuple[float, ...]:
         return (self.t_start, self.t_end)
 
@@ -145,6 +159,9 @@ class SinusoidWrench(ConstantWrench):
 
     def profile(self, t: float) -> float:
         return float(np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase)) if t >= self.t_on else 0.0
+
+    def starts_at(self) -> float:
+        return float(self.t_on)
 
     def _timing(self) -> tuple[float, ...]:
         return (self.freq_hz, self.phase, self.t_on)
@@ -168,6 +185,9 @@ class Push(ConstantWrench):
 
     def _timing(self) -> tuple[float, ...]:
         return (self.t_on, self.duration)
+
+    def starts_at(self) -> float:
+        return float(self.t_on)
 
 
 def band_limited_noise(
@@ -257,6 +277,9 @@ class FanJet(Disturbance):
         positive("fan turbulence", self.turbulence, allow_zero=True)
         object.__setattr__(self, "turbulence_band", tuple(float(b) for b in self.turbulence_band))
 
+    def starts_at(self) -> float:
+        return float(self.t_on)
+
     def prepare(self, t_end: float, dt: float, rng: np.random.Generator) -> FanJet:
         n = int(np.ceil(t_end / dt)) + 2
         gust = self.turbulence * band_limited_noise(rng, n, dt, *self.turbulence_band, 1)[:, 0]
@@ -316,6 +339,12 @@ class Wind(Disturbance):
     def __post_init__(self) -> None:
         object.__setattr__(self, "velocity_W", _vec("velocity_W", self.velocity_W))
         positive("wind drag", self.drag, allow_zero=True)
+        speed = float(np.linalg.norm(self.velocity_W))
+        if speed > MAX_WIND_M_S:
+            raise InputError(
+                f"wind velocity_W of {speed:.4g} m/s is beyond any multirotor's flight envelope (at most "
+                f"{MAX_WIND_M_S:g} m/s accepted)"
+            )
 
     def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
         return CODE["constant"], _enc(*(self.drag * np.asarray(self.velocity_W)), 0.0, 0.0, 0.0), None
@@ -472,6 +501,15 @@ class Gust(Disturbance):
             positive(f"gust {name}", getattr(self, name), allow_zero=True)
         positive("gust length", self.length)
         scalar("gust altitude", self.altitude, lo=0.0, hi=DRYDEN_MAX_ALTITUDE_M, lo_open=True)
+        peak = self.mean_speed + self.amplitude + 3.0 * self.sigma_w
+        if peak > MAX_WIND_M_S:
+            raise InputError(
+                f"gust wind of up to {peak:.4g} m/s (mean_speed + amplitude + 3 sigma_w) is beyond any multirotor's "
+                f"flight envelope (at most {MAX_WIND_M_S:g} m/s accepted)"
+            )
+
+    def starts_at(self) -> float:
+        return 0.0 if self.mean_speed > 0 or self.sigma_w > 0 else float(self.start)
 
     def wind_W(self, t: np.ndarray, turbulence: np.ndarray | None = None) -> np.ndarray:
         """Wind velocity (NED, m/s) at times ``t``; ``turbulence (N, 3)`` as ``[u, v, w]``."""

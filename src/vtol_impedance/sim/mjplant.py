@@ -117,7 +117,7 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
     g = v.geometry
     pos = g.positions_B * P.arm_length_scale
     cq = v.drag_factor * P.drag_factor_scale
-    lag = P.rotor_tau_up > 0 and P.rotor_tau_down > 0
+    lag = P.rotor_tau_up > 0 or P.rotor_tau_down > 0
     out = [
         '<mujoco model="vtol-impedance">',
         '  <compiler angle="radian" autolimits="true"/>',
@@ -177,7 +177,7 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
         ]
     out += ["    </body>", "  </worldbody>", "  <actuator>"]
     for i, s_i in enumerate(g.spins):
-        dyn = f'dyntype="filter" dynprm="{_f(P.rotor_tau_up)}"' if lag else 'dyntype="none"'
+        dyn = f'dyntype="filter" dynprm="{_f(max(P.rotor_tau_up, P.rotor_tau_down))}"' if lag else 'dyntype="none"'
         out.append(
             f'    <general name="rotor{i}" site="rotor{i}" gear="0 0 1 0 0 {_f(-s_i * cq)}" {dyn} gaintype="fixed" '
             f'gainprm="1" biastype="none" ctrlrange="{_f(g.f_min[i])} {_f(g.f_max[i])}"/>'
@@ -328,7 +328,11 @@ class MujocoPlant:
             d.ctrl[n:] = _flu(tau_B[b])
             if self.lag[b]:
                 target = np.clip(f_cmd[b], self.PA.f_min[b], self.PA.f_max[b])
-                m.actuator_dynprm[:n, 0] = np.where(target > d.act, self.PA.tau_up[b], self.PA.tau_down[b])
+                up = target > d.act[:n]
+                tau = np.where(up, self.PA.tau_up[b], self.PA.tau_down[b])
+                now = tau <= 0  # a direction without lag: the rotor is at its command at once
+                d.act[:n] = np.where(now, target, d.act[:n])
+                m.actuator_dynprm[:n, 0] = np.where(now, 1.0, tau)
             d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
         return f_W, tau_B, v_o
 

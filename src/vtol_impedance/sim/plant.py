@@ -60,7 +60,8 @@ class PlantParams:
     payload_mass : kg, a point mass rigidly attached at ``payload_offset_B`` (m, FRD, from the body origin).
     inertia_scale : true bare inertia = ``inertia_scale * I_B`` elementwise on the diagonal (mismatch).
     arm_length_scale, drag_factor_scale : true ``l``, ``c`` relative to the vehicle's.
-    rotor_tau_up, rotor_tau_down : first-order rotor time constants (s); 0 disables the lag.
+    rotor_tau_up, rotor_tau_down : first-order rotor time constants (s) spinning up and down; 0 makes that
+        direction instant (the other keeps its lag).
     rotor_drag : linear drag coefficient, N per m/s of airspeed (0 disables).
     ground : spring-damper ground at z = 0 (NED) under the body origin.
     """
@@ -361,13 +362,15 @@ def plant_derivative(
 
 
 def apply_instant_rotors(P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray) -> np.ndarray:
-    """Where a rotor has no lag (time constant 0), its force follows the command at once."""
-    lagless = (P.tau_up <= 0) | (P.tau_down <= 0)
-    if not np.any(lagless):
+    """A rotor follows its new command at once in a direction whose time constant is 0 (``tau_up = 0``: it
+    spins up instantly, still lagging down if ``tau_down > 0``, and the reverse)."""
+    if not np.any((P.tau_up <= 0) | (P.tau_down <= 0)):
         return x
-    x = x.copy()
     target = np.clip(f_cmd, P.f_min, P.f_max)
-    x[..., ROTOR] = np.where(np.asarray(lagless)[..., None], target, x[..., ROTOR])
+    f = x[..., ROTOR]
+    jump = ((target > f) & (P.tau_up <= 0)[..., None]) | ((target < f) & (P.tau_down <= 0)[..., None])
+    x = x.copy()
+    x[..., ROTOR] = np.where(jump, target, f)
     return x
 
 

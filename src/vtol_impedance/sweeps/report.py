@@ -44,7 +44,7 @@ def summarise(folder: Path, metric: str = "rms_ep_cm") -> dict[str, Any]:
     except ValueError as exc:
         raise InputError(f"{Path(folder) / SWEEP_FILE} is not readable: {exc}") from None
     sw = desc["sweep"]
-    cols = _columns(read_dataset(folder))
+    cols = _columns(read_dataset(folder, desc.get("digest")))
     n_expected = len(sw["points"]) * sw["seeds"] * len(sw["controllers"])
     rows = []
     for i, point in enumerate(sw["points"]):

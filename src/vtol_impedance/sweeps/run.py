@@ -21,6 +21,7 @@ thread (Dask does not limit numba's threads in its workers).
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 import warnings
@@ -138,7 +139,7 @@ def chunk_task(sweep_dict: dict[str, Any], k: int, backend: str = "compiled") ->
     return (k, *run_units(sweep, sweep.chunk_units(k), backend))
 
 
-def _table(cols: dict[str, list]):
+def _table(cols: dict[str, list], meta: dict[str, str] | None = None):
     import pyarrow as pa
 
     out = {}
@@ -147,7 +148,11 @@ def _table(cols: dict[str, list]):
             out[k] = pa.array([json.dumps(x) for x in v])
         else:
             out[k] = pa.array(v)
-    return pa.table(out)
+    return pa.table(out, metadata=meta)
+
+
+#: Key of the schema metadata that binds a chunk file to its sweep and index.
+CHUNK_META = b"vtol_impedance_chunk"
 
 
 def chunk_name(k: int) -> str:
@@ -167,7 +172,7 @@ class SweepFolder:
         if self.folder.exists() and any(self.folder.iterdir()) and not (self.folder / SWEEP_FILE).exists():
             raise InputError(f"output folder {self.folder} holds files that no sweep wrote; choose another --out")
         if not (self.folder / SWEEP_FILE).exists():
-            check_output_folder(self.folder)
+            check_output_folder(self.folder, swapped=False)  # chunks are written into it, it is never swapped
         self.lock = FolderLock(self.folder)
         self.chunks = self.folder / "chunks"
         self.traces = self.folder / "traces"
@@ -204,20 +209,55 @@ class SweepFolder:
         self.description = desc
 
     def missing(self) -> list[int]:
-        done = {p.name for p in self.chunks.glob("chunk-*.parquet")}
+        """Chunks still to compute. A chunk file counts as done only if its content says it is this sweep's
+        chunk ``k`` with every row (schema metadata written with it); a corrupt or foreign file is moved to
+        ``rejected/`` with a note, and its chunk computed again."""
         need = []
+        self.repairs: list[str] = []
         for k in range(self.sweep.n_chunks):
-            if chunk_name(k) not in done or (self.sweep.traces and not (self.traces / chunk_name(k)).exists()):
+            path = self.chunks / chunk_name(k)
+            ok = path.exists() and self._chunk_ok(path, k)
+            if ok and self.sweep.traces and not (self.traces / chunk_name(k)).exists():
+                ok = False
+            if not ok:
                 need.append(k)
+        for p in self.chunks.glob("chunk-*.parquet"):  # a chunk index this sweep does not have
+            if p.name not in {chunk_name(k) for k in range(self.sweep.n_chunks)}:
+                self._reject(p, "it is not a chunk of this sweep")
         return need
+
+    def _chunk_ok(self, path: Path, k: int) -> bool:
+        import pyarrow.parquet as pq
+
+        try:
+            meta = json.loads((pq.read_schema(path).metadata or {}).get(CHUNK_META, b"{}"))
+            rows = pq.ParquetFile(path).metadata.num_rows
+        except Exception as exc:  # noqa: BLE001 (any unreadable file is a corrupt chunk)
+            self._reject(path, f"it is not a readable Parquet file ({type(exc).__name__})")
+            return False
+        want = len(self.sweep.chunk_units(k)) * len(self.sweep.controllers)
+        if meta.get("digest") != self.sweep.digest() or meta.get("chunk") != k:
+            self._reject(path, "it was written by another sweep (its content says so)")
+            return False
+        if rows != want:
+            self._reject(path, f"it holds {rows} rows instead of {want}")
+            return False
+        return True
+
+    def _reject(self, path: Path, why: str) -> None:
+        rejected = self.folder / "rejected"
+        rejected.mkdir(exist_ok=True)
+        os.replace(path, rejected / path.name)
+        self.repairs.append(f"{path.name}: {why}; moved to rejected/ and computed again")
 
     def write_chunk(self, k: int, rows: dict, traces: dict | None) -> None:
         import pyarrow.parquet as pq
 
+        meta = {CHUNK_META: json.dumps({"digest": self.sweep.digest(), "chunk": k}).encode()}
         if traces is not None:  # traces first: a chunk counts as done when its rows exist
-            t = _table(traces)
+            t = _table(traces, meta)
             write_with(self.traces / chunk_name(k), lambda fh: pq.write_table(t, fh))
-        table = _table(rows)
+        table = _table(rows, meta)
         write_with(self.chunks / chunk_name(k), lambda fh: pq.write_table(table, fh))
 
     def close(self) -> None:
@@ -265,6 +305,15 @@ def warm_up(sweep: Sweep, backend: str = "compiled") -> None:
         simulate(spec, sweep.controllers[:1], backend=backend, log="metrics")
 
 
+def _address_ok(address: str) -> bool:
+    """``[protocol://]host:port`` with a port in 1..65535 (what a Dask scheduler listens on)."""
+    import re
+
+    pattern = r"(?:(tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})"
+    m = re.fullmatch(pattern, address.strip())
+    return bool(m) and 0 < int(m.group(3)) < 65536
+
+
 class Executor:
     """Where chunks are computed: in this process (default), on a loopback ``LocalCluster`` of ``workers``
     processes, or on the Dask cluster at ``scheduler``. A context manager; the cluster lives as long as it."""
@@ -272,8 +321,17 @@ class Executor:
     def __init__(self, workers: int | None = None, scheduler: str | None = None) -> None:
         if workers is not None and scheduler:
             raise InputError("give --workers (a local cluster) or --scheduler (an existing one), not both")
-        if workers is not None and workers < 1:
-            raise InputError(f"--workers must be at least 1, got {workers}")
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+            raise InputError(f"--workers must be a whole number of at least 1, got {workers!r}")
+        cores = os.cpu_count() or 1
+        self.note = ""
+        if workers is not None and workers > cores:  # more processes than cores only adds memory
+            self.note = f"--workers {workers} capped at {cores}, this machine's cores"
+            workers = cores
+        if scheduler is not None and not _address_ok(scheduler):
+            raise InputError(
+                f"--scheduler {scheduler!r} is not a Dask scheduler address; give one like tcp://HOST:8786"
+            )
         self.workers, self.scheduler = workers, scheduler
         self.client = self.cluster = None
 
@@ -291,7 +349,7 @@ class Executor:
         if self.scheduler:
             try:
                 self.client = Client(self.scheduler, timeout="10s")
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError, TypeError) as exc:
                 raise InputError(f"cannot reach the Dask scheduler at {self.scheduler}: {exc}") from None
             return self
         one = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
@@ -345,15 +403,34 @@ def execute(
                 progress()
 
 
-def read_dataset(folder: Path):
-    """The flights of a sweep folder as one pyarrow table, in unit order."""
+def read_dataset(folder: Path, digest: str | None = None):
+    """The flights of a sweep folder as one pyarrow table, in unit order; with ``digest``, every chunk must
+    say it belongs to that sweep."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     files = sorted((Path(folder) / "chunks").glob("chunk-*.parquet"))
     if not files:
         raise InputError(f"{folder} has no sweep results (no chunks/chunk-*.parquet)")
-    table = pa.concat_tables([pq.read_table(f) for f in files])
+    tables = []
+    for f in files:
+        try:
+            t = pq.read_table(f)
+            owner = json.loads((t.schema.metadata or {}).get(CHUNK_META, b"{}")).get("digest")
+            if digest is not None and owner != digest:
+                raise InputError(f"{f} belongs to another sweep; run the sweep command again to recompute that chunk")
+            tables.append(t.replace_schema_metadata(None))
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 (any unreadable file)
+            raise InputError(
+                f"{f} is not a readable chunk ({type(exc).__name__}); run the same sweep command again: it moves the "
+                "file aside and computes that chunk anew"
+            ) from None
+    try:
+        table = pa.concat_tables(tables)
+    except pa.ArrowInvalid as exc:
+        raise InputError(f"the chunks of {folder} do not hold the same columns ({exc}); run the sweep again") from None
     return table.sort_by([("unit", "ascending"), ("controller", "ascending")])
 
 
@@ -368,13 +445,17 @@ def run_sweep(
     show_progress: bool = True,
 ) -> tuple[Path, int]:
     """Run (or resume) a sweep into ``out``; returns the folder and how many chunks were computed now."""
-    Executor(workers, scheduler)  # validates the choice before touching the folder
+    note = Executor(workers, scheduler).note  # validates the choice before touching the folder
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     if scheduler:
         with Executor(None, scheduler):
             pass  # an unreachable cluster fails here, before the folder exists
     folder = SweepFolder(sweep, out, restart, where)
     try:
         todo = folder.missing()
+        for note in folder.repairs:
+            print(f"note: {note}", file=sys.stderr)
         if show_progress:
             done = sweep.n_chunks - len(todo)
             msg = f"sweep {sweep.name}: {sweep.n_flights} flights in {sweep.n_chunks} chunks"

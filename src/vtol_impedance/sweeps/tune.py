@@ -170,11 +170,34 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
                                           hi=90.0)),
         margin_penalty=float(scalar("margin_penalty", cost.get("margin_penalty", 1000.0), lo=0.0)),
     )  # fmt: skip
-    # every corner of the search box must be a valid scenario, checked now
+    # every corner of the search box, and every listed value, must be a valid scenario: checked now
     for corner in ({a.key: a.lo if a.values is None else a.values[0] for a in search},
                    {a.key: a.hi if a.values is None else a.values[-1] for a in search}):  # fmt: skip
         from_dict(t.trial_sweep(corner), where)
+    for a in search:
+        for v in a.values or ():
+            from_dict(t.trial_sweep({**{b.key: b.lo if b.values is None else b.values[0] for b in search}, a.key: v}),
+                      where)  # fmt: skip
     return t
+
+
+def bound_notes(t: Tuning, best: dict[str, Any]) -> list[str]:
+    """A note for each best value within 1 % of its search range's end (log scale for log ranges): the
+    optimum may lie beyond it."""
+    notes = []
+    for a in t.search:
+        if a.values is not None or a.lo is None or a.hi is None or a.hi <= a.lo:
+            continue
+        v = float(best[a.key])
+        lo, hi, x = (math.log(a.lo), math.log(a.hi), math.log(max(v, 1e-300))) if a.log else (a.lo, a.hi, v)
+        frac = (x - lo) / (hi - lo)
+        if frac <= 0.01 or frac >= 0.99:
+            end = "min" if frac <= 0.01 else "max"
+            notes.append(
+                f"the best {a.key} = {v:.4g} sits on the search range's {end} ({a.lo:g}..{a.hi:g}): the optimum may "
+                "lie beyond it; widen the range"
+            )
+    return notes
 
 
 def trial_cost(t: Tuning, rows: dict[str, list]) -> tuple[float, dict[str, float]]:
@@ -202,7 +225,10 @@ def tune(
     records: list[dict[str, Any]] = []
     first = from_dict(t.trial_sweep({a.key: a.grid()[0] if a.values else a.lo for a in t.search}), t.where)
     warm_up(first, backend)
-    with Executor(workers, scheduler) as ex:
+    executor = Executor(workers, scheduler)
+    if executor.note:
+        log(f"note: {executor.note}")
+    with executor as ex:
 
         def objective(params: dict[str, float]) -> float:
             desc = t.trial_sweep(params)
