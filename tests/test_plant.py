@@ -160,8 +160,8 @@ def test_batched_plant_equals_single(rng):
 def test_a_zero_time_constant_removes_only_its_own_direction(backend):
     """``rotor_tau_down = 0``: a rotor drops at once to a lower command but still spins up with its lag
     (the flown rotor force against the first-order response, by hand), on every plant."""
-    from vtol_impedance.control.reference import Hold, Trajectory
     from vtol_impedance.control import ControllerParams
+    from vtol_impedance.control.reference import Hold, Trajectory
     from vtol_impedance.sim import run_closed_loop
     from vtol_impedance.sim.sensors import SensorParams
 
