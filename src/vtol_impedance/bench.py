@@ -241,7 +241,6 @@ def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -
     log("RotorPy single-vehicle hover (if installed) ...")
     res["rotorpy"] = _rotorpy(2.0 if quick else 10.0)
     write_text(out, json.dumps(res, indent=1))
-    log(table(res))
     return res
 
 
@@ -281,6 +280,8 @@ def table(res: dict[str, Any]) -> str:
             f"compile, first use / cached                      {res['compile_first_s']:6.1f} / "
             f"{res['compile_cached_s']:.1f} s"
         )
+    else:
+        lines.append("compile, first use / cached                      not measured (--quick)")
     for b in res["batched"]:
         lines.append(
             f"batched N = {b['n']:<6d} ({b['duration']:g} s each)           {b['veh_s_per_s']:10.0f} veh-s/s, "

@@ -57,6 +57,33 @@ def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
     return spec
 
 
+def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()) -> Path:
+    """``--out``, or ``results/<name>`` for the scenario as registered and ``results/<name>+<what changed>``
+    when anything was overridden (``--set``, ``--duration``, ``--seed``, ``--ideal``, ``--plant mujoco``,
+    ``--tuning``), so that a run never replaces another configuration's folder; a long list is cut and
+    ended by a hash of the whole. The manifest and ``*.config.json`` hold the full configuration."""
+    if args.out:
+        return Path(args.out)
+    import hashlib
+    import re
+
+    parts = [*extra, *args.set]
+    if args.duration is not None:
+        parts.append(f"duration={args.duration:g}")
+    if args.seed is not None:
+        parts.append(f"seed={args.seed}")
+    if args.ideal:
+        parts.append("ideal")
+    if args.plant == "mujoco":
+        parts.append("plant=mujoco")
+    if not parts:
+        return Path(DEFAULT_OUT) / name
+    slug = "+".join(re.sub(r"[^A-Za-z0-9._=,-]+", "_", p.strip()) for p in parts)
+    if len(slug) > 80:
+        slug = slug[:60] + "-" + hashlib.sha256(slug.encode()).hexdigest()[:8]
+    return Path(DEFAULT_OUT) / f"{name}+{slug}"
+
+
 def _backend(args: argparse.Namespace) -> str:
     """``--plant mujoco`` puts MuJoCo's physics under the NumPy controller, whatever ``--backend`` says."""
     if args.plant == "mujoco":
@@ -149,8 +176,10 @@ def _finish(
     quiet: bool,
     extra_tables: list[Any] = (),  # type: ignore[assignment]
 ) -> None:
+    from .analysis.measures import purpose_tables
     from .analysis.metrics import compute_metrics
-    from .analysis.report import table_rows, text_table, write_html, write_tables
+    from .analysis.report import markdown_rows, table_rows, text_rows, text_table, write_html, write_tables
+    from .io import write_text
 
     metrics = {name: compute_metrics(r) for name, r in results.items()}
     write_tables(metrics, folder.staging)
@@ -174,9 +203,14 @@ def _finish(
     seeds = [r.config.get("seed") for r in results.values()]
     head, rows = table_rows(metrics)
     table = ("Metrics", head, rows)
-    write_html(folder.staging, title, tables=[table, *extra_tables], figures=figures, notes=notes, config=configs,
-               seed=seeds)  # fmt: skip
+    purpose = [t for name, r in results.items() for t in purpose_tables(r, name)]  # what each scenario is for
+    if purpose:
+        write_text(folder.path("measures.md"), "\n".join(markdown_rows(*t) for t in purpose))
+    write_html(folder.staging, title, tables=[*purpose, table, *extra_tables], figures=figures, notes=notes,
+               config=configs, seed=seeds)  # fmt: skip
     final = folder.commit(configs, seed=seeds)
+    for caption, h, r in purpose:
+        print(f"{caption}\n{text_rows(h, r)}")
     print(text_table(metrics))
     failed = [f"{c}/{r['controller']}" for c, rs in metrics.items() for r in rs if r["failure"]]
     if failed:
@@ -214,9 +248,8 @@ def _preflight(specs: list[Any], variants: list[str], quiet: bool) -> dict[str, 
         t = Thresholds()
         print(
             f"warning: stability margins below the thresholds ({t.phase_deg:g} deg phase, {t.gain_db:g} dB gain, "
-            f"damping {t.damping:g}) at the operating point; this controller can do worse than its baseline "
-            "here (see the margins figures and report in the results folder, or 'vtol-impedance margins'):\n"
-            + "\n".join(lines),
+            f"damping {t.damping:g}) at the operating point (see the margins figures and report in the results "
+            "folder, or 'vtol-impedance margins'):\n" + "\n".join(lines),
             file=sys.stderr,
         )
     return out
@@ -305,7 +338,7 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     check(spec, variants)
     backend = _backend(args)
     t0 = time.perf_counter()
-    with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / spec.name) as folder:
+    with RunFolder(_run_folder(args, spec.name)) as folder:
         margins = _preflight([spec], variants, args.quiet)
         _announce_compile(backend, args.quiet)
         result = _run_case(spec, variants, seed, args.quiet, backend)
@@ -344,7 +377,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
         check(spec, variants)
     backend = _backend(args)
     t0 = time.perf_counter()
-    with RunFolder(Path(args.out) if args.out else Path(DEFAULT_OUT) / "paper") as folder:
+    tag = () if args.tuning == "paper" else (f"tuning={args.tuning}",)
+    with RunFolder(_run_folder(args, "paper", tag)) as folder:
         margins = _preflight(specs, variants, args.quiet)
         if not args.quiet:
             print(f"flying {len(specs)} cases x {len(variants)} controllers ...", file=sys.stderr)
@@ -593,9 +627,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import run
+    from .bench import run, table
 
-    run(Path(args.out), quick=args.quick, log=(lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    res = run(Path(args.out), quick=args.quick, log=log, compile_times=not args.quick)
+    print(table(res))  # the table always, on stdout; --quiet silences the progress only
     return 0
 
 
@@ -612,7 +648,8 @@ def build_parser() -> argparse.ArgumentParser:
             "--out",
             default=None,
             help=f"results folder, replaced as a whole by each run (default: {DEFAULT_OUT}/paper for 'paper', "
-            f"{DEFAULT_OUT}/<scenario name> otherwise)",
+            f"{DEFAULT_OUT}/<scenario name> otherwise, with '+<what was overridden>' appended when --set, "
+            "--duration, --seed, --ideal or --plant change it)",
         )
         sp.add_argument(
             "--set",
@@ -791,8 +828,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
     sp.add_argument("--out", default=f"{DEFAULT_OUT}/bench.json", help=f"JSON file (default: {DEFAULT_OUT}/bench.json)")
-    sp.add_argument("--quick", action="store_true", help="small sizes and short runs (a smoke test)")
-    sp.add_argument("--quiet", action="store_true", help="only the table")
+    sp.add_argument(
+        "--quick", action="store_true", help="small sizes and short runs, no cold-compile measurement (a smoke test)"
+    )
+    sp.add_argument("--quiet", action="store_true", help="only the table (no progress)")
     sp.set_defaults(func=cmd_bench)
 
     sp = sub.add_parser("list", help="registered scenarios and controllers")

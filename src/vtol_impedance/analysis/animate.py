@@ -44,8 +44,8 @@ def write_gif(result: Result, path: Path, fps: int = 8, max_frames: int = 160, t
     ref = _enu(result["p_ref_W"][0])
     lo = np.minimum(np.nanmin(p.reshape(-1, 3), 0), np.nanmin(ref, 0)) - 0.4
     hi = np.maximum(np.nanmax(p.reshape(-1, 3), 0), np.nanmax(ref, 0)) + 0.4
-    fig = plt.figure(figsize=(5.4, 4.8), dpi=80)
-    ax = fig.add_subplot(projection="3d")
+    fig = plt.figure(figsize=(8.0, 6.4), dpi=90)
+    ax = fig.add_axes((0.0, 0.0, 0.74, 0.95), projection="3d")  # the legend gets the right-hand strip
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_zlim(min(lo[2], 0.0), hi[2])
@@ -76,7 +76,7 @@ def write_gif(result: Result, path: Path, fps: int = 8, max_frames: int = 160, t
         art.append((body, trail, f_hat, f_true, link))
     target = ax.plot([], [], [], "x", color="black", ms=7)[0]
     text = ax.text2D(0.02, 0.95, "", transform=ax.transAxes)
-    ax.legend(loc="lower left", fontsize=6)
+    fig.legend(loc="center right", fontsize=8, frameon=False)
     ax.set_title(title or result.config.get("scenario", {}).get("name", ""), fontsize=10)
     f_hat_all = _enu(result["f_hat_W"])
     f_true_all = _enu(result["f_lumped_W"])

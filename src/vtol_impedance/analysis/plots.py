@@ -52,41 +52,63 @@ def plot_errors(result: Result, path: Path, title: str = "") -> Path:
 
 
 def plot_inputs(result: Result, path: Path, title: str = "") -> Path:
-    """Thrust and body torques actually commanded (after allocation), every controller (Fig. 4d)."""
-    fig, ax = plt.subplots(4, 1, figsize=(8, 8), sharex=True)
+    """Thrust and body torques actually commanded (after allocation), one column per controller so that
+    none hides another (Fig. 4d); the rows share their scales."""
+    n = len(result.labels)
+    fig, ax = plt.subplots(4, n, figsize=(4.2 * n + 1.0, 8), sharex=True, sharey="row", squeeze=False)
     for b, lab in enumerate(result.labels):
         c = COLORS.get(lab)
-        ax[0].plot(result.t, result["thrust"][b], color=c, lw=0.8, label=_label(lab))
+        ax[0, b].plot(result.t, result["thrust"][b], color=c, lw=0.8)
         for i in range(3):
-            ax[i + 1].plot(result.t, 1000 * result["tau_B"][b, :, i], color=c, lw=0.6, label=_label(lab))
-    ax[0].set_ylabel("u [N]")
-    for i, n in enumerate(("roll", "pitch", "yaw")):
-        ax[i + 1].set_ylabel(f"tau_{n} [mN m]")
-    ax[-1].set_xlabel("time [s]")
-    ax[0].set_title(title or "Control inputs (allocated)")
-    for a in ax:
-        a.grid(alpha=0.3)
-    ax[0].legend(loc="lower right", fontsize=8)
+            ax[i + 1, b].plot(result.t, 1000 * result["tau_B"][b, :, i], color=c, lw=0.6)
+        ax[0, b].set_title(_label(lab), fontsize=10, color=c)
+        ax[-1, b].set_xlabel("time [s]")
+        for a in ax[:, b]:
+            a.grid(alpha=0.3)
+    ax[0, 0].set_ylabel("u [N]")
+    for i, name in enumerate(("roll", "pitch", "yaw")):
+        ax[i + 1, 0].set_ylabel(f"tau_{name} [mN m]")
+    fig.suptitle(title or "Control inputs (allocated)")
+    fig.tight_layout()
     return _save(fig, path)
 
 
+def _robust_limits(*series: np.ndarray) -> tuple[float, float]:
+    """Limits that show the bulk of the signals: the 0.5-99.5 % range with a margin, so that a landing's
+    contact spike does not set the scale (the spike is drawn, clipped at the edge)."""
+    v = np.concatenate([np.ravel(s) for s in series])
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return -1.0, 1.0
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    pad = 0.15 * max(hi - lo, 1e-3)
+    return float(lo - pad), float(hi + pad)
+
+
 def plot_wrench(result: Result, path: Path, label: str = "pdc", title: str = "") -> Path:
-    """Estimated forces and moments (solid) against what the nominal model misses (thin), Figs. 5, 7, 9."""
+    """Estimated forces and moments (thick) against what the nominal model misses (thin), Figs. 5, 7, 9.
+    The vertical scale is set by the task window (a landing's spike is clipped at the edge)."""
     b = result.index(label) if label in result.labels else 0
     fig, ax = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
     t = result.t
+    m = window_mask(result)
     for i in range(3):
-        ax[0].plot(t, result["f_lumped_W"][b, :, i], color=AXIS_COLORS[i], lw=0.4, alpha=0.45)
-        ax[0].plot(t, result["f_hat_W"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"f_hat_{AXES[i]}")
-        ax[1].plot(t, 1000 * result["tau_lumped_eta"][b, :, i], color=AXIS_COLORS[i], lw=0.4, alpha=0.45)
-        ax[1].plot(t, 1000 * result["tau_hat_eta"][b, :, i], color=AXIS_COLORS[i], lw=1.2, label=f"tau_hat_{AXES[i]}")
+        ax[0].plot(t, result["f_lumped_W"][b, :, i], color=AXIS_COLORS[i], lw=0.5, alpha=0.5)
+        ax[0].plot(t, result["f_hat_W"][b, :, i], color=AXIS_COLORS[i], lw=1.4, label=f"{AXES[i]}")
+        ax[1].plot(t, 1000 * result["tau_lumped_eta"][b, :, i], color=AXIS_COLORS[i], lw=0.5, alpha=0.5)
+        ax[1].plot(t, 1000 * result["tau_hat_eta"][b, :, i], color=AXIS_COLORS[i], lw=1.4, label=f"{AXES[i]}")
+    ax[0].set_ylim(*_robust_limits(result["f_lumped_W"][b, m], result["f_hat_W"][b, m]))
+    ax[1].set_ylim(*_robust_limits(1000 * result["tau_lumped_eta"][b, m], 1000 * result["tau_hat_eta"][b, m]))
     ax[0].set_ylabel("force, world NED [N]")
     ax[1].set_ylabel("moment, Euler coords [mN m]")
     ax[1].set_xlabel("time [s]")
-    ax[0].set_title(title or f"Estimated external wrench ({_label(result.labels[b])}); thin: true lumped")
+    ax[0].set_title(title or f"Estimated external wrench ({_label(result.labels[b])})")
+    thick = plt.Line2D([], [], color="gray", lw=1.4, label="estimate (thick)")
+    thin = plt.Line2D([], [], color="gray", lw=0.5, alpha=0.6, label="true, what the model misses (thin)")
     for a in ax:
         a.grid(alpha=0.3)
-        a.legend(loc="upper right", fontsize=8, ncol=3)
+        h, _ = a.get_legend_handles_labels()
+        a.legend(handles=[*h, thick, thin], loc="upper right", fontsize=7, ncol=5)
     return _save(fig, path)
 
 

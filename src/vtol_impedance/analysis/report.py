@@ -37,6 +37,20 @@ def table_rows(metrics: dict[str, list[dict[str, Any]]]) -> tuple[list[str], lis
     return head, rows
 
 
+def markdown_rows(caption: str, head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A captioned Markdown table."""
+    out = [f"**{caption}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+def text_rows(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """An aligned text table."""
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+    line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True))  # noqa: E731
+    return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows]) + "\n"
+
+
 def markdown_table(metrics: dict[str, list[dict[str, Any]]]) -> str:
     head, rows = table_rows(metrics)
     drop_fail = all(not r[-1] for r in rows)
@@ -51,9 +65,7 @@ def text_table(metrics: dict[str, list[dict[str, Any]]]) -> str:
     head, rows = table_rows(metrics)
     if all(not r[-1] for r in rows):
         head, rows = head[:-1], [r[:-1] for r in rows]
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
-    line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True))  # noqa: E731
-    return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows]) + "\n"
+    return text_rows(head, rows)
 
 
 def write_tables(metrics: dict[str, list[dict[str, Any]]], folder: Path, stem: str = "metrics") -> list[Path]:
@@ -70,11 +82,37 @@ def write_tables(metrics: dict[str, list[dict[str, Any]]], folder: Path, stem: s
     ]
 
 
+#: What each figure shows, by the end of its file name (the report's captions).
+CAPTIONS = {
+    "_errors": "Position and velocity error norms over the task window, one line per controller.",
+    "_inputs": "Thrust and body torques the rotors were asked for (after the allocation), one column per controller.",
+    "_wrench": "The estimated external force (world NED) and moment (Euler coordinates), thick, against what the "
+    "nominal model really misses, computed from the true motion, thin; the scale is the task window's.",
+    "_xy": "The horizontal path over the task window: the reference dashed, each controller solid.",
+    "_margins_bode": "Loop transfers at the operating point: magnitude and phase of each loop (colour) per "
+    "controller (line style); the phase margin is the distance from -180 deg where |L| crosses 0 dB.",
+    "_margins_nyquist": "Nyquist plots near -1, one panel per controller: a robust loop keeps its curves away from "
+    "-1; the grey circle is the distance the phase-margin threshold allows.",
+    "_margins_poles": "Closed-loop poles at the operating point: right of the red line grows; the grey wedge is "
+    "damped less than the threshold.",
+}
+
+
+def caption(path: Path) -> str:
+    """The caption of a figure: what it shows, then its file name."""
+    stem = Path(path).stem
+    what = next((v for k, v in CAPTIONS.items() if stem.endswith(k)), "")
+    if Path(path).suffix.lower() == ".gif":
+        what = "Animation: each vehicle, its reference, the estimated force (thick arrow) and the true one (thin)."
+    return f"{what} ({Path(path).name})" if what else Path(path).name
+
+
 def _img(path: Path) -> str:
     data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
     mime = "image/gif" if Path(path).suffix.lower() == ".gif" else "image/png"
     name = html.escape(Path(path).stem)
-    return f"<figure><img src='data:{mime};base64,{data}' alt='{name}'><figcaption>{name}</figcaption></figure>"
+    cap = html.escape(caption(path))
+    return f"<figure><img src='data:{mime};base64,{data}' alt='{name}'><figcaption>{cap}</figcaption></figure>"
 
 
 def html_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:

@@ -71,7 +71,8 @@ def warnings_of(reports: dict[str, MarginReport], thresholds: Thresholds | None 
     for variant, r in reports.items():
         v = r.violations(thresholds)
         if v:
-            out.append(f"{DISPLAY_NAMES.get(variant, variant)}: " + "; ".join(v))
+            risk = " (compensating here can make the vehicle worse than PD)" if variant in ("pdc", "comply") else ""
+            out.append(f"{DISPLAY_NAMES.get(variant, variant)}: " + "; ".join(v) + risk)
     return out
 
 

@@ -28,6 +28,63 @@ METRIC_LABELS = {
 }
 
 
+#: How a sweep axis is named on a figure: the quantity and its unit.
+AXIS_LABELS = {
+    "payload.mass": "payload mass [kg]",
+    "payload.offset_B": "payload offset, body FRD [m]",
+    "plant.inertia_scale": "true inertia / nominal",
+    "plant.rotor_tau_up": "rotor spin-up time constant [s]",
+    "plant.rotor_tau_down": "rotor spin-down time constant [s]",
+    "plant.rotor_drag": "rotor drag [N s/m]",
+    "plant.arm_length_scale": "true arm length / nominal",
+    "plant.drag_factor_scale": "true drag factor / nominal",
+    "plant.pendulum_mass": "pendulum bob [kg]",
+    "sensors.mocap_delay": "position latency [s]",
+    "sensors.imu_delay": "attitude latency [s]",
+    "sensors.pos_noise": "position noise [m]",
+    "sensors.vel_noise": "velocity noise [m/s]",
+    "control.rate": "control rate [Hz]",
+    "control.estimator_wn": "estimator bandwidth [rad/s]",
+    "control.wn_o": "roll/pitch bandwidth [rad/s]",
+    "control.attitude_filter_wn": "attitude filter [rad/s]",
+    "control.Kp": "Kp [N/m]",
+    "control.Dp": "Dp [N s/m]",
+    "control.Ki": "Ki [N/(m s)]",
+    "trajectory.circle_speed": "circle speed [m/s]",
+    "trajectory.circle_radius": "circle radius [m]",
+    "interaction.M": "apparent mass [kg]",
+    "interaction.K": "stiffness [N/m]",
+    "interaction.D": "damping [N s/m]",
+}
+
+
+def axis_label(key: str) -> str:
+    """``"payload mass [kg]"`` for ``payload.mass``; joint axes ``a,b`` as ``a / b``; unknown keys as they are."""
+    import re
+
+    parts = []
+    for k in key.split(","):
+        m = re.match(r"^(.*)\[(\d)\]$", k.strip())
+        base, idx = (m.group(1), m.group(2)) if m else (k.strip(), None)
+        name = AXIS_LABELS.get(base, base)
+        parts.append(name.replace(" [", f" {'xyz'[int(idx)]} [", 1) if idx is not None else name)
+    return " / ".join(parts)
+
+
+def tick(v: Any) -> str:
+    """A short tick label: numbers to 3 digits, a vector of equal components as one number."""
+    if isinstance(v, str):
+        try:
+            v = json.loads(v)
+        except ValueError:
+            return v
+    if isinstance(v, list | tuple):
+        if len(v) > 1 and all(x == v[0] for x in v):
+            return tick(v[0])
+        return "(" + ", ".join(tick(x) for x in v) + ")"
+    return f"{v:.3g}" if isinstance(v, float | int) else str(v)
+
+
 def _columns(table) -> dict[str, np.ndarray]:
     return {name: np.asarray(table[name].to_pylist(), dtype=object) for name in table.column_names}
 
@@ -81,14 +138,18 @@ def plot_heatmaps(s: dict[str, Any], path: Path, x: str, y: str) -> Path:
     ctrls = s["controllers"]
     grids = {}
     for c in ctrls:
-        m = np.full((len(ys), len(xs)), np.nan)
+        cells: dict[tuple[int, int], list[float]] = {}
         f = np.zeros((len(ys), len(xs)))
         for r in s["rows"]:
             if r["controller"] != c:
                 continue
             i, j = ys.index(r[y]), xs.index(r[x])
-            m[i, j] = np.nanmean([m[i, j], r["mean"]]) if np.isfinite(m[i, j]) else r["mean"]
+            cells.setdefault((i, j), []).append(r["mean"])
             f[i, j] = max(f[i, j], r["failed_share"])
+        m = np.full((len(ys), len(xs)), np.nan)
+        for (i, j), vals in cells.items():  # the median over the other axes: one bad corner does not set it
+            v = np.asarray(vals, dtype=float)
+            m[i, j] = float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else np.nan
         grids[c] = (m, f)
     finite = np.concatenate([g[0][np.isfinite(g[0])] for g in grids.values()] + [np.array([1.0])])
     pos = finite[finite > 0]
@@ -103,13 +164,14 @@ def plot_heatmaps(s: dict[str, Any], path: Path, x: str, y: str) -> Path:
                     ax.text(j, i, "x", ha="center", va="center", color="red", fontsize=12, fontweight="bold")
                 elif np.isfinite(m[i, j]) and len(xs) * len(ys) <= 120:
                     ax.text(j, i, f"{m[i, j]:.2g}", ha="center", va="center", color="white", fontsize=6)
-        ax.set_xticks(range(len(xs)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in xs], rotation=45)
-        ax.set_yticks(range(len(ys)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in ys])
-        ax.set_xlabel(x)
-        ax.set_ylabel(y)
+        ax.set_xticks(range(len(xs)), [tick(v) for v in xs], rotation=45, ha="right", fontsize=8)
+        ax.set_yticks(range(len(ys)), [tick(v) for v in ys], fontsize=8)
+        ax.set_xlabel(axis_label(x))
+        ax.set_ylabel(axis_label(y))
         ax.set_title(LABELS.get(c, c))
-    fig.colorbar(im, ax=axs[0].tolist(), label=METRIC_LABELS[s["metric"]] + " (mean over seeds)")
-    fig.suptitle(f"{s['sweep']['name']}: red x = at least one flight failed")
+    label = METRIC_LABELS[s["metric"]] + " (mean over seeds, median over other axes)"
+    fig.colorbar(im, ax=axs[0].tolist(), label=label)
+    fig.suptitle(f"{s['sweep']['name']}: red x = at least one flight failed there")
     return _save(fig, path)
 
 
@@ -141,10 +203,10 @@ def plot_compensation(s: dict[str, Any], path: Path, x: str, y: str) -> Path | N
         for j in range(len(xs)):
             if failed[i, j]:
                 ax.text(j, i, "x", ha="center", va="center", color="red", fontsize=12, fontweight="bold")
-    ax.set_xticks(range(len(xs)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in xs], rotation=45)
-    ax.set_yticks(range(len(ys)), [f"{v:.3g}" if isinstance(v, float | int) else str(v) for v in ys])
-    ax.set_xlabel(x)
-    ax.set_ylabel(y)
+    ax.set_xticks(range(len(xs)), [tick(v) for v in xs], rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(len(ys)), [tick(v) for v in ys], fontsize=8)
+    ax.set_xlabel(axis_label(x))
+    ax.set_ylabel(axis_label(y))
     fig.colorbar(im, ax=ax, label=f"{METRIC_LABELS[s['metric']]}: PD+C / PD")
     ax.set_title("Where compensation helps (blue) and where it stops (red); black: ratio 1")
     return _save(fig, path)
@@ -183,9 +245,9 @@ def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
     if numeric and np.all(xpos > 0) and xpos.max() / max(xpos.min(), 1e-300) > 20:
         ax.set_xscale("log")
     if not numeric:
-        ax.set_xticks(xpos, [str(v) for v in xs])
+        ax.set_xticks(xpos, [tick(v) for v in xs], rotation=30, ha="right", fontsize=8)
     ax.set_yscale("log")
-    ax.set_xlabel(axis)
+    ax.set_xlabel(axis_label(axis))
     ax.set_ylabel(METRIC_LABELS[s["metric"]])
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)

@@ -227,21 +227,34 @@ class SweepFolder:
         return need
 
     def _chunk_ok(self, path: Path, k: int) -> bool:
+        """Whether ``path`` holds exactly chunk ``k`` of this sweep: its metadata (when written by a version
+        that writes it) names this sweep and chunk, and its rows are this chunk's units, seeds, controllers
+        and parameter values."""
         import pyarrow.parquet as pq
 
         try:
-            meta = json.loads((pq.read_schema(path).metadata or {}).get(CHUNK_META, b"{}"))
-            rows = pq.ParquetFile(path).metadata.num_rows
-        except Exception as exc:  # noqa: BLE001 (any unreadable file is a corrupt chunk)
-            self._reject(path, f"it is not a readable Parquet file ({type(exc).__name__})")
+            table = pq.read_table(path)
+            meta = json.loads((table.schema.metadata or {}).get(CHUNK_META, b"{}"))
+            cols = {n: table[n].to_pylist() for n in ("unit", "point", "seed", "controller")}
+            axes = {a.key: table[a.key].to_pylist() for a in self.sweep.axes}
+        except Exception as exc:  # noqa: BLE001 (any unreadable file or missing column is a corrupt chunk)
+            self._reject(path, f"it is not a readable chunk ({type(exc).__name__})")
             return False
-        want = len(self.sweep.chunk_units(k)) * len(self.sweep.controllers)
-        if meta.get("digest") != self.sweep.digest() or meta.get("chunk") != k:
-            self._reject(path, "it was written by another sweep (its content says so)")
+        if meta and (meta.get("digest") != self.sweep.digest() or meta.get("chunk") != k):
+            self._reject(path, "it was written by another sweep (its metadata says so)")
             return False
-        if rows != want:
-            self._reject(path, f"it holds {rows} rows instead of {want}")
+        units = self.sweep.chunk_units(k)
+        want = [(u.index, u.point, u.seed, c) for u in units for c in self.sweep.controllers]
+        got = list(zip(cols["unit"], cols["point"], cols["seed"], cols["controller"], strict=True))
+        if sorted(got) != sorted(want):
+            self._reject(path, f"its rows are not this chunk's flights ({len(got)} rows, {len(want)} expected)")
             return False
+        for key, values in axes.items():
+            for point, v in zip(cols["point"], values, strict=True):
+                expected = self.sweep.points[point][key]
+                if (json.loads(v) if isinstance(v, str) else v) != expected:
+                    self._reject(path, f"its {key} values are another sweep's")
+                    return False
         return True
 
     def _reject(self, path: Path, why: str) -> None:
@@ -417,7 +430,7 @@ def read_dataset(folder: Path, digest: str | None = None):
         try:
             t = pq.read_table(f)
             owner = json.loads((t.schema.metadata or {}).get(CHUNK_META, b"{}")).get("digest")
-            if digest is not None and owner != digest:
+            if digest is not None and owner is not None and owner != digest:
                 raise InputError(f"{f} belongs to another sweep; run the sweep command again to recompute that chunk")
             tables.append(t.replace_schema_metadata(None))
         except InputError:
