@@ -2,14 +2,19 @@
 
 import json
 
-from vtol_impedance.bench import run, table
+from vtol_impedance.bench import table
+from vtol_impedance.cli import main
 
 
-def test_quick_bench_writes_a_complete_report(tmp_path):
+def test_quick_bench_writes_a_complete_report(tmp_path, capsys):
+    """``bench --quick --quiet``: no cold compile, the table (and only the table) printed, the JSON written."""
     out = tmp_path / "bench.json"
-    res = run(out, quick=True, log=lambda m: None, compile_times=False)
+    assert main(["bench", "--quick", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr()
+    assert printed.err == "" and "single vehicle, case C realistic, compiled" in printed.out
+    assert "not measured (--quick)" in printed.out
     saved = json.loads(out.read_text())
-    assert saved["batched"] == res["batched"]
+    assert saved["compile_first_s"] is None
     assert [b["n"] for b in saved["batched"]] == [1, 10]
     assert all(b["failed"] == 0 and b["veh_s_per_s"] > 0 and b["peak_rss_mb"] > 0 for b in saved["batched"])
     for key in ("single_compiled", "single_numpy", "single_mujoco"):
