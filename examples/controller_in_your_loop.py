@@ -8,7 +8,8 @@ Run: python examples/controller_in_your_loop.py
 
 import numpy as np
 
-from vtol_impedance.control import Controller, ControllerParams, Measurement, Reference
+from vtol_impedance import Controller
+from vtol_impedance.control import ControllerParams, Measurement, Reference
 from vtol_impedance.model import load_preset
 from vtol_impedance.model.kinematics import euler_from_rotation, quat_to_rotation
 from vtol_impedance.sim import PlantParams, compile_plants, rk4_step

@@ -5,8 +5,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from vtol_impedance import Controller
 from vtol_impedance.analysis import compute_metrics
-from vtol_impedance.control import Controller, ControllerParams, Measurement, Reference
+from vtol_impedance.control import ControllerParams, Measurement, Reference
 from vtol_impedance.control.reference import Hold, Trajectory
 from vtol_impedance.errors import InputError, SingularityError
 from vtol_impedance.model import load_preset

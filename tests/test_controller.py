@@ -6,8 +6,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from vtol_impedance import Controller
 from vtol_impedance.control import (
-    Controller,
     ControllerParams,
     ImpedanceGains,
     Measurement,

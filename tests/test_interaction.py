@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import scipy.signal as sg
 
+from vtol_impedance import Controller
 from vtol_impedance.cli import main
-from vtol_impedance.control import Controller, ControllerParams, Impedance, Measurement, Reference
+from vtol_impedance.control import ControllerParams, Impedance, Measurement, Reference
 from vtol_impedance.control.reference import Hold, Trajectory
 from vtol_impedance.errors import InputError, ScenarioError
 from vtol_impedance.scenarios import get, set_value, simulate

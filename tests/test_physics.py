@@ -12,8 +12,9 @@ import scipy.signal
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
+from vtol_impedance import Controller
 from vtol_impedance.compiled import controller as kernels
-from vtol_impedance.control import Controller, ControllerParams, ImpedanceGains, Measurement, Reference
+from vtol_impedance.control import ControllerParams, ImpedanceGains, Measurement, Reference
 from vtol_impedance.model import VehicleParams
 from vtol_impedance.scenarios import get, set_value, simulate
 

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vtol_impedance import Controller, ControllerWarning
 from vtol_impedance.cli import main
-from vtol_impedance.control import Controller, ControllerParams, ImpedanceGains, Measurement, Reference
-from vtol_impedance.control.impedance import ControllerWarning
+from vtol_impedance.control import ControllerParams, ImpedanceGains, Measurement, Reference
 from vtol_impedance.control.reference import Hold, Trajectory
 from vtol_impedance.errors import InputError
 from vtol_impedance.io import RunFolder, verify_run_folder

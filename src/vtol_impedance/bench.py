@@ -118,7 +118,7 @@ def _latency(calls: int) -> dict[str, float]:
     import warnings
 
     from .control import Controller, ControllerParams, Measurement, Reference
-    from .control.impedance import ControllerWarning
+    from .runtime import ControllerWarning
 
     ctrl = Controller(ControllerParams.paper("pdc"))
     rng = np.random.default_rng(0)

@@ -4,7 +4,6 @@ from .gains import Impedance, ImpedanceGains
 from .impedance import (
     PAPER_KI,
     VARIANTS,
-    Controller,
     ControllerArrays,
     ControllerParams,
     ControllerState,
@@ -19,7 +18,6 @@ __all__ = [
     "PAPER_KI",
     "VARIANTS",
     "ControlOutput",
-    "Controller",
     "ControllerArrays",
     "ControllerParams",
     "ControllerState",

@@ -16,7 +16,7 @@ class Measurement(NamedTuple):
     ``p_W``, ``v_W``: position (m) and velocity (m/s) of the body origin in the world NED frame (motion
     capture); ``eta``: ZYX Euler angles ``[phi, theta, psi]`` (rad); and the attitude rate as *either*
     ``eta_dot`` (Euler-angle rates, rad/s) *or* ``omega_B`` (the gyro's body rates, FRD, rad/s), from which
-    :class:`~vtol_impedance.control.Controller` computes ``eta_dot = Q(eta)^{-1} omega_B`` (eq. (1c)).
+    :class:`~vtol_impedance.Controller` computes ``eta_dot = Q(eta)^{-1} omega_B`` (eq. (1c)).
     The pure :func:`~vtol_impedance.control.controller_step` needs ``eta_dot``.
     """
 

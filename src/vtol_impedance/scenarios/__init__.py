@@ -1,6 +1,7 @@
 """Scenarios: specification, registry, and the paper's case studies."""
 
 from . import paper as _paper  # noqa: F401  (registers the paper's cases)
+from .files import load_toml
 from .paper import PAPER_CASES
 from .registry import DEFAULT, Registry, get, names, register
 from .simulate import simulate
@@ -14,7 +15,6 @@ from .spec import (
     build,
     check,
     controller_params,
-    load_toml,
     set_value,
 )
 

@@ -13,7 +13,6 @@ import re
 import tomllib
 import warnings
 from dataclasses import dataclass, field, fields, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -655,29 +654,4 @@ def apply_mapping(spec: ScenarioSpec, data: dict[str, Any], prefix: str = "") ->
             spec = apply_mapping(spec, v, key + ".")
         else:
             spec = set_value(spec, key, v)
-    return spec
-
-
-def load_toml(path: str | Path, base: ScenarioSpec | None = None) -> ScenarioSpec:
-    """Read a scenario file. ``base = "case-a-payload"`` at the top starts from a registered scenario."""
-    from .registry import get
-
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"cannot read scenario file {path}: {exc}") from exc
-    base_name = data.pop("base", None)
-    if base_name is not None:
-        spec = get(base_name)
-    elif base is not None:
-        spec = base
-    else:
-        if "name" not in data:
-            raise ScenarioError(f"{path}: give either 'base = \"<registered scenario>\"' or a 'name'")
-        spec = ScenarioSpec(name=data["name"])
-    dists = data.pop("disturbances", None)
-    spec = apply_mapping(spec, data)
-    if dists is not None:
-        spec = set_value(spec, "disturbances", dists)
     return spec

@@ -1,0 +1,270 @@
+"""The controller for a flight loop (a ROS node, a companion computer, another simulator): eqs. (6)-(20)
+behind one object that keeps its state, checks its inputs, and runs either backend.
+
+It sits above both executions of the same equations, the NumPy reference (:mod:`vtol_impedance.control`)
+and the compiled kernels (:mod:`vtol_impedance.compiled`), so that neither imports the other.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from .control.impedance import (
+    ControllerParams,
+    compile_controllers,
+    controller_step,
+    initial_controller_state,
+)
+from .control.signals import ControlOutput, Measurement, Reference, comply6
+from .errors import InputError, SingularityError, as_finite
+from .model.kinematics import check_euler_regular, euler_rate_matrix_Q
+
+
+class ControllerWarning(UserWarning):
+    """Something the controller did that a user should know of (once per cause and :class:`Controller`)."""
+
+
+def _vec_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
+    arr = as_finite(name, value, (3,))
+    if arr.shape[:-1] != bs:
+        raise InputError(f"{name} has shape {arr.shape}; this controller expects {bs + (3,)}")
+    return arr
+
+
+def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
+    arr = as_finite(name, value)
+    if arr.shape not in ((), bs):
+        raise InputError(f"{name} has shape {arr.shape}; this controller expects () or {bs}")
+    return arr
+
+
+def _plausible(name: str, value: np.ndarray, limit: float) -> np.ndarray:
+    """Refuse a finite value beyond any vehicle's (it would overflow the arithmetic and poison the state)."""
+    if np.any(np.abs(value) > limit):
+        raise InputError(
+            f"{name} = {np.asarray(value).tolist()} is beyond any vehicle's (|{name}| <= {limit:g}); the "
+            "controller's state is unchanged"
+        )
+    return value
+
+
+def _comply_input(value: object, bs: tuple[int, ...]) -> np.ndarray:
+    arr = as_finite("comply (Reference.comply)", value)
+    if arr.shape not in ((), (3,), (6,), bs + (3,), bs + (6,)):
+        raise InputError(
+            f"Reference.comply has shape {arr.shape}; give a fraction, 3 fractions (x, y, z), 6 (x, y, z, roll, "
+            f"pitch, yaw) or {bs + (6,)}"
+        )
+    if np.any((arr < 0) | (arr > 1)):
+        raise InputError(f"Reference.comply must be within [0, 1] (0 rejects, 1 complies), got {arr.tolist()}")
+    return np.broadcast_to(comply6(arr), bs + (6,))
+
+
+def _describe(a: object) -> str:
+    if type(a) is not np.ndarray:
+        return type(a).__name__
+    layout = "" if a.flags.c_contiguous else "non-contiguous "
+    return f"{layout}{a.dtype} array of shape {a.shape}"
+
+
+class Controller:
+    """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
+
+    >>> ctrl = Controller(ControllerParams.paper("pdc"))
+    >>> out = ctrl.step(Measurement(p_W, v_W, eta, omega_B=gyro), Reference(np.array([0, 0, -1.0])))
+
+    :meth:`step` validates its inputs (numeric, finite, shape ``(3,)`` or the batch's ``(B, 3)``, away from
+    the Euler singularity) and returns a :class:`ControlOutput` (plain floats and ``(3,)`` arrays for one
+    vehicle). :meth:`step_arrays` is the low-overhead path for real-time loops: flat ``y = [p_W, v_W, eta,
+    eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` (float64, shape ``(12,)``, or
+    ``(15,)`` or ``(18,)`` with the comply fractions of the world axes, or of the world axes and the Euler
+    angles, appended) in, a flat
+    output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
+
+    The controller keeps what it learnt in flight (the wrench estimate, the attitude filter, the PID
+    integral, the last command); :meth:`reset` forgets it. Call it before every new flight.
+
+    ``backend="compiled"`` (default) runs the numba kernels, ``"numpy"`` the reference functions of this
+    module; both compute the same numbers. A :class:`ControllerWarning` is issued once per cause
+    (rotor saturation, tilt limit) per controller and :meth:`reset`.
+    """
+
+    def __init__(self, params: ControllerParams | Sequence[ControllerParams], backend: str = "compiled") -> None:
+        if backend not in ("compiled", "numpy"):
+            raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
+        single = isinstance(params, ControllerParams)
+        if not single and not all(isinstance(p, ControllerParams) for p in params):  # type: ignore[union-attr]
+            raise InputError("Controller takes a ControllerParams or a sequence of them")
+        self.params = params
+        self.backend = backend
+        self.arrays = compile_controllers(params)
+        if backend == "compiled":
+            from .compiled import controller as kernels
+
+            batch = self.arrays if self.arrays.batch_shape else compile_controllers([params])  # type: ignore[list-item]
+            self._k = kernels
+            self._cp, self._sh = kernels.pack_controller(batch)
+            self._nr = batch.E.shape[-1]
+            self._out = np.zeros((self._cp.shape[0], kernels.out_size(self._nr)))
+        self.reset()
+
+    @property
+    def n_rotors(self) -> int:
+        return int(self.arrays.E.shape[-1])
+
+    def reset(self) -> None:
+        """Forget the wrench estimate, the attitude filter, the PID integral and the held command.
+
+        Without it a controller reused for a second flight starts with the first flight's estimate.
+        """
+        self.state = initial_controller_state(self.arrays)
+        self._warned: set[str] = set()
+        if self.backend == "compiled":
+            self._cs = self._k.initial_state(self._cp, self._sh)
+
+    def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
+        """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, ``(15,)`` or
+        ``(18,)`` (with ``comply`` for x, y, z or for x, y, z, roll, pitch, yaw), C-contiguous float64.
+
+        Returns the output row (a view, overwritten by the next call). Raises :class:`InputError` on a
+        wrong type, dtype, shape or a non-finite value, and :class:`SingularityError` at theta = +-90 deg.
+        """
+        if self.backend != "compiled":
+            raise InputError("step_arrays needs backend='compiled'")
+        if type(vehicle) is not int or not 0 <= vehicle < self._cp.shape[0]:
+            raise InputError(f"step_arrays: vehicle must be an int in [0, {self._cp.shape[0]}), got {vehicle!r}")
+        out = self._out[vehicle]
+        try:  # the kernel's signature checks type, dtype and layout at dispatch, at no cost when right
+            status = self._k.checked_step(self._cp[vehicle], self._sh, self._cs[vehicle], y, r, out)
+        except TypeError:
+            status = 3
+        if status:
+            if status == 3:
+                raise InputError(
+                    "step_arrays: y and r must be C-contiguous float64 arrays of shape (12,) (r: or (15,) or (18,)), "
+                    f"got {_describe(y)} and {_describe(r)}"
+                )
+            if status == 2:
+                raise SingularityError(f"pitch theta = {np.degrees(y[7]):.3f} deg is at the Euler singularity")
+            if status == 4:
+                raise InputError(f"comply fractions must be within [0, 1] (0 rejects, 1 complies), got {r[12:]}")
+            if status == 5:
+                raise InputError(
+                    f"a measurement or reference beyond any vehicle's (|p| <= 1e6 m, |v| <= 1e4 m/s, |eta| <= 1e3 rad, "
+                    f"rates <= 1e4 rad/s): y = {y}, r = {r}; the controller's state is unchanged"
+                )
+            raise InputError(f"non-finite measurement or reference: y = {y}, r = {r}")
+        return out
+
+    def _measurement(self, meas: Measurement, bs: tuple[int, ...]) -> Measurement:
+        if not isinstance(meas, Measurement):
+            raise InputError(f"step expects a Measurement, got {type(meas).__name__}")
+        p_W, v_W, eta = (_vec_input(n, v, bs) for n, v in (("p_W", meas.p_W), ("v_W", meas.v_W), ("eta", meas.eta)))
+        for name, v, lim in (("p_W", p_W, 1e6), ("v_W", v_W, 1e4), ("eta", eta, 1e3)):
+            _plausible(name, v, lim)
+        if (meas.eta_dot is None) == (meas.omega_B is None):
+            raise InputError("Measurement needs exactly one of eta_dot (Euler rates) or omega_B (gyro body rates)")
+        check_euler_regular(eta)
+        if meas.eta_dot is not None:
+            eta_dot = _plausible("eta_dot", _vec_input("eta_dot", meas.eta_dot, bs), 1e4)
+        else:
+            omega_B = _plausible("omega_B", _vec_input("omega_B", meas.omega_B, bs), 1e4)
+            eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B[..., None])[..., 0]
+        return Measurement(p_W, v_W, eta, eta_dot)
+
+    def step(self, meas: Measurement, ref: Reference) -> ControlOutput:
+        """One control period (call it every ``Ts``): returns rotor forces, thrust, torque and the estimate."""
+        bs = self.arrays.batch_shape
+        meas = self._measurement(meas, bs)
+        if not isinstance(ref, Reference):
+            raise InputError(f"step expects a Reference, got {type(ref).__name__}")
+        ref = Reference(
+            as_finite("p_d (Reference.p_W)", ref.p_W, (3,)),
+            as_finite("v_d (Reference.v_W)", ref.v_W, (3,)),
+            as_finite("a_d (Reference.a_W)", ref.a_W, (3,)),
+            _scalar_input("psi_d", ref.psi, bs),
+            _scalar_input("psi_dot_d", ref.psi_dot, bs),
+            _scalar_input("psi_ddot_d", ref.psi_ddot, bs),
+            _comply_input(ref.comply, bs),
+        )
+        for name, v, lim in zip(("p_d", "v_d", "a_d"), ref[:3], (1e6, 1e4, 1e5), strict=True):
+            if v.shape[:-1] not in ((), bs):
+                raise InputError(f"reference {name} has shape {v.shape}; this controller expects (3,) or {bs + (3,)}")
+            _plausible(name, v, lim)
+        for name, v, lim in zip(("psi_d", "psi_dot_d", "psi_ddot_d"), ref[3:6], (1e3, 1e4, 1e5), strict=True):
+            _plausible(name, v, lim)
+        if self.backend == "numpy":
+            self.state, out = controller_step(self.arrays, self.state, meas, ref)
+        else:
+            out = self._step_compiled(meas, ref, bs)
+        self._warn_once(out)
+        if not bs:  # one vehicle: plain numbers
+            out = out._replace(
+                thrust=float(out.thrust),
+                thrust_request=float(out.thrust_request),
+                saturated=bool(out.saturated),
+                tilt_limited=bool(out.tilt_limited),
+                rp_scale=float(out.rp_scale),
+                yaw_scale=float(out.yaw_scale),
+            )
+        return out
+
+    def _warn_once(self, out: ControlOutput) -> None:
+        causes = (
+            (
+                "saturated",
+                "the rotors could not give the requested thrust and torque (see ControlOutput.saturated, "
+                "rp_scale, yaw_scale)",
+            ),
+            (
+                "tilt_limited",
+                "the tilt or lift limit of eq. (16) clamped the desired attitude (tilt_max, "
+                "min_lift_accel; see ControlOutput.tilt_limited)",
+            ),
+        )
+        for field_name, text in causes:
+            if field_name not in self._warned and np.any(getattr(out, field_name)):
+                self._warned.add(field_name)
+                warnings.warn(f"{text}; warned once per cause until reset()", ControllerWarning, stacklevel=3)
+
+    def _step_compiled(self, meas: Measurement, ref: Reference, bs: tuple[int, ...]) -> ControlOutput:
+        k = self._k
+        B = self._cp.shape[0]
+        y = np.concatenate([np.broadcast_to(v, bs + (3,)).reshape(B, 3) for v in meas[:4]], -1)
+        r = np.concatenate(
+            [
+                np.broadcast_to(ref.p_W, bs + (3,)).reshape(B, 3),
+                np.broadcast_to(ref.v_W, (B, 3)),
+                np.broadcast_to(ref.a_W, (B, 3)),
+                np.stack([np.broadcast_to(v, bs).reshape(B) for v in (ref.psi, ref.psi_dot, ref.psi_ddot)], -1),
+                np.broadcast_to(ref.comply, bs + (6,)).reshape(B, 6),
+            ],
+            -1,
+        )
+        for b in range(B):
+            k.controller_step(self._cp[b], self._sh, self._cs[b], y[b], np.ascontiguousarray(r[b]), self._out[b])
+        o = self._out.reshape(bs + (self._out.shape[-1],)).copy()
+
+        def sl(i: int, n: int) -> np.ndarray:
+            return o[..., i : i + n]
+
+        return ControlOutput(
+            thrust=o[..., k.O_THRUST],
+            tau_B=sl(k.O_TAU, 3),
+            f_rotor=sl(k.O_F, self._nr),
+            saturated=o[..., k.O_SAT] > 0.5,
+            thrust_request=o[..., k.O_THRUST_REQ],
+            tau_B_request=sl(k.O_TAU_REQ, 3),
+            f_hat_W=sl(k.O_FHAT, 3),
+            tau_hat_eta=sl(k.O_TAUHAT_ETA, 3),
+            tau_hat_B=sl(k.O_TAUHAT_B, 3),
+            eta_d=sl(k.O_ETA_D, 3),
+            eta_d_dot=sl(k.O_ETA_D_DOT, 3),
+            mu_bar=sl(k.O_MU_BAR, 3),
+            tilt_limited=o[..., k.O_TILT] > 0.5,
+            rp_scale=o[..., k.O_RP],
+            yaw_scale=o[..., k.O_YAW],
+        )
