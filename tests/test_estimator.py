@@ -163,3 +163,65 @@ def test_batched_equals_single(rng):
                 des, singles[b], eta[k, b], eta_dot[k, b], v[k, b], u[k, b], tau[k, b], M, I_B
             )
             np.testing.assert_allclose(rb[b], r1, atol=1e-14)
+
+
+@pytest.mark.parametrize("backend", ["compiled", "numpy"])
+def test_online_estimator_finds_the_force_that_holds_a_still_vehicle(backend):
+    """A vehicle at rest, level, with thrust m g + 2 N and a body torque: the world must push 2 N down and
+    cancel the torque (Newton, independent of the filter), reached as G's step response."""
+    from vtol_impedance import Estimator
+
+    m, Ts = 1.3, 0.01
+    est = Estimator(m, [0.01, 0.012, 0.02], Ts, EstimatorParams(wn=10.0, rotor_tau=0.02), backend=backend)
+    tau_B = np.array([0.02, -0.01, 0.005])
+    z = np.zeros(3)
+    outs = [est.step(z, z, m * G + 2.0, tau_B, omega_B=z) for _ in range(300)]
+    np.testing.assert_allclose(outs[0].f_hat_W, 0.0)
+    np.testing.assert_allclose(outs[-1].f_hat_W, [0.0, 0.0, 2.0], atol=1e-6)
+    np.testing.assert_allclose(outs[-1].tau_hat_B, -tau_B, atol=1e-8)
+    # second-order, zeta = 1: at t = 2/wn the step response is 1 - 3 e^-2
+    k = round(0.2 / Ts)
+    assert outs[k].f_hat_W[2] == pytest.approx(2.0 * (1 - 3 * np.exp(-2.0)), rel=0.08)
+    # no torque command: the moment is not estimated, and says so
+    assert np.all(np.isnan(est.step(z, z, m * G, omega_B=z).tau_hat_B))
+    est.reset()
+    np.testing.assert_allclose(est.step(z, z, m * G, tau_B, omega_B=z).f_hat_W, 0.0)
+
+
+def test_online_estimator_backends_agree_with_delays_and_rotor_lag(rng):
+    from vtol_impedance import Estimator
+
+    p = EstimatorParams(wn=8.0, order=3, prototype="binomial", velocity_delay=0.023, attitude_delay=0.011, rotor_tau=0.03)
+    a = Estimator(1.2, [0.01, 0.012, 0.02], 0.01, p)
+    b = Estimator(1.2, [0.01, 0.012, 0.02], 0.01, p, backend="numpy")
+    for _ in range(200):
+        v, eta, w, tau = rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.1, rng.normal(size=3), rng.normal(size=3) * 0.01
+        np.testing.assert_allclose(
+            np.concatenate(a.step(v, eta, 11.0, tau, omega_B=w)),
+            np.concatenate(b.step(v, eta, 11.0, tau, omega_B=w)),
+            atol=1e-12,
+        )
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {"v_W": [0, 0, np.nan]},
+        {"v_W": [0, 0]},
+        {"eta": [0, np.pi / 2, 0]},
+        {"thrust_prev": "9.8"},
+        {"thrust_prev": 1e300},
+        {"omega_B": None},
+    ],
+)
+def test_online_estimator_refuses_bad_samples(kw):
+    from vtol_impedance import Estimator
+
+    est = Estimator(1.0, [0.01, 0.01, 0.02], 0.01)
+    args = {"v_W": np.zeros(3), "eta": np.zeros(3), "thrust_prev": 9.8, "omega_B": np.zeros(3)} | kw
+    with pytest.raises(ValueError):  # InputError, or SingularityError at theta = 90 deg
+        est.step(args.pop("v_W"), args.pop("eta"), args.pop("thrust_prev"), **args)
+    with pytest.raises(InputError):
+        Estimator(-1.0, [0.01, 0.01, 0.02], 0.01)
+    with pytest.raises(InputError):
+        Estimator(1.0, [0.01, -0.01, 0.02], 0.01)

@@ -6,16 +6,18 @@ Momentum-based External Generalized Forces Estimator", ICRA 2014.
 Subpackages: :mod:`.model` (eqs. 1-5), :mod:`.estimator` (eqs. 6-13), :mod:`.control` (eqs. 14-20),
 :mod:`.sim` (true plant, disturbances, sensors, closed loop), :mod:`.scenarios` (the paper's case
 studies), :mod:`.analysis` (metrics, figures, reports). :class:`Controller` (in :mod:`.runtime`) is the
-controller for a flight loop, on either backend.
+controller for a flight loop, :class:`Estimator` the estimator alone fed one sample at a time (telemetry),
+both on either backend.
 """
 
 __version__ = "0.1.0"
 
-__all__ = ["Controller", "ControllerWarning", "__version__"]
+_RUNTIME = ("Controller", "ControllerWarning", "Estimator", "EstimatorOutput")
+__all__ = [*_RUNTIME, "__version__"]
 
 
 def __getattr__(name: str):  # the controller on demand: importing the package stays light (no numba)
-    if name in ("Controller", "ControllerWarning"):
+    if name in _RUNTIME:
         from . import runtime
 
         return getattr(runtime, name)

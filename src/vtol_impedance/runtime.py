@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -19,7 +20,11 @@ from .control.impedance import (
     initial_controller_state,
 )
 from .control.signals import ControlOutput, Measurement, Reference, comply6
-from .errors import InputError, SingularityError, as_finite
+from .errors import InputError, SingularityError, as_finite, scalar
+from .estimator.momentum import EstimatorParams, estimator_step
+from .estimator.momentum import design as design_estimator
+from .estimator.momentum import initial_state as estimator_initial_state
+from .model.dynamics import body_moment_from_euler
 from .model.kinematics import check_euler_regular, euler_rate_matrix_Q
 
 
@@ -268,3 +273,112 @@ class Controller:
             rp_scale=o[..., k.O_RP],
             yaw_scale=o[..., k.O_YAW],
         )
+
+
+class EstimatorOutput(NamedTuple):
+    """The estimate after one sample: ``f_hat_W`` (N, world NED, at the body origin), ``tau_hat_eta`` (the
+    moment in Euler coordinates, as eq. (5b)) and ``tau_hat_B`` (N m, body FRD, ``Q^{-T} tau_hat_eta``)."""
+
+    f_hat_W: np.ndarray
+    tau_hat_eta: np.ndarray
+    tau_hat_B: np.ndarray
+
+
+class Estimator:
+    """The momentum-based estimator of eqs. (6)-(13) alone, one sample at a time (an online loop fed by
+    telemetry, another simulator): the same kernels as the simulator's controller and ``estimate``.
+
+    >>> est = Estimator(mass=1.0, inertia_B=[0.01, 0.01, 0.02], Ts=0.01)
+    >>> out = est.step(v_W, eta, thrust_prev=9.8, tau_B_prev=np.zeros(3), omega_B=gyro)
+
+    ``thrust_prev`` (N) and ``tau_B_prev`` (N m, body FRD) are the command held over the period that just
+    ended; without a torque command (``tau_B_prev=None``) the moment estimate is meaningless and reported
+    as NaN. Call :meth:`step` every ``Ts`` seconds; after a gap in the data call :meth:`reset` (the filter
+    assumes uniform sampling). ``backend="numpy"`` runs :func:`vtol_impedance.estimator.estimator_step`.
+    """
+
+    def __init__(
+        self,
+        mass: float,
+        inertia_B: object,
+        Ts: float,
+        params: EstimatorParams | None = None,
+        backend: str = "compiled",
+    ) -> None:
+        if backend not in ("compiled", "numpy"):
+            raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
+        self.mass = scalar("mass", mass, lo=0.0, lo_open=True)
+        I_B = as_finite("inertia_B", inertia_B)
+        if I_B.shape == (3,):
+            I_B = np.diag(I_B)
+        if I_B.shape != (3, 3) or np.any(np.linalg.eigvalsh(0.5 * (I_B + I_B.T)) <= 0):
+            raise InputError(f"inertia_B must be 3 positive values or a positive definite 3x3 matrix, got {inertia_B!r}")
+        self.I_B = np.ascontiguousarray(I_B, dtype=float)
+        self.params = params or EstimatorParams()
+        if not isinstance(self.params, EstimatorParams):
+            raise InputError(f"params must be an EstimatorParams, got {type(params).__name__}")
+        self.design = design_estimator(self.params, Ts)
+        self.backend = backend
+        if backend == "compiled":
+            from .compiled import estimator as kernels
+
+            self._k = kernels
+            self._sh = kernels.pack_design(self.design)
+            self._I = tuple(float(v) for v in self.I_B.ravel())
+            self._out = np.zeros(9)
+        self.reset()
+
+    @property
+    def Ts(self) -> float:  # noqa: N802
+        return float(self.design.Ts)
+
+    def reset(self) -> None:
+        """Start afresh: the next sample fills the history with its command and returns a zero estimate."""
+        self._fresh = True
+        if self.backend == "compiled":
+            self._cs = np.zeros(int(self._k.state_length(self._sh)))
+        else:
+            self._state = estimator_initial_state(self.design)
+
+    def step(
+        self,
+        v_W: object,
+        eta: object,
+        thrust_prev: float,
+        tau_B_prev: object | None = None,
+        *,
+        eta_dot: object | None = None,
+        omega_B: object | None = None,
+    ) -> EstimatorOutput:
+        """One sample: measured world velocity (m/s, NED), ZYX Euler angles (rad) and exactly one of their
+        rates ``eta_dot`` or the gyro's ``omega_B`` (rad/s, body FRD)."""
+        v_W = _plausible("v_W", as_finite("v_W", v_W, (3,)), 1e4)
+        eta = _plausible("eta", as_finite("eta", eta, (3,)), 1e3)
+        check_euler_regular(eta)
+        if (eta_dot is None) == (omega_B is None):
+            raise InputError("Estimator.step needs exactly one of eta_dot (Euler rates) or omega_B (gyro body rates)")
+        if eta_dot is not None:
+            eta_dot = _plausible("eta_dot", as_finite("eta_dot", eta_dot, (3,)), 1e4)
+        else:
+            omega_B = _plausible("omega_B", as_finite("omega_B", omega_B, (3,)), 1e4)
+            eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B)
+        u = float(_plausible("thrust_prev", as_finite("thrust_prev", thrust_prev, ()), 1e6))
+        no_moment = tau_B_prev is None
+        tau = np.zeros(3) if no_moment else _plausible("tau_B_prev", as_finite("tau_B_prev", tau_B_prev, (3,)), 1e6)
+        if self.backend == "compiled":
+            o = self._out
+            self._k.estimator_sample(
+                self._sh, self._cs, self.mass, self._I, np.ascontiguousarray(v_W, dtype=float),
+                np.ascontiguousarray(eta, dtype=float), np.ascontiguousarray(eta_dot, dtype=float), u,
+                np.ascontiguousarray(tau, dtype=float), self._fresh, o,
+            )  # fmt: skip
+            f, t_eta, t_B = o[:3].copy(), o[3:6].copy(), o[6:9].copy()
+        else:
+            self._state, w = estimator_step(self.design, self._state, eta, eta_dot, v_W, u, tau, self.mass, self.I_B)
+            f, t_eta = w[:3], w[3:]
+            t_B = body_moment_from_euler(t_eta, eta)
+        self._fresh = False
+        if no_moment:
+            t_eta = np.full(3, np.nan)
+            t_B = np.full(3, np.nan)
+        return EstimatorOutput(f, t_eta, t_B)

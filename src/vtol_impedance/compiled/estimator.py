@@ -177,31 +177,38 @@ def estimator_update(sh, cs, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2):  # noqa:
 
 
 @njit(cache=True)
+def estimator_sample(sh, cs, m, I, v_W, eta, eta_dot, thrust_prev, tau_B_prev, restart, out):  # noqa: E741, N803
+    """One sample of the estimator with the command held over the period that just ended, for an online
+    loop and for :func:`estimate_log`: ``out = [f_hat_ext_W; tau_hat_ext_eta; tau_hat_ext_B]`` (9).
+
+    ``I`` is the nominal inertia as a row-major 9-tuple; where ``restart`` is true the estimator starts
+    afresh (its history filled with this command), as at the first sample."""
+    n = int(sh[SH_N])
+    o_q = 6 * n
+    if restart:
+        for i in range(cs.shape[0]):
+            cs[i] = 0.0
+    cs[o_q + 21] = thrust_prev
+    cs[o_q + 22], cs[o_q + 23], cs[o_q + 24] = tau_B_prev[0], tau_B_prev[1], tau_B_prev[2]
+    Q, M, C, w = estimator_update(
+        sh, cs, m, I, v_W[0], v_W[1], v_W[2], eta[0], eta[1], eta[2], eta_dot[0], eta_dot[1], eta_dot[2]
+    )
+    for c in range(6):
+        out[c] = w[c]
+    # tau_B = Q^{-T} tau_eta: Q^T x = tau_eta
+    out[6], out[7], out[8] = _solve9(_t9(Q), w[3], w[4], w[5])
+
+
+@njit(cache=True)
 def estimate_log(sh, m, I_B, v_W, eta, eta_dot, thrust, tau_B, restart, out):  # noqa: N803
     """The estimator over a uniformly sampled log: ``out[k] = [f_hat_ext_W; tau_hat_ext_eta; tau_hat_ext_B]``.
 
     ``thrust[k]``, ``tau_B[k]`` are the commands issued at sample ``k`` and held until ``k + 1``. Where
     ``restart[k]`` is true the estimator starts afresh (after a gap), as at ``k = 0``.
     """
-    n = int(sh[SH_N])
     cs = np.zeros(state_length(sh))
     I = (I_B[0, 0], I_B[0, 1], I_B[0, 2], I_B[1, 0], I_B[1, 1], I_B[1, 2], I_B[2, 0], I_B[2, 1], I_B[2, 2])  # noqa: E741
-    o_q = 6 * n
     for k in range(v_W.shape[0]):
-        if restart[k] or k == 0:  # a segment starts afresh, its history filled with its first command
-            for i in range(cs.shape[0]):
-                cs[i] = 0.0
-            cs[o_q + 21] = thrust[k]
-            cs[o_q + 22], cs[o_q + 23], cs[o_q + 24] = tau_B[k, 0], tau_B[k, 1], tau_B[k, 2]
-        else:
-            cs[o_q + 21] = thrust[k - 1]
-            cs[o_q + 22], cs[o_q + 23], cs[o_q + 24] = tau_B[k - 1, 0], tau_B[k - 1, 1], tau_B[k - 1, 2]
-        Q, M, C, w = estimator_update(
-            sh, cs, m, I, v_W[k, 0], v_W[k, 1], v_W[k, 2], eta[k, 0], eta[k, 1], eta[k, 2],
-            eta_dot[k, 0], eta_dot[k, 1], eta_dot[k, 2],
-        )  # fmt: skip
-        for c in range(6):
-            out[k, c] = w[c]
-        # tau_B = Q^{-T} tau_eta: Q^T x = tau_eta
-        x0, x1, x2 = _solve9(_t9(Q), w[3], w[4], w[5])
-        out[k, 6], out[k, 7], out[k, 8] = x0, x1, x2
+        fresh = restart[k] or k == 0  # a segment starts afresh, its history filled with its first command
+        j = k if fresh else k - 1
+        estimator_sample(sh, cs, m, I, v_W[k], eta[k], eta_dot[k], thrust[j], tau_B[j], fresh, out[k])
