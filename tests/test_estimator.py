@@ -191,11 +191,13 @@ def test_online_estimator_finds_the_force_that_holds_a_still_vehicle(backend):
 def test_online_estimator_backends_agree_with_delays_and_rotor_lag(rng):
     from vtol_impedance import Estimator
 
-    p = EstimatorParams(wn=8.0, order=3, prototype="binomial", velocity_delay=0.023, attitude_delay=0.011, rotor_tau=0.03)
+    timing = {"velocity_delay": 0.023, "attitude_delay": 0.011, "rotor_tau": 0.03}
+    p = EstimatorParams(wn=8.0, order=3, prototype="binomial", **timing)
     a = Estimator(1.2, [0.01, 0.012, 0.02], 0.01, p)
     b = Estimator(1.2, [0.01, 0.012, 0.02], 0.01, p, backend="numpy")
     for _ in range(200):
-        v, eta, w, tau = rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.1, rng.normal(size=3), rng.normal(size=3) * 0.01
+        v, eta, w = rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.1, rng.normal(size=3)
+        tau = rng.normal(size=3) * 0.01
         np.testing.assert_allclose(
             np.concatenate(a.step(v, eta, 11.0, tau, omega_B=w)),
             np.concatenate(b.step(v, eta, 11.0, tau, omega_B=w)),

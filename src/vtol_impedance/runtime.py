@@ -312,7 +312,9 @@ class Estimator:
         if I_B.shape == (3,):
             I_B = np.diag(I_B)
         if I_B.shape != (3, 3) or np.any(np.linalg.eigvalsh(0.5 * (I_B + I_B.T)) <= 0):
-            raise InputError(f"inertia_B must be 3 positive values or a positive definite 3x3 matrix, got {inertia_B!r}")
+            raise InputError(
+                f"inertia_B must be 3 positive values or a positive definite 3x3 matrix, got {inertia_B!r}"
+            )
         self.I_B = np.ascontiguousarray(I_B, dtype=float)
         self.params = params or EstimatorParams()
         if not isinstance(self.params, EstimatorParams):
