@@ -112,10 +112,9 @@ def test_embeddable_step_matches_the_reference_and_checks_inputs(rng):
         )
         out = fast.step_arrays(y, r)
         o_ref = ref_ctrl.step(Measurement(y[0:3], y[3:6], y[6:9], y[9:12]), ref)
-        from vtol_impedance.compiled.controller import O_F, O_FHAT
-
-        np.testing.assert_allclose(out[O_F : O_F + 4], o_ref.f_rotor, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(out[O_FHAT : O_FHAT + 3], o_ref.f_hat_W, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out["f_rotor"][:4], o_ref.f_rotor, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out["f_hat_W"], o_ref.f_hat_W, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out["thrust"], o_ref.thrust, rtol=1e-12)
     bad = y.copy()
     bad[4] = np.nan
     with pytest.raises(InputError, match="non-finite"):

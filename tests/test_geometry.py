@@ -100,12 +100,11 @@ def compiled_allocate(v, u, tau, shift):
     from vtol_impedance.control import ControllerParams
     from vtol_impedance.control.impedance import compile_controllers
 
-    cp, _ = kernels.pack_controller(compile_controllers([ControllerParams.paper("pd", vehicle=v)]))
-    row = cp[0].copy()
-    row[kernels.CP_SHIFT] = shift
-    o = np.zeros(kernels.OUT_SIZE)
-    sat, rp, ys = kernels._allocate(row, float(u), float(tau[0]), float(tau[1]), float(tau[2]), o)
-    f = o[kernels.O_F : kernels.O_F + v.n_rotors].copy()
+    p, _ = kernels.pack_controller(compile_controllers([ControllerParams.paper("pd", vehicle=v)]))
+    p["thrust_shift_max"] = shift
+    o = kernels.new_output(1)
+    sat, rp, ys = kernels.allocate_one(p, float(u), float(tau[0]), float(tau[1]), float(tau[2]), o)
+    f = o["f_rotor"][0, : v.n_rotors].copy()
     thrust, tau_B = mix(f, v.geometry.E)
     return SimpleNamespace(f=f, thrust=thrust, tau_B=tau_B, saturated=sat, rp_scale=rp, yaw_scale=ys)
 

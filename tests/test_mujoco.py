@@ -122,24 +122,22 @@ def test_state_round_trip_and_mujocos_own_kinematics():
 def _replay(P_list, cmd, Ts, dist_items, x0):
     """The same rotor commands, held over each control period, on both plants (1 kHz RK4 both; ours is
     the compiled plant, tied to the NumPy one by test_compiled.py)."""
-    from vtol_impedance.compiled.plant import disturbance_at, pack_disturbances, pack_plant, rk4_step
+    from vtol_impedance.compiled.engine import advance
+    from vtol_impedance.sim.disturbances import pack_disturbances
+    from vtol_impedance.sim.plant import pack_plant, pack_state, unpack_state
 
     PA = compile_plants(P_list)
     dist = DisturbanceSet([d.prepare(cmd.shape[1] * Ts + 1, 0.001, np.random.default_rng(0)) for d in dist_items])
     mp = MujocoPlant(P_list, PA, dist, x0, 0.001)
     pp = pack_plant(PA)
-    codes, dparams, series = pack_disturbances(dist.items)
-    x = x0.copy()
-    work = [np.empty(x.shape[1]) for _ in range(5)]
-    env, held = np.empty(6), np.empty(6)
+    dists, series = pack_disturbances(dist.items)
+    X = pack_state(x0)
     n_sub = int(round(Ts / 0.001))
     err, err_bob = [], []
     for k in range(cmd.shape[1]):
         f = np.ascontiguousarray(cmd[:, k])
-        for b in range(x.shape[0]):
-            for j in range(n_sub):
-                disturbance_at(pp[b], x[b], k * Ts + j * 0.001, codes, dparams, series, held)
-                rk4_step(pp[b], x[b], f[b], held, 0.001, *work, env)
+        advance(pp, X, f, k * Ts, n_sub, 0.001, dists, series)
+        x = unpack_state(X, PA.spins.shape[-1])
         mp.advance(k * Ts, f, n_sub, 0.001, lambda _: None)
         err.append(np.linalg.norm(origin_kinematics(PA, x)[0] - origin_kinematics(PA, mp.x)[0], axis=-1))
         err_bob.append(np.linalg.norm(x[:, PEND_R] - mp.x[:, PEND_R], axis=-1))

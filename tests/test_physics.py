@@ -13,7 +13,6 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 from vtol_impedance import Controller
-from vtol_impedance.compiled import controller as kernels
 from vtol_impedance.control import ControllerParams, ImpedanceGains, Measurement, Reference
 from vtol_impedance.model import VehicleParams
 from vtol_impedance.scenarios import get, set_value, simulate
@@ -68,9 +67,8 @@ def hold_command(ctrl, u, tau_B):
     if ctrl.backend == "numpy":
         ctrl.state = ctrl.state._replace(thrust_prev=np.asarray(u, float), tau_B_prev=np.asarray(tau_B, float))
     else:
-        i = kernels.thrust_prev_index(ctrl.arrays.est.Ad.shape[-1])
-        ctrl._cs[0, i] = u
-        ctrl._cs[0, i + 1 : i + 4] = tau_B
+        ctrl._s["thrust_prev"][0] = u
+        ctrl._s["tau_B_prev"][0] = tau_B
 
 
 def fly_estimator(backend, f_ext_W, tau_ext_B, omega0, T=3.0):

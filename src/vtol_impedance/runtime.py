@@ -87,7 +87,8 @@ class Controller:
     eta_dot]`` and ``r = [p_d, v_d, a_d, psi_d, psi_dot_d, psi_ddot_d]`` (float64, shape ``(12,)``, or
     ``(15,)`` or ``(18,)`` with the comply fractions of the world axes, or of the world axes and the Euler
     angles, appended) in, a flat
-    output row out (layout ``vtol_impedance.compiled.controller.O_*``), one compiled call.
+    output record out (:data:`vtol_impedance.compiled.layouts.OUTPUT`, fields named as :class:`ControlOutput`),
+    one compiled call.
 
     The controller keeps what it learnt in flight (the wrench estimate, the attitude filter, the PID
     integral, the last command); :meth:`reset` forgets it. Call it before every new flight.
@@ -111,9 +112,9 @@ class Controller:
 
             batch = self.arrays if self.arrays.batch_shape else compile_controllers([params])  # type: ignore[list-item]
             self._k = kernels
-            self._cp, self._sh = kernels.pack_controller(batch)
+            self._p, self._d = kernels.pack_controller(batch)
             self._nr = batch.E.shape[-1]
-            self._out = np.zeros((self._cp.shape[0], kernels.out_size(self._nr)))
+            self._out = kernels.new_output(self._p.shape[0])
         self.reset()
 
     @property
@@ -128,24 +129,26 @@ class Controller:
         self.state = initial_controller_state(self.arrays)
         self._warned: set[str] = set()
         if self.backend == "compiled":
-            self._cs = self._k.initial_state(self._cp, self._sh)
+            self._s, self._h = self._k.initial_state(self._p, self._d)
 
-    def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.ndarray:
+    def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.void:
         """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, ``(15,)`` or
         ``(18,)`` (with ``comply`` for x, y, z or for x, y, z, roll, pitch, yaw), C-contiguous float64.
 
-        Returns the output row (a view, overwritten by the next call). Raises :class:`InputError` on a
-        wrong type, dtype, shape or a non-finite value, and :class:`SingularityError` at theta = +-90 deg.
+        Returns the output record (:data:`vtol_impedance.compiled.layouts.OUTPUT`: ``out["f_rotor"][:n]``,
+        ``out["f_hat_W"]``, ``out["thrust"]``, ...; a view, overwritten by the next call). Raises
+        :class:`InputError` on a wrong type, dtype, shape or a non-finite value, and
+        :class:`SingularityError` at theta = +-90 deg.
         """
         if self.backend != "compiled":
             raise InputError("step_arrays needs backend='compiled'")
-        if type(vehicle) is not int or not 0 <= vehicle < self._cp.shape[0]:
-            raise InputError(f"step_arrays: vehicle must be an int in [0, {self._cp.shape[0]}), got {vehicle!r}")
-        out = self._out[vehicle]
+        if type(vehicle) is not int or not 0 <= vehicle < self._p.shape[0]:
+            raise InputError(f"step_arrays: vehicle must be an int in [0, {self._p.shape[0]}), got {vehicle!r}")
         try:  # the kernel's signature checks type, dtype and layout at dispatch, at no cost when right
-            status = self._k.checked_step(self._cp[vehicle], self._sh, self._cs[vehicle], y, r, out)
+            status = self._k.checked_step(self._p, self._d, self._s, self._h, vehicle, y, r, self._out)
         except TypeError:
             status = 3
+        out = self._out[vehicle]
         if status:
             if status == 3:
                 raise InputError(
@@ -237,7 +240,7 @@ class Controller:
 
     def _step_compiled(self, meas: Measurement, ref: Reference, bs: tuple[int, ...]) -> ControlOutput:
         k = self._k
-        B = self._cp.shape[0]
+        B = self._p.shape[0]
         y = np.concatenate([np.broadcast_to(v, bs + (3,)).reshape(B, 3) for v in meas[:4]], -1)
         r = np.concatenate(
             [
@@ -250,29 +253,11 @@ class Controller:
             -1,
         )
         for b in range(B):
-            k.controller_step(self._cp[b], self._sh, self._cs[b], y[b], np.ascontiguousarray(r[b]), self._out[b])
-        o = self._out.reshape(bs + (self._out.shape[-1],)).copy()
-
-        def sl(i: int, n: int) -> np.ndarray:
-            return o[..., i : i + n]
-
-        return ControlOutput(
-            thrust=o[..., k.O_THRUST],
-            tau_B=sl(k.O_TAU, 3),
-            f_rotor=sl(k.O_F, self._nr),
-            saturated=o[..., k.O_SAT] > 0.5,
-            thrust_request=o[..., k.O_THRUST_REQ],
-            tau_B_request=sl(k.O_TAU_REQ, 3),
-            f_hat_W=sl(k.O_FHAT, 3),
-            tau_hat_eta=sl(k.O_TAUHAT_ETA, 3),
-            tau_hat_B=sl(k.O_TAUHAT_B, 3),
-            eta_d=sl(k.O_ETA_D, 3),
-            eta_d_dot=sl(k.O_ETA_D_DOT, 3),
-            mu_bar=sl(k.O_MU_BAR, 3),
-            tilt_limited=o[..., k.O_TILT] > 0.5,
-            rp_scale=o[..., k.O_RP],
-            yaw_scale=o[..., k.O_YAW],
-        )
+            k.step_one(self._p, self._d, self._s, self._h, b, y[b], np.ascontiguousarray(r[b]), self._out)
+        o = self._out.reshape(bs)
+        fields = {name: o[name].copy() for name in ControlOutput._fields}
+        fields["f_rotor"] = fields["f_rotor"][..., : self._nr]
+        return ControlOutput(**fields)
 
 
 class EstimatorOutput(NamedTuple):
@@ -325,7 +310,7 @@ class Estimator:
             from .compiled import estimator as kernels
 
             self._k = kernels
-            self._sh = kernels.pack_design(self.design)
+            self._d = kernels.pack_design(self.design)
             self._I = tuple(float(v) for v in self.I_B.ravel())
             self._out = np.zeros(9)
         self.reset()
@@ -338,7 +323,7 @@ class Estimator:
         """Start afresh: the next sample fills the history with its command and returns a zero estimate."""
         self._fresh = True
         if self.backend == "compiled":
-            self._cs = np.zeros(int(self._k.state_length(self._sh)))
+            self._s, self._h = self._k.initial_state(self._d, 1)
         else:
             self._state = estimator_initial_state(self.design)
 
@@ -369,8 +354,8 @@ class Estimator:
         tau = np.zeros(3) if no_moment else _plausible("tau_B_prev", as_finite("tau_B_prev", tau_B_prev, (3,)), 1e6)
         if self.backend == "compiled":
             o = self._out
-            self._k.estimator_sample(
-                self._sh, self._cs, self.mass, self._I, np.ascontiguousarray(v_W, dtype=float),
+            self._k.sample_one(
+                self._d, self._s, self._h, self.mass, self._I, np.ascontiguousarray(v_W, dtype=float),
                 np.ascontiguousarray(eta, dtype=float), np.ascontiguousarray(eta_dot, dtype=float), u,
                 np.ascontiguousarray(tau, dtype=float), self._fresh, o,
             )  # fmt: skip

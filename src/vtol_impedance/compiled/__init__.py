@@ -21,9 +21,7 @@ _SOURCES = (
     *sorted(_HERE.glob("*.py")),
     _HERE.parent / "conventions.py",
     _HERE.parent / "model" / "vehicle.py",  # MAX_ROTORS
-    _HERE.parent / "sim" / "result.py",
-    _HERE.parent / "sim" / "disturbances.py",
-    _HERE.parent / "sim" / "loop.py",  # CRASH_DEPTH_M
+    _HERE.parent / "records.py",  # LOG_ROW, failure limits
 )
 
 

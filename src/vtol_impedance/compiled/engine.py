@@ -1,10 +1,10 @@
 """Compiled closed loop: one ``prange`` iteration per vehicle, time in blocks driven from Python.
 
 Per control period it does exactly what :func:`vtol_impedance.sim.loop.run_closed_loop` does with the
-NumPy backend (read delayed noisy sensors, controller step, log, hold the rotor command for
-``n_sub`` RK4 plant steps, check for divergence), using the kernels of :mod:`.controller` and
-:mod:`.plant`. Randomness is drawn outside, in NumPy, and passed in per block, so both backends
-consume the same numbers.
+NumPy backend (read delayed noisy sensors, controller step, log, hold the rotor command for ``n_sub``
+RK4 plant steps, check for divergence), using the kernels of :mod:`.controller` and :mod:`.plant`.
+Randomness is drawn outside, in NumPy, and passed in per block, so both backends consume the same
+numbers. Data layouts are those of :mod:`.layouts`; the log rows are :data:`vtol_impedance.records.LOG_ROW`.
 """
 
 from __future__ import annotations
@@ -14,257 +14,231 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..sim.loop import CRASH_DEPTH_M
-from ..sim.result import ROW_BASE
-from ..sim.result import SIGNAL_OFFSETS as _OFF
+from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, MAX_DISTANCE_M, MAX_TILT_RAD
 from .algebra import _Q9, _solve9
-from .controller import (
-    O_ETA_D,
-    O_F,
-    O_FHAT,
-    O_RP,
-    O_SAT,
-    O_TAU,
-    O_TAU_REQ,
-    O_TAUHAT_B,
-    O_TAUHAT_ETA,
-    O_THRUST,
-    O_THRUST_REQ,
-    O_TILT,
-    O_YAW,
-    OUT_SIZE,
-    controller_step,
-)
+from .controller import controller_step
+from .layouts import OUTPUT, STATE
 from .plant import (
-    PP_GROUND,
-    PP_NR,
-    PP_ROT,
-    PP_TDN,
-    PP_TUP,
     _origin,
     _R_of,
     disturbance_at,
-    euler_from_R,
+    euler_of,
     lowest_contact_depth,
     lumped_wrench,
-    origin_kinematics,
     plant_derivative,
-    quat_to_R,
     rk4_step,
 )
 
-# failure codes (see REASONS)
-FAIL_NONE, FAIL_NAN, FAIL_TILT, FAIL_FAR, FAIL_CRASH = 0, 1, 2, 3, 4
-# metric accumulators per vehicle
-A_N, A_E2, A_EMAX, A_EV2, A_F2, A_T2, A_SAT, A_NT, A_ET = 0, 1, 2, 3, 4, 5, 6, 7, 8
-N_ACC = 9
-
-_P, _V, _ETA, _OM = _OFF["p_W"][0], _OFF["v_W"][0], _OFF["eta"][0], _OFF["omega_B"][0]
-_PR, _VR, _PSIR = _OFF["p_ref_W"][0], _OFF["v_ref_W"][0], _OFF["psi_ref"][0]
-_PM, _VM, _ETAM, _ETAD = _OFF["p_meas_W"][0], _OFF["v_meas_W"][0], _OFF["eta_meas"][0], _OFF["eta_d"][0]
-_TREQ, _TAUREQ, _THR, _TAU = _OFF["thrust_request"][0], _OFF["tau_B_request"][0], _OFF["thrust"][0], _OFF["tau_B"][0]
-_SAT, _TILT, _RPS, _YAWS = _OFF["saturated"][0], _OFF["tilt_limited"][0], _OFF["rp_scale"][0], _OFF["yaw_scale"][0]
-_FEXT, _TEXTB, _TEXTE = _OFF["f_ext_W"][0], _OFF["tau_ext_B"][0], _OFF["tau_ext_eta"][0]
-_FL, _TL = _OFF["f_lumped_W"][0], _OFF["tau_lumped_eta"][0]
-_FH, _THE, _THB = _OFF["f_hat_W"][0], _OFF["tau_hat_eta"][0], _OFF["tau_hat_B"][0]
+_COS_TILT_MAX = math.cos(MAX_TILT_RAD)
 
 
 @njit(cache=True)
 def _ago(hist, count, head, k):
+    """The state ``k`` plant steps ago (the oldest kept when fewer are)."""
     H = hist.shape[0]
-    kk = min(k, count - 1)
-    return hist[(head - kk) % H]
+    return hist[(head - min(k, count - 1)) % H]
+
+
+@njit(cache=True, inline="always")
+def _measure(pp, xm, xi, sigma, noise, y):
+    """Sensors, as :class:`vtol_impedance.sim.sensors.SensorSuite`: the body origin's position and velocity
+    from the motion-capture state ``xm``, attitude and gyro from the IMU state ``xi``, with noise; Euler
+    rates from the noisy gyro. Euler angles are computed here, once per control period."""
+    o = _origin(pp, xm, _R_of(xm.q_WB))
+    phi, theta, psi = euler_of(_R_of(xi.q_WB))
+    y[6] = phi + sigma[2] * noise[6]
+    y[7] = theta + sigma[2] * noise[7]
+    y[8] = psi + sigma[2] * noise[8]
+    w = xi.omega_B
+    ed = _solve9(_Q9(y[6], y[7]), w[0] + sigma[3] * noise[9], w[1] + sigma[3] * noise[10], w[2] + sigma[3] * noise[11])
+    for i in range(3):
+        y[i] = o[i] + sigma[0] * noise[i]
+        y[3 + i] = o[3 + i] + sigma[1] * noise[3 + i]
+        y[9 + i] = ed[i]
+
+
+@njit(cache=True, inline="always")
+def _log(row, pp, x, r, y, o, env, eta, f_l, t_l, p_o, v_o):
+    """One :data:`~vtol_impedance.records.LOG_ROW`."""
+    Q = _Q9(eta[0], eta[1])
+    for i in range(3):
+        row.p_W[i] = p_o[i]
+        row.v_W[i] = v_o[i]
+        row.eta[i] = eta[i]
+        row.omega_B[i] = x.omega_B[i]
+        row.p_ref_W[i] = r[i]
+        row.v_ref_W[i] = r[3 + i]
+        row.p_meas_W[i] = y[i]
+        row.v_meas_W[i] = y[3 + i]
+        row.eta_meas[i] = y[6 + i]
+        row.eta_d[i] = o.eta_d[i]
+        row.tau_B_request[i] = o.tau_B_request[i]
+        row.tau_B[i] = o.tau_B[i]
+        row.f_ext_W[i] = env[i]
+        row.tau_ext_B[i] = env[3 + i]
+        row.tau_ext_eta[i] = Q[i] * env[3] + Q[3 + i] * env[4] + Q[6 + i] * env[5]  # Q^T tau_ext_B
+        row.f_lumped_W[i] = f_l[i]
+        row.tau_lumped_eta[i] = t_l[i]
+        row.f_hat_W[i] = o.f_hat_W[i]
+        row.tau_hat_eta[i] = o.tau_hat_eta[i]
+        row.tau_hat_B[i] = o.tau_hat_B[i]
+    row.psi_ref = r[9]
+    row.thrust_request = o.thrust_request
+    row.thrust = o.thrust
+    row.saturated = 1.0 if o.saturated else 0.0
+    row.tilt_limited = 1.0 if o.tilt_limited else 0.0
+    row.rp_scale = o.rp_scale
+    row.yaw_scale = o.yaw_scale
+    for i in range(pp.n_rotors):
+        row.f_rotor_cmd[i] = o.f_rotor[i]
+        row.f_rotor[i] = x.f_rotor[i]
+
+
+@njit(cache=True, inline="always")
+def _accumulate(a, t, win, p_o, v_o, r, o, f_l, t_l):
+    """Running sums of the window metrics (:data:`~.layouts.ACCUMULATORS`), as ``analysis.metrics``."""
+    e2 = ev2 = fe2 = te2 = 0.0
+    for i in range(3):
+        e2 += (p_o[i] - r[i]) ** 2
+        ev2 += (v_o[i] - r[3 + i]) ** 2
+        fe2 += (o.f_hat_W[i] - f_l[i]) ** 2
+        te2 += (o.tau_hat_eta[i] - t_l[i]) ** 2
+    a.n += 1.0
+    a.e2 += e2
+    a.e_max = max(a.e_max, math.sqrt(e2))
+    a.ev2 += ev2
+    a.f2 += fe2
+    a.t2 += te2
+    a.sat += 1.0 if (o.saturated or o.tilt_limited) else 0.0
+    if t >= win[2]:
+        a.n_tail += 1.0
+        a.e_tail += math.sqrt(e2)
+
+
+@njit(cache=True, inline="always")
+def _failure(pp, x):
+    """Why the vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop._check_vehicles`."""
+    s = 0.0
+    for i in range(3):
+        s += x.p_com_W[i] + x.v_com_W[i] + x.omega_B[i] + x.r_pend_W[i] + x.v_pend_W[i]
+    for i in range(4):
+        s += x.q_WB[i]
+    for i in range(pp.n_rotors):
+        s += x.f_rotor[i]
+    if not math.isfinite(s):
+        return FAIL_NAN
+    R = _R_of(x.q_WB)
+    p = x.p_com_W
+    if R[8] < _COS_TILT_MAX:
+        return FAIL_TILT
+    if math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) > MAX_DISTANCE_M:
+        return FAIL_FAR
+    if pp.ground > 0 and lowest_contact_depth(pp, x) > CRASH_DEPTH_M:
+        return FAIL_CRASH
+    return 0
 
 
 @njit(cache=True, parallel=True)
-def run_block(
-    k0,
-    k1,
-    Ts,
-    dt,
-    n_sub,
-    X,
-    hist,
-    hcount,
-    hhead,
-    k_mocap,
-    k_imu,
-    sigma,
-    noise,
-    CS,
-    cp,
-    sh,
-    pp,
-    codes,
-    dparams,
-    series,
-    refs,
-    alive,
-    fail_time,
-    fail_code,
-    x_park,
-    logs,
-    dec,
-    acc,
-    win,
-    thrust_idx,
-):
+def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp, dists,
+              series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Advance every live vehicle from control tick ``k0`` to ``k1``.
 
-    ``logs (B, n_log, W)`` gets row ``k // dec`` when ``dec > 0`` and ``k % dec == 0``; ``acc`` collects the
-    window metrics (``win = [t0, t1, tail_start]``).
+    ``X (B,)``: plant states; ``hist (B, H)``, ``hcount``, ``hhead``: each vehicle's ring of past states for
+    the sensor delays; ``S (B,)``, ``EH (B, H_est)``: controller states and timing histories; ``p (B,)``,
+    ``d (1,)``, ``pp (B,)``: controllers, shared design, plants; ``dists (D,)``, ``series``: disturbances;
+    ``refs (N, 18)``: reference samples. ``logs (B, n_log)`` gets row ``k // dec`` when ``dec > 0`` and
+    ``k % dec == 0``; ``acc (B,)`` collects the window metrics (``win = [t0, t1, tail_start]``).
     """
-    B = X.shape[0]
-    for b in prange(B):
-        if not alive[b]:
-            continue
-        x = X[b]
-        pp_b = pp[b]
-        cp_b = cp[b]
-        cs_b = CS[b]
-        hist_b = hist[b]
-        y = np.empty(12)
-        o = np.empty(OUT_SIZE)
-        R = np.empty((3, 3))
-        p_o = np.empty(3)
-        v_o = np.empty(3)
-        eta = np.empty(3)
-        ns = x.shape[0]
-        nr = int(pp_b[PP_NR])
-        xd = np.empty(ns)
-        env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
-        env_w = np.empty(6)  # scratch for the RK4 stages
-        dist = np.empty(6)  # explicit disturbances, held over each plant step
-        f_l = np.empty(3)
-        t_l = np.empty(3)
-        tau_prev = np.empty(3)
-        fcmd = np.empty(nr)
-        w1, w2, w3, w4, wt = np.empty(ns), np.empty(ns), np.empty(ns), np.empty(ns), np.empty(ns)
-        i_thr = thrust_idx
-        up_now, down_now = pp_b[PP_TUP] <= 0, pp_b[PP_TDN] <= 0  # directions without lag
-        for k in range(k0, k1):
-            t = k * Ts
-            # sensors: delayed state, noise drawn outside
-            xm = _ago(hist_b, hcount[b], hhead[b], k_mocap)
-            om_ = _origin(pp_b, xm, _R_of(xm, 6))
-            xi = _ago(hist_b, hcount[b], hhead[b], k_imu)
-            Ri = _R_of(xi, 6)
-            j = k - k0
-            y[6] = math.atan2(Ri[7], Ri[8]) + sigma[2] * noise[b, j, 6]
-            y[7] = -math.asin(min(max(Ri[6], -1.0), 1.0)) + sigma[2] * noise[b, j, 7]
-            y[8] = math.atan2(Ri[3], Ri[0]) + sigma[2] * noise[b, j, 8]
-            ed = _solve9(
-                _Q9(y[6], y[7]),
-                xi[10] + sigma[3] * noise[b, j, 9],
-                xi[11] + sigma[3] * noise[b, j, 10],
-                xi[12] + sigma[3] * noise[b, j, 11],
-            )
-            for i in range(3):
-                y[9 + i] = ed[i]
-                y[i] = om_[i] + sigma[0] * noise[b, j, i]
-                y[3 + i] = om_[3 + i] + sigma[1] * noise[b, j, 3 + i]
-            u_prev = CS[b, i_thr]
-            for i in range(3):
-                tau_prev[i] = CS[b, i_thr + 1 + i]
-            r = refs[k]
-            controller_step(cp_b, sh, cs_b, y, r, o)
+    for b in prange(X.shape[0]):
+        if alive[b]:  # records are handled in a function of their own: numba's parallel body mishandles them
+            _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp,
+                 dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win)  # fmt: skip
+
+
+@njit(cache=True)
+def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp, dists,
+         series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
+    """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
+    x, pp_b, p_b, s_b, h_b, des = X[b], pp[b], p[b], S[b], EH[b], d[0]
+    nr = pp_b.n_rotors
+    o_, work = _scratch()
+    o, xd = o_[0], work[5]
+    y = np.empty(12)
+    env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
+    env_w = np.empty(6)  # scratch for the RK4 stages
+    dist = np.empty(6)  # explicit disturbances, held over each plant step
+    f_l = np.empty(3)
+    t_l = np.empty(3)
+    tau_prev = np.empty(3)
+    up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0  # directions without lag
+    H = hist.shape[1]
+    for k in range(k0, k1):
+        t = k * Ts
+        j = k - k0
+        _measure(pp_b, _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu),
+                 sigma, noise[b, j], y)  # fmt: skip
+        u_prev = s_b.thrust_prev
+        for i in range(3):
+            tau_prev[i] = s_b.tau_B_prev[i]
+        r = refs[k]
+        controller_step(p_b, des, s_b, h_b, y, r, o)
+        f_cmd = o.f_rotor
+
+        # true and lumped wrenches at t_k
+        disturbance_at(pp_b, x, t, dists, series, dist)
+        plant_derivative(pp_b, x, f_cmd, dist, xd, env)
+        R = _R_of(x.q_WB)
+        eta = euler_of(R)
+        lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, p_b.mass, _nominal_inertia(p_b), f_l, t_l)
+        po = _origin(pp_b, x, R)
+        p_o, v_o = (po[0], po[1], po[2]), (po[3], po[4], po[5])
+        if win[0] <= t <= win[1]:
+            _accumulate(acc[b], t, win, p_o, v_o, r, o, f_l, t_l)
+        if dec > 0 and k % dec == 0:
+            _log(logs[b, k // dec], pp_b, x, r, y, o, env, eta, f_l, t_l, p_o, v_o)
+
+        # hold the command over the period
+        if up_now or down_now:  # a rotor follows its command at once in a direction without lag
             for i in range(nr):
-                fcmd[i] = o[O_F + i]
+                g = min(max(f_cmd[i], pp_b.f_min[i]), pp_b.f_max[i])
+                if (up_now and g > x.f_rotor[i]) or (down_now and g < x.f_rotor[i]):
+                    x.f_rotor[i] = g
+        for js in range(n_sub):
+            disturbance_at(pp_b, x, t + js * dt, dists, series, dist)
+            rk4_step(pp_b, x, f_cmd, dist, dt, work, env_w)
+            hhead[b] = (hhead[b] + 1) % H
+            hist[b, hhead[b]] = x
+            hcount[b] = min(hcount[b] + 1, H)
 
-            # true and lumped wrenches at t_k
-            disturbance_at(pp_b, x, t, codes, dparams, series, dist)
-            plant_derivative(pp_b, x, fcmd, dist, xd, env)
-            quat_to_R(x[6:10], R)
-            euler_from_R(R, eta)
-            lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, cp_b[0], cp_b, f_l, t_l)
-            origin_kinematics(pp_b, x, R, p_o, v_o)
+        code = _failure(pp_b, x)
+        if code != 0:
+            alive[b] = False
+            fail_code[b] = code
+            fail_time[b] = t + Ts
+            X[b] = x_park[b]
+            return
 
-            if win[0] <= t <= win[1]:
-                e2 = 0.0
-                ev2 = 0.0
-                fe2 = 0.0
-                te2 = 0.0
-                for i in range(3):
-                    e2 += (p_o[i] - r[i]) ** 2
-                    ev2 += (v_o[i] - r[3 + i]) ** 2
-                    fe2 += (o[O_FHAT + i] - f_l[i]) ** 2
-                    te2 += (o[O_TAUHAT_ETA + i] - t_l[i]) ** 2
-                acc[b, A_N] += 1.0
-                acc[b, A_E2] += e2
-                acc[b, A_EMAX] = max(acc[b, A_EMAX], math.sqrt(e2))
-                acc[b, A_EV2] += ev2
-                acc[b, A_F2] += fe2
-                acc[b, A_T2] += te2
-                acc[b, A_SAT] += max(o[O_SAT], o[O_TILT])
-                if t >= win[2]:
-                    acc[b, A_NT] += 1.0
-                    acc[b, A_ET] += math.sqrt(e2)
 
-            if dec > 0 and k % dec == 0:
-                row = logs[b, k // dec]
-                Q2 = _Q9(eta[0], eta[1])
-                for i in range(3):
-                    row[_P + i] = p_o[i]
-                    row[_V + i] = v_o[i]
-                    row[_ETA + i] = eta[i]
-                    row[_OM + i] = x[10 + i]
-                    row[_PR + i] = r[i]
-                    row[_VR + i] = r[3 + i]
-                    row[_PM + i] = y[i]
-                    row[_VM + i] = y[3 + i]
-                    row[_ETAM + i] = y[6 + i]
-                    row[_ETAD + i] = o[O_ETA_D + i]
-                    row[_TAUREQ + i] = o[O_TAU_REQ + i]
-                    row[_TAU + i] = o[O_TAU + i]
-                    row[_FEXT + i] = env[i]
-                    row[_TEXTB + i] = env[3 + i]
-                    row[_TEXTE + i] = Q2[i] * env[3] + Q2[3 + i] * env[4] + Q2[6 + i] * env[5]
-                    row[_FL + i] = f_l[i]
-                    row[_TL + i] = t_l[i]
-                    row[_FH + i] = o[O_FHAT + i]
-                    row[_THE + i] = o[O_TAUHAT_ETA + i]
-                    row[_THB + i] = o[O_TAUHAT_B + i]
-                row[_PSIR] = r[9]
-                row[_TREQ] = o[O_THRUST_REQ]
-                row[_THR] = o[O_THRUST]
-                row[_SAT] = o[O_SAT]
-                row[_TILT] = o[O_TILT]
-                row[_RPS] = o[O_RP]
-                row[_YAWS] = o[O_YAW]
-                for i in range(nr):
-                    row[ROW_BASE + i] = fcmd[i]
-                    row[ROW_BASE + nr + i] = x[13 + i]
+@njit(cache=True)
+def _scratch():
+    """A zeroed output and six state records (the RK4 slopes and stage, the derivative)."""
+    return np.zeros(1, dtype=OUTPUT), np.zeros(6, dtype=STATE)
 
-            # hold the command over the period
-            if up_now or down_now:  # a rotor follows its command at once in a direction without lag
-                for i in range(nr):
-                    g = min(max(fcmd[i], pp_b[PP_ROT + 4 * nr + i]), pp_b[PP_ROT + 5 * nr + i])
-                    if (up_now and g > x[13 + i]) or (down_now and g < x[13 + i]):
-                        x[13 + i] = g
-            for j in range(n_sub):
-                disturbance_at(pp_b, x, t + j * dt, codes, dparams, series, dist)
-                rk4_step(pp_b, x, fcmd, dist, dt, w1, w2, w3, w4, wt, env_w)
-                H = hist.shape[1]
-                hhead[b] = (hhead[b] + 1) % H
-                hist[b, hhead[b]] = x
-                hcount[b] = min(hcount[b] + 1, H)
 
-            # divergence check, as sim.loop._check_vehicles
-            code = FAIL_NONE
-            for i in range(ns):
-                if not math.isfinite(x[i]):
-                    code = FAIL_NAN
-            if code == FAIL_NONE:
-                quat_to_R(x[6:10], R)
-                if math.acos(min(max(R[2, 2], -1.0), 1.0)) > 80.0 * math.pi / 180.0:
-                    code = FAIL_TILT
-                elif math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) > 1e3:
-                    code = FAIL_FAR
-                elif pp_b[PP_GROUND] > 0 and lowest_contact_depth(pp_b, x) > CRASH_DEPTH_M:
-                    code = FAIL_CRASH
-            if code != FAIL_NONE:
-                alive[b] = False
-                fail_code[b] = code
-                fail_time[b] = t + Ts
-                x[:] = x_park[b]
-                break
+@njit(cache=True, inline="always")
+def _nominal_inertia(p):
+    I = p.I_B  # noqa: E741
+    return (I[0, 0], I[0, 1], I[0, 2], I[1, 0], I[1, 1], I[1, 2], I[2, 0], I[2, 1], I[2, 2])
+
+
+@njit(cache=True)
+def advance(pp, X, f_cmd, t0, n_sub, dt, dists, series):
+    """Every vehicle's plant ``X (B,)`` over ``n_sub`` RK4 steps from ``t0`` with the rotor commands
+    ``f_cmd (B, n)`` held (open loop: a replay, another simulator's controller)."""
+    o_, work = _scratch()
+    dist = np.empty(6)
+    env = np.empty(6)
+    for b in range(X.shape[0]):
+        for j in range(n_sub):
+            disturbance_at(pp[b], X[b], t0 + j * dt, dists, series, dist)
+            rk4_step(pp[b], X[b], f_cmd[b], dist, dt, work, env)

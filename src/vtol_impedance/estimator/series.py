@@ -33,6 +33,7 @@ def momentum_residual(
     I_B: np.ndarray,
     Ts: float,
     des: EstimatorDesign | None = None,
+    restart: np.ndarray | None = None,
 ) -> np.ndarray:
     """``w_bar (N, 6)``: the mean external wrench ``[f_ext_W; tau_ext_eta]`` over each period.
 
@@ -41,8 +42,14 @@ def momentum_residual(
     ``w_bar_0 = 0`` (no previous sample). With a design ``des`` whose timing is set (velocity and attitude
     delays, rotor model), the commands pass through the rotor model and each channel is evaluated on its
     own window, exactly as :func:`~vtol_impedance.estimator.momentum.estimator_step` does (before the
-    first sample the history holds the first sample).
+    first sample the history holds the first sample). Where ``restart[k]`` is true (after a gap) a new
+    segment starts, with nothing carried over from the one before.
     """
+    if restart is not None and np.any(restart[1:]):
+        w = np.zeros((len(v_W), 6))
+        for seg in _segments(np.asarray(restart)):
+            w[seg] = momentum_residual(v_W[seg], eta[seg], eta_dot[seg], thrust[seg], tau_B[seg], mass, I_B, Ts, des)
+        return w
     m = np.asarray(mass, dtype=float)
     q = generalized_momentum(v_W, eta, eta_dot, m, I_B)
     w = np.zeros(q.shape)

@@ -193,16 +193,13 @@ def estimate(
     tau_in = np.zeros_like(flight.v_W) if tau is None else tau
     w = None
     if backend == "numpy" or zero_phase_too:
-        w = momentum_residual(flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts, des)
+        w = momentum_residual(
+            flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, mass, I_B, flight.Ts, des, flight.restart
+        )
     if backend == "compiled":
-        from ..compiled.estimator import estimate_log, pack_design
+        from ..compiled.estimator import run_log
 
-        out = np.empty((len(flight.t), 9))
-        estimate_log(
-            pack_design(des), mass, np.ascontiguousarray(I_B), np.ascontiguousarray(flight.v_W),
-            np.ascontiguousarray(flight.eta), np.ascontiguousarray(flight.eta_dot), np.ascontiguousarray(thrust),
-            np.ascontiguousarray(tau_in), np.ascontiguousarray(flight.restart), out,
-        )  # fmt: skip
+        out = run_log(des, mass, I_B, flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, flight.restart)
         f_W, tau_eta, tau_B = out[:, :3], out[:, 3:6], out[:, 6:9]
     else:
         r = causal(des, w, flight.restart)

@@ -8,6 +8,7 @@ Forces act at the body origin, in the world frame; moments are in the body frame
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
@@ -24,15 +25,25 @@ Vec3 = tuple[float, float, float]
 #: flight envelope (the strongest small multirotors are rated to about 20 m/s).
 MAX_WIND_M_S = 50.0
 
-#: Codes and parameter-vector length of the compiled encoding (see ``Disturbance.encode``).
-CODE = {"constant": 0, "step": 1, "ramp": 2, "sinusoid": 3, "push": 4, "noise": 5, "fan": 6, "wall": 7}
-ENC_PARAMS = 16
+Encoded = tuple[str, dict[str, Any], "np.ndarray | None"]
 
 
-def _enc(*values: float) -> np.ndarray:
-    out = np.zeros(ENC_PARAMS)
-    out[: len(values)] = values
-    return out
+def pack_disturbances(items: Sequence[Disturbance]) -> tuple[np.ndarray, np.ndarray]:
+    """``(records (D,) of compiled.layouts.DISTURBANCE, series (D, n, 6))`` of prepared disturbances, for the
+    compiled plant (:func:`vtol_impedance.compiled.plant.add_disturbances`)."""
+    from ..compiled.layouts import DISTURBANCE, KIND, fill
+
+    enc = [d.encode() for d in items]
+    out = np.zeros(len(enc), dtype=DISTURBANCE)
+    series = np.zeros((len(enc), max([1] + [len(e[2]) for e in enc if e[2] is not None]), 6))
+    for i, (kind, values, samples) in enumerate(enc):
+        out["kind"][i] = KIND[kind]
+        for name, value in values.items():
+            fill(out[i : i + 1], name, value)
+        if samples is not None:
+            series[i, : len(samples)] = samples
+            out["n_samples"][i] = len(samples)
+    return out, series
 
 
 class Disturbance:
@@ -53,9 +64,10 @@ class Disturbance:
     def __call__(self, t: float, p_W: np.ndarray, v_W: np.ndarray, R_WB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
-    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
-        """``(code, params (ENC_PARAMS,), series (n, 6) or None)`` for the compiled backend
-        (:mod:`vtol_impedance.compiled.plant` evaluates the same formulas)."""
+    def encode(self) -> Encoded:
+        """``(kind, fields, series (n, 6) or None)`` for the compiled backend: the fields of
+        :data:`vtol_impedance.compiled.layouts.DISTURBANCE` this kind uses (:mod:`vtol_impedance.compiled.plant`
+        evaluates the same formulas)."""
         raise NotImplementedError(f"{type(self).__name__} has no compiled form")
 
     def to_dict(self) -> dict[str, Any]:
@@ -92,11 +104,11 @@ class ConstantWrench(Disturbance):
         """Scale of the wrench at time ``t``."""
         return 1.0
 
-    def _timing(self) -> tuple[float, ...]:
-        return ()
+    def _timing(self) -> dict[str, float]:
+        return {}
 
-    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
-        return CODE[self.kind], _enc(*self.force_W, *self.torque_B, *self._timing()), None
+    def encode(self) -> Encoded:
+        return self.kind, {"force_W": self.force_W, "torque_B": self.torque_B, **self._timing()}, None
 
     def __call__(self, t, p_W, v_W, R_WB):
         k = self.profile(t)
@@ -117,8 +129,8 @@ class StepWrench(ConstantWrench):
     def starts_at(self) -> float:
         return float(self.t_on)
 
-    def _timing(self) -> tuple[float, ...]:
-        return (self.t_on, self.t_off)
+    def _timing(self) -> dict[str, float]:
+        return {"t_on": self.t_on, "t_off": self.t_off}
 
 
 @dataclass(frozen=True)
@@ -140,8 +152,8 @@ class RampWrench(ConstantWrench):
     def starts_at(self) -> float:
         return float(self.t_start)
 
-    def _timing(self) -> tuple[float, ...]:
-        return (self.t_start, self.t_end)
+    def _timing(self) -> dict[str, float]:
+        return {"t_on": self.t_start, "t_off": self.t_end}
 
 
 @dataclass(frozen=True)
@@ -163,8 +175,8 @@ class SinusoidWrench(ConstantWrench):
     def starts_at(self) -> float:
         return float(self.t_on)
 
-    def _timing(self) -> tuple[float, ...]:
-        return (self.freq_hz, self.phase, self.t_on)
+    def _timing(self) -> dict[str, float]:
+        return {"freq_hz": self.freq_hz, "phase": self.phase, "t_on": self.t_on}
 
 
 @dataclass(frozen=True)
@@ -183,8 +195,8 @@ class Push(ConstantWrench):
         s = (t - self.t_on) / self.duration
         return float(np.sin(np.pi * s)) if 0.0 <= s <= 1.0 else 0.0
 
-    def _timing(self) -> tuple[float, ...]:
-        return (self.t_on, self.duration)
+    def _timing(self) -> dict[str, float]:
+        return {"t_on": self.t_on, "duration": self.duration}
 
     def starts_at(self) -> float:
         return float(self.t_on)
@@ -227,10 +239,10 @@ class BandLimitedNoise(Disturbance):
         series = unit * np.concatenate([self.force_rms_W, self.torque_rms_B])
         return replace(self, _series=series, _dt=dt)
 
-    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+    def encode(self) -> Encoded:
         if self._series is None:
             raise RuntimeError("BandLimitedNoise used before prepare()")
-        return CODE["noise"], _enc(self._dt), self._series
+        return "series", {"sample_dt": self._dt}, self._series
 
     def __call__(self, t, p_W, v_W, R_WB):
         if self._series is None:
@@ -286,21 +298,21 @@ class FanJet(Disturbance):
         return replace(self, _gust=gust, _dt=dt)
 
     def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
-        params = _enc(
-            *self.position_W,
-            *self.direction_W,
-            self.mean_force,
-            self.ref_distance,
-            self.width,
-            *self.cop_offset_B,
-            self.t_on,
-            self._dt,
-        )
+        fields = {
+            "point_W": self.position_W,
+            "normal_W": self.direction_W,
+            "mean_force": self.mean_force,
+            "ref_distance": self.ref_distance,
+            "width": self.width,
+            "cop_offset_B": self.cop_offset_B,
+            "t_on": self.t_on,
+            "sample_dt": self._dt,
+        }
         series = None
         if self._gust is not None:
             series = np.zeros((len(self._gust), 6))
             series[:, 0] = self._gust
-        return CODE["fan"], params, series
+        return "fan", fields, series
 
     def __call__(self, t, p_W, v_W, R_WB):
         if t < self.t_on:
@@ -346,8 +358,8 @@ class Wind(Disturbance):
                 f"{MAX_WIND_M_S:g} m/s accepted)"
             )
 
-    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
-        return CODE["constant"], _enc(*(self.drag * np.asarray(self.velocity_W)), 0.0, 0.0, 0.0), None
+    def encode(self) -> Encoded:
+        return "constant", {"force_W": self.drag * np.asarray(self.velocity_W)}, None
 
     def __call__(self, t, p_W, v_W, R_WB):
         return _const(p_W, self.drag * np.asarray(self.velocity_W), np.zeros(3))
@@ -399,9 +411,11 @@ class Wall(Disturbance):
                 f"{-g:.3g} m; move the wall to the free side"
             )
 
-    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
-        return CODE["wall"], _enc(*self.position_W, *self.normal_W, self.stiffness, self.damping, self.friction,
-                                  self.radius, self.slip_speed), None  # fmt: skip
+    def encode(self) -> Encoded:
+        fields = {"point_W": self.position_W, "normal_W": self.normal_W, "stiffness": self.stiffness,
+                  "damping": self.damping, "friction": self.friction, "radius": self.radius,
+                  "slip_speed": self.slip_speed}  # fmt: skip
+        return "wall", fields, None
 
     def __call__(self, t, p_W, v_W, R_WB):
         n = np.asarray(self.normal_W)
@@ -540,10 +554,10 @@ class Gust(Disturbance):
         series[:, :3] = self.drag * self.wind_W(np.arange(n) * dt, turb)
         return replace(self, _series=series, _dt=dt)
 
-    def encode(self) -> tuple[int, np.ndarray, np.ndarray | None]:
+    def encode(self) -> Encoded:
         if self._series is None:
             raise RuntimeError("Gust used before prepare()")
-        return CODE["noise"], _enc(self._dt), self._series  # a force series, as BandLimitedNoise
+        return "series", {"sample_dt": self._dt}, self._series  # a force series, as BandLimitedNoise
 
     def __call__(self, t, p_W, v_W, R_WB):
         if self._series is None:

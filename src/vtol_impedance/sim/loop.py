@@ -36,6 +36,19 @@ from ..model.kinematics import (
     euler_rate_matrix_Q_dot,
     quat_to_rotation,
 )
+from ..records import (
+    CRASH_DEPTH_M,
+    FAIL_CRASH,
+    FAIL_FAR,
+    FAIL_NAN,
+    FAIL_TILT,
+    LOG_ROW,
+    MAX_DISTANCE_M,
+    MAX_TILT_RAD,
+    REASONS,
+    SIGNALS,
+    rows_to_data,
+)
 from .disturbances import Disturbance, DisturbanceSet
 from .plant import (
     OMEGA,
@@ -55,31 +68,9 @@ from .plant import (
     rk4_step,
     rotor_wrench,
 )
-from .result import (
-    STEADY_TAIL_S,
-    Result,
-    metrics_row,
-    row_width,
-    rows_to_data,
-    signal_offsets,
-    signal_shape,
-    window_mask_of,
-)
+from .result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
 from .sensors import NoiseSource, SensorParams, SensorSuite
 
-#: A vehicle is stopped and flagged when its tilt exceeds this (the Euler parametrisation fails at 90 deg).
-MAX_TILT_RAD = np.radians(80.0)
-MAX_DISTANCE_M = 1e3
-#: A vehicle one of whose ground contact points (the body origin, the payload) goes this far into the
-#: ground has crashed: the paper's landings compress the ground model by a few millimetres, an impact
-#: at about 2.5 m/s by this much.
-CRASH_DEPTH_M = 0.015
-REASONS = {
-    1: "non-finite state",
-    2: "tilt above 80 deg",
-    3: f"more than {MAX_DISTANCE_M:.0f} m from the origin",
-    4: f"crashed into the ground (a contact point {100 * CRASH_DEPTH_M:.1f} cm into it)",
-}
 #: Bytes of random numbers drawn per block (bounds memory for large batches).
 BLOCK_BYTES = 50_000_000
 #: Control ticks per block of random numbers in the NumPy backend.
@@ -127,7 +118,7 @@ def estimate_run(
     B: int, N: int, n_sub: int, n_rotors: int, dec: int, history: int, n_dist: int, backend: str
 ) -> dict[str, float]:
     """Bytes and plant steps a run will need (the numbers :class:`Limits` are checked against)."""
-    width = row_width(n_rotors)
+    width = LOG_ROW.itemsize // 8
     n_log = N if backend != "compiled" else ((N + dec - 1) // dec if dec else 0)
     mem = 8.0 * (
         B * n_log * width  # traces
@@ -425,7 +416,7 @@ def run_closed_loop(
     if np.any(lift > 0):
         cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
     t_log = t_grid[::dec] if dec else t_grid[:0]
-    data = rows_to_data(rows) if dec else {}
+    data = rows_to_data(rows, PA.spins.shape[-1]) if dec else {}
     for i, m in enumerate(metrics):
         m["controller"] = labels[i]
     return Result(t_log, labels, data, cfg, failures, metrics if dec == 0 else None)
@@ -440,22 +431,20 @@ def _failures(fail_code: np.ndarray, fail_time: np.ndarray) -> list[dict[str, An
 
 def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) -> list[dict[str, Any]]:
     """Per-vehicle metrics from the compiled accumulators (same definitions as analysis.metrics)."""
-    from ..compiled.engine import A_E2, A_EMAX, A_ET, A_EV2, A_F2, A_N, A_NT, A_SAT, A_T2
-
     out = []
     for b in range(acc.shape[0]):
         a = acc[b]
-        n, nt = a[A_N], a[A_NT]
+        n, nt = a["n"], a["n_tail"]
         out.append(
             metrics_row(
                 "",
-                rms_ep=np.sqrt(a[A_E2] / n) if n else np.nan,
-                max_ep=a[A_EMAX] if n else np.nan,
-                ss_ep=a[A_ET] / nt if nt else np.nan,
-                rms_ev=np.sqrt(a[A_EV2] / n) if n else np.nan,
-                rms_f=np.sqrt(a[A_F2] / n) if n else np.nan,
-                rms_tau=np.sqrt(a[A_T2] / n) if n else np.nan,
-                sat=a[A_SAT] / n if n else np.nan,
+                rms_ep=np.sqrt(a["e2"] / n) if n else np.nan,
+                max_ep=a["e_max"] if n else np.nan,
+                ss_ep=a["e_tail"] / nt if nt else np.nan,
+                rms_ev=np.sqrt(a["ev2"] / n) if n else np.nan,
+                rms_f=np.sqrt(a["f2"] / n) if n else np.nan,
+                rms_tau=np.sqrt(a["t2"] / n) if n else np.nan,
+                sat=a["sat"] / n if n else np.nan,
                 failure=failures[b],
             )
         )
@@ -464,68 +453,41 @@ def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) ->
 
 def _run_compiled(s: _Setup, progress: ProgressFn | None):
     from ..compiled.controller import initial_state as ctrl_initial_state
-    from ..compiled.controller import pack_controller, thrust_prev_index
-    from ..compiled.engine import N_ACC, run_block
-    from ..compiled.plant import pack_disturbances, pack_plant
+    from ..compiled.controller import pack_controller
+    from ..compiled.engine import run_block
+    from ..compiled.layouts import ACCUMULATORS
+    from .disturbances import pack_disturbances
+    from .plant import pack_plant, pack_state
 
     B = s.x0.shape[0]
     CA = s.CA
     if CA.batch_shape != (B,):
         raise InputError("the compiled backend needs one controller per vehicle")
-    cp, sh = pack_controller(CA)
+    p, d = pack_controller(CA)
     pp = pack_plant(s.PA)
-    codes, dparams, series = pack_disturbances(s.dist.items)
-    CS = ctrl_initial_state(cp, sh)
+    dists, series = pack_disturbances(s.dist.items)
+    S, EH = ctrl_initial_state(p, d)
     suite = SensorSuite(s.sensors, s.PA, s.dt)
-    H = max(suite.k_mocap, suite.k_imu) + 1
-    hist = np.empty((B, H, s.x0.shape[1]))
-    hist[:, 0] = s.x0
+    X = pack_state(s.x0)
+    x_park = X.copy()
+    hist = np.empty((B, max(suite.k_mocap, suite.k_imu) + 1), dtype=X.dtype)
+    hist[:, 0] = X
     hcount = np.ones(B, dtype=np.int64)
     hhead = np.zeros(B, dtype=np.int64)
-    X = s.x0.copy()
     alive = np.ones(B, dtype=np.bool_)
     fail_time = np.zeros(B)
     fail_code = np.zeros(B, dtype=np.int64)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    logs = np.full((B, n_log, row_width(s.PA.spins.shape[-1])), np.nan)
-    acc = np.zeros((B, N_ACC))
+    logs = np.full((B, n_log), np.nan, dtype=LOG_ROW)
+    acc = np.zeros(B, dtype=ACCUMULATORS)
     win = np.array(s.window)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
     for k0 in range(0, s.N, block):
         k1 = min(k0 + block, s.N)
         noise = s.noise.block(k1 - k0)
-        run_block(
-            k0,
-            k1,
-            s.Ts,
-            s.dt,
-            s.n_sub,
-            X,
-            hist,
-            hcount,
-            hhead,
-            suite.k_mocap,
-            suite.k_imu,
-            suite.sigma,
-            noise,
-            CS,
-            cp,
-            sh,
-            pp,
-            codes,
-            dparams,
-            series,
-            s.refs,
-            alive,
-            fail_time,
-            fail_code,
-            s.x0,
-            logs,
-            s.dec,
-            acc,
-            win,
-            thrust_prev_index(CA.est.Ad.shape[-1]),
-        )
+        run_block(k0, k1, s.Ts, s.dt, s.n_sub, X, hist, hcount, hhead, suite.k_mocap, suite.k_imu, suite.sigma,
+                  noise, S, EH, p, d, pp, dists, series, s.refs, alive, fail_time, fail_code, x_park, logs, s.dec,
+                  acc, win)  # fmt: skip
         if progress is not None:
             progress(k1 / s.N)
     failures = _failures(fail_code, fail_time)
@@ -542,8 +504,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     sens.push(plant.x)
     CS = initial_controller_state(CA)
     n_rotors = PA.spins.shape[-1]
-    logs = np.full((B, s.N, row_width(n_rotors)), np.nan)
-    offsets = signal_offsets(n_rotors)
+    logs = np.full((B, s.N), np.nan, dtype=LOG_ROW)
     alive = np.ones(B, dtype=bool)
     fail_code = np.zeros(B, dtype=np.int64)
     fail_time = np.zeros(B)
@@ -595,10 +556,9 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
             "tau_hat_eta": out.tau_hat_eta,
             "tau_hat_B": out.tau_hat_B,
         }
-        for name, (off, n) in offsets.items():
-            val = np.broadcast_to(np.asarray(row[name], dtype=float), (B,) + signal_shape(name, n_rotors))
-            val = val.reshape(B, n)
-            logs[alive, k, off : off + n] = val[alive]
+        for name in SIGNALS:
+            field = logs[name][:, k, :n_rotors] if "rotors" in SIGNALS[name][0] else logs[name][:, k]
+            field[alive] = np.broadcast_to(np.asarray(row[name], dtype=float), field.shape)[alive]
 
         plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)
 
@@ -617,7 +577,8 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     if s.dec == 0:
         from ..analysis.metrics import compute_metrics
 
-        res = Result(np.arange(s.N) * s.Ts, [""] * B, rows_to_data(logs), {"window": list(s.window[:2])}, failures)
+        data = rows_to_data(logs, n_rotors)
+        res = Result(np.arange(s.N) * s.Ts, [""] * B, data, {"window": list(s.window[:2])}, failures)
         return logs[:, :0], compute_metrics(res), failures
     return logs[:, :: s.dec], [], failures
 
@@ -626,13 +587,13 @@ def _check_vehicles(PA: PlantArrays, x: np.ndarray) -> np.ndarray:
     """Failure code per vehicle (0 when healthy; see :data:`REASONS`)."""
     code = np.zeros(x.shape[0], dtype=np.int64)
     finite = np.all(np.isfinite(x), axis=-1)
-    code[~finite] = 1
+    code[~finite] = FAIL_NAN
     R = quat_to_rotation(np.where(finite[:, None], x[:, 6:10], np.array([1.0, 0, 0, 0])))
     tilt = np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0))
     far = finite & (np.linalg.norm(x[:, 0:3], axis=-1) > MAX_DISTANCE_M)
-    code[finite & (tilt > MAX_TILT_RAD)] = 2
-    code[far & (code == 0)] = 3
+    code[finite & (tilt > MAX_TILT_RAD)] = FAIL_TILT
+    code[far & (code == 0)] = FAIL_FAR
     depth = lowest_contact_depth(PA, np.where(finite[:, None], x, 0.0))
     crash = finite & (np.broadcast_to(PA.ground, code.shape) > 0) & (depth > CRASH_DEPTH_M)
-    code[crash & (code == 0)] = 4
+    code[crash & (code == 0)] = FAIL_CRASH
     return code

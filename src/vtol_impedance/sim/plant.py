@@ -407,3 +407,36 @@ def rk4_step(
     q = xn[..., QUAT]
     xn[..., QUAT] = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return project_pendulum(P, xn)
+
+
+def pack_plant(P: PlantArrays) -> np.ndarray:
+    """Plant records ``(B,)`` of :data:`vtol_impedance.compiled.layouts.PLANT` from arrays with batch shape
+    ``(B,)``; a zero rotor time constant becomes a zero rate (the engine sets that direction at once)."""
+    from ..compiled.layouts import PLANT, pack
+
+    def rate(tau: np.ndarray) -> np.ndarray:
+        return np.where(tau > 0, 1.0 / np.maximum(tau, 1e-12), 0.0)
+
+    return pack(
+        PLANT, P, P.mass.shape[0], inv_mass=1.0 / P.mass, inv_tau_up=rate(P.tau_up), inv_tau_down=rate(P.tau_down),
+        n_rotors=P.spins.shape[-1],
+    )  # fmt: skip
+
+
+def pack_state(x: np.ndarray) -> np.ndarray:
+    """States ``(B,)`` of :data:`vtol_impedance.compiled.layouts.STATE` from flat states ``(B, state_size(n))``."""
+    from ..compiled.layouts import STATE, fill
+
+    out = np.zeros(x.shape[0], dtype=STATE)
+    for name, part in (("p_com_W", P_COM), ("v_com_W", V_COM), ("q_WB", QUAT), ("omega_B", OMEGA),
+                       ("f_rotor", ROTOR), ("r_pend_W", PEND_R), ("v_pend_W", PEND_V)):  # fmt: skip
+        fill(out, name, x[:, part])
+    return out
+
+
+def unpack_state(X: np.ndarray, n_rotors: int) -> np.ndarray:
+    """Flat states ``(B, state_size(n_rotors))`` from :func:`pack_state`'s records."""
+    return np.concatenate(
+        [X["p_com_W"], X["v_com_W"], X["q_WB"], X["omega_B"], X["f_rotor"][:, :n_rotors], X["r_pend_W"],
+         X["v_pend_W"]], -1,
+    )  # fmt: skip

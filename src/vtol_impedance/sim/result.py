@@ -12,50 +12,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import write_with
+from ..records import SIGNALS, rows_to_data, signal_shape
+
+__all__ = ["SIGNALS", "STEADY_TAIL_S", "Result", "metrics_row", "rows_to_data", "signal_shape", "window_mask_of"]
 
 SCHEMA_VERSION = 1
 
 #: Length of the tail of the task window over which the steady-state error is averaged, s.
 STEADY_TAIL_S = 5.0
-
-#: Logged signals: name -> (trailing shape, unit, meaning). All are sampled at the control rate. A shape
-#: ``("rotors",)`` has one value per rotor; those signals come last in a flat log row.
-SIGNALS: dict[str, tuple[tuple[int | str, ...], str, str]] = {
-    "p_W": ((3,), "m", "true position of the body origin, world NED"),
-    "v_W": ((3,), "m/s", "true velocity of the body origin, world NED"),
-    "eta": ((3,), "rad", "true ZYX Euler angles"),
-    "omega_B": ((3,), "rad/s", "true body rate"),
-    "p_ref_W": ((3,), "m", "reference position"),
-    "v_ref_W": ((3,), "m/s", "reference velocity"),
-    "psi_ref": ((), "rad", "reference yaw"),
-    "p_meas_W": ((3,), "m", "measured position"),
-    "v_meas_W": ((3,), "m/s", "measured velocity"),
-    "eta_meas": ((3,), "rad", "measured Euler angles"),
-    "eta_d": ((3,), "rad", "desired (filtered) attitude"),
-    "thrust_request": ((), "N", "thrust asked by eq. (16)"),
-    "tau_B_request": ((3,), "N m", "body torque asked by eq. (14)"),
-    "thrust": ((), "N", "thrust of the allocated rotor forces"),
-    "tau_B": ((3,), "N m", "body torque of the allocated rotor forces"),
-    "saturated": ((), "bool", "allocation gave something up"),
-    "tilt_limited": ((), "bool", "the tilt or lift limit of eq. (16) clamped the desired attitude"),
-    "rp_scale": ((), "1", "share of the requested roll/pitch torque the rotors gave"),
-    "yaw_scale": ((), "1", "share of the requested yaw torque the rotors gave"),
-    "f_ext_W": ((3,), "N", "applied external force at the origin (disturbances, ground, drag), world"),
-    "tau_ext_B": ((3,), "N m", "applied external moment about the origin, body frame"),
-    "tau_ext_eta": ((3,), "N m", "applied external moment in Euler coordinates, Q^T tau_ext_B"),
-    "f_lumped_W": ((3,), "N", "everything the nominal model misses, as a force: the estimator's target"),
-    "tau_lumped_eta": ((3,), "N m", "everything the nominal model misses, Euler coordinates"),
-    "f_hat_W": ((3,), "N", "estimated external force, world"),
-    "tau_hat_eta": ((3,), "N m", "estimated external moment, Euler coordinates"),
-    "tau_hat_B": ((3,), "N m", "estimated external moment, body frame"),
-    "f_rotor_cmd": (("rotors",), "N", "allocated rotor force commands"),
-    "f_rotor": (("rotors",), "N", "true rotor forces (after lag)"),
-}
-
-
-def signal_shape(name: str, n_rotors: int) -> tuple[int, ...]:
-    """Trailing shape of a signal for a vehicle with ``n_rotors`` rotors."""
-    return tuple(n_rotors if d == "rotors" else int(d) for d in SIGNALS[name][0])
 
 
 def window_mask_of(t: np.ndarray, window: tuple[float, float] | None) -> np.ndarray:
@@ -90,40 +54,6 @@ def metrics_row(
         "sat_pct": 100 * float(sat),
         "failure": None if failure is None else f"{failure['reason']} at {failure['time']:.2f} s",
     }
-
-
-def signal_offsets(n_rotors: int) -> dict[str, tuple[int, int]]:
-    """Where each signal sits in a flat log row: name -> (offset, length)."""
-    out, off = {}, 0
-    for name in SIGNALS:
-        k = int(np.prod(signal_shape(name, n_rotors)))
-        out[name] = (off, k)
-        off += k
-    return out
-
-
-def row_width(n_rotors: int) -> int:
-    """Length of a flat log row for a vehicle with ``n_rotors`` rotors."""
-    return sum(k for _, k in signal_offsets(n_rotors).values())
-
-
-#: Offsets of the signals before the per-rotor ones (the same for every vehicle).
-SIGNAL_OFFSETS: dict[str, tuple[int, int]] = {
-    k: v for k, v in signal_offsets(0).items() if "rotors" not in SIGNALS[k][0]
-}
-#: Width of a log row without the per-rotor signals.
-ROW_BASE: int = row_width(0)
-N_ROTOR_SIGNALS = sum("rotors" in SIGNALS[k][0] for k in SIGNALS)
-
-
-def rows_to_data(rows: np.ndarray) -> dict[str, np.ndarray]:
-    """Split flat log rows ``(B, N, row_width(n))`` into named signals ``(B, N, *shape)``."""
-    B, N, W = rows.shape
-    n_rotors = (W - ROW_BASE) // N_ROTOR_SIGNALS
-    data = {}
-    for name, (off, k) in signal_offsets(n_rotors).items():
-        data[name] = rows[:, :, off : off + k].reshape((B, N) + signal_shape(name, n_rotors))
-    return data
 
 
 @dataclass
