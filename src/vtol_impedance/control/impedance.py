@@ -57,6 +57,8 @@ from .thrust import thrust_and_attitude
 #: is designed with the attitude loop for each vehicle (:func:`vtol_impedance.robust.design`).
 ATTITUDE_FILTER_WN = 25.0
 
+#: The controller variants by name, with what each does: ``pd``, ``pid``, ``pdc`` (the paper's PD+C) and
+#: ``comply`` (impedance, per axis reject or yield).
 VARIANTS: dict[str, str] = {
     "pd": "PD (no compensation)",
     "pid": "PID (PD + integral of e_p)",
@@ -246,6 +248,12 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
 
 
 class ControllerState(NamedTuple):
+    """What the batched controllers carry from one period to the next (from
+    :func:`initial_controller_state`, returned by :func:`controller_step`): the estimator's state
+    ``est``, the attitude filter's ``filt``, the PID ``integral`` of ``e_p`` (``(..., 3)``, m s) and the
+    command held over the last period, ``thrust_prev`` (``(...)``, N, as allocated) and ``tau_B_prev``
+    (``(..., 3)``, N m, body FRD)."""
+
     est: EstimatorState
     filt: FilterState
     integral: np.ndarray  # (..., 3) integral of e_p, m s
@@ -254,6 +262,19 @@ class ControllerState(NamedTuple):
 
 
 def initial_controller_state(P: ControllerArrays) -> ControllerState:
+    """The controllers' state before the first period: no estimate, filter not started, zero PID
+    integral, the previous command a hover thrust ``m g`` with zero torque.
+
+    Parameters
+    ----------
+    P : ControllerArrays
+        The controllers' parameters as arrays, from :func:`compile_controllers`.
+
+    Returns
+    -------
+    ControllerState
+        With the batch shape of ``P``; pass it to the first :func:`controller_step`.
+    """
     bs = P.batch_shape
     z2 = np.zeros(bs + (2,))
     return ControllerState(
@@ -438,8 +459,13 @@ def _describe(a: object) -> str:
 class Controller:
     """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
+    >>> import numpy as np
+    >>> from vtol_impedance.control import Controller, ControllerParams, Measurement, Reference
     >>> ctrl = Controller(ControllerParams.paper("pdc"))
+    >>> p_W, v_W, eta, gyro = np.array([0, 0, -1.0]), np.zeros(3), np.zeros(3), np.zeros(3)
     >>> out = ctrl.step(Measurement(p_W, v_W, eta, omega_B=gyro), Reference(np.array([0, 0, -1.0])))
+    >>> round(out.thrust, 2)  # hovering at the reference: the nominal weight, 1.2 kg x 9.81 m/s^2
+    11.77
 
     :meth:`step` validates its inputs (numeric, finite, shape ``(3,)`` or the batch's ``(B, 3)``, away from
     the Euler singularity) and returns a :class:`ControlOutput` (plain floats and ``(3,)`` arrays for one
