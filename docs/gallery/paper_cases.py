@@ -19,6 +19,8 @@ from vtol_impedance.analysis import METRIC_COLUMNS, compute_metrics
 from vtol_impedance.scenarios import PAPER_CASES, get, set_value, simulate
 from vtol_impedance.scenarios.spec import PAPER_CONTROL
 
+NAMES = {"pd": "PD", "pid": "PID", "pdc": "PD+C"}
+
 # %%
 # Fly every case with every controller
 # ------------------------------------
@@ -35,7 +37,7 @@ columns = ["rms_ep_cm", "max_ep_cm", "ss_ep_cm"]
 print(f"{'case':<18} {'controller':<10} " + " ".join(f"{METRIC_COLUMNS[c]:>18}" for c in columns))
 for case, r in results.items():
     for label, row in zip(r.labels, compute_metrics(r), strict=True):
-        print(f"{case:<18} {label:<10} " + " ".join(f"{row[c]:>18.2f}" for c in columns))
+        print(f"{case:<18} {NAMES[label]:<10} " + " ".join(f"{row[c]:>18.2f}" for c in columns))
 
 # %%
 # The position error
@@ -47,7 +49,7 @@ for case, r in results.items():
 fig, axes = plt.subplots(1, 3, figsize=(11, 3.4), sharey=True)
 for ax, (case, r) in zip(axes, results.items(), strict=True):
     for b, label in enumerate(r.labels):
-        ax.plot(r.t, 100 * np.linalg.norm(r.e_p[b], axis=-1), label=label)
+        ax.plot(r.t, 100 * np.linalg.norm(r.e_p[b], axis=-1), label=NAMES[label])
     ax.set_title(case)
     ax.set_xlabel("time [s]")
     ax.grid(alpha=0.3)

@@ -18,6 +18,8 @@ import numpy as np
 
 from vtol_impedance.scenarios import get, simulate
 
+NAMES = {"pd": "PD", "pdc": "PD+C (reject)", "comply": "comply"}
+
 spec = get("operator-push")
 print(spec.name, "- interaction:", spec.interaction)
 r = simulate(spec, ["pd", "pdc", "comply"], seed=0)
@@ -30,8 +32,8 @@ r = simulate(spec, ["pd", "pdc", "comply"], seed=0)
 
 fig, (ax_x, ax_f) = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
 for b, label in enumerate(r.labels):
-    ax_x.plot(r.t, 100 * r.e_p[b, :, 0], label=label)
-    print(f"{label:>7}: largest displacement along x {100 * np.abs(r.e_p[b, :, 0]).max():.1f} cm")
+    ax_x.plot(r.t, 100 * r.e_p[b, :, 0], label=NAMES[label])
+    print(f"{NAMES[label]:>13}: largest displacement along x {100 * np.abs(r.e_p[b, :, 0]).max():.1f} cm")
 ax_x.set_ylabel("$x - x_d$ [cm]")
 ax_x.legend()
 b = r.index("comply")
