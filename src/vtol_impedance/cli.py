@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from . import __version__
+
 DEFAULT_OUT = "results"
 
 
@@ -641,6 +643,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Impedance control of VTOL UAVs with a momentum-based wrench estimator "
         "(Ruggiero et al., ICRA 2014): simulate the paper's case studies and your own.",
     )
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:

@@ -24,7 +24,8 @@ E3.setflags(write=False)
 #: z-up conventions of ROS logs and of MuJoCo. Each matrix is its own inverse.
 T_NED_ENU: np.ndarray = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 T_NED_ENU.setflags(write=False)
+#: ``v_FRD = T_FRD_FLU v_FLU``: body Forward-Right-Down from Forward-Left-Up (flip y and z); its own inverse.
 T_FRD_FLU: np.ndarray = np.diag([1.0, -1.0, -1.0])
 T_FRD_FLU.setflags(write=False)
-#: Distance of |cos(theta)| from zero under which the Euler parametrisation is declared singular.
+#: Distance of ``|cos(theta)|`` from zero under which the Euler parametrisation is declared singular.
 SINGULARITY_COS_EPS: float = 1e-3

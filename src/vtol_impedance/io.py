@@ -44,6 +44,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_path`); return the path."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
@@ -60,6 +61,7 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]
 
 # --------------------------------------------------------------------------- run folders
 
+#: Name of the file that binds a run folder: versions, seed and the SHA-256 of every file.
 MANIFEST = "manifest.json"
 _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2
@@ -87,6 +89,7 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def sha256_of(path: Path) -> str:
+    """Hexadecimal SHA-256 of the file at ``path``, read in 1 MiB blocks."""
     import hashlib
 
     h = hashlib.sha256()

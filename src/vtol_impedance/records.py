@@ -63,13 +63,21 @@ def rows_to_data(rows: np.ndarray, n_rotors: int) -> dict[str, np.ndarray]:
 
 #: A vehicle is stopped and flagged when its tilt exceeds this (the Euler parametrisation fails at 90 deg).
 MAX_TILT_RAD = float(np.radians(80.0))
+#: A vehicle this far from the world origin (m) has flown away and is stopped.
 MAX_DISTANCE_M = 1e3
 #: A vehicle one of whose ground contact points (the body origin, the payload) goes this far into the
 #: ground has crashed: the paper's landings compress the ground model by a few millimetres, an impact
 #: at about 2.5 m/s by this much.
 CRASH_DEPTH_M = 0.015
-#: Failure codes (0: flying) and what they mean.
-FAIL_NAN, FAIL_TILT, FAIL_FAR, FAIL_CRASH = 1, 2, 3, 4
+#: Failure code: the state is no longer finite (0: flying).
+FAIL_NAN = 1
+#: Failure code: tilted beyond :data:`MAX_TILT_RAD`.
+FAIL_TILT = 2
+#: Failure code: farther than :data:`MAX_DISTANCE_M` from the origin.
+FAIL_FAR = 3
+#: Failure code: a contact point deeper than :data:`CRASH_DEPTH_M` into the ground.
+FAIL_CRASH = 4
+#: What each failure code means, as results report it.
 REASONS = {
     FAIL_NAN: "non-finite state",
     FAIL_TILT: f"tilt above {np.degrees(MAX_TILT_RAD):.0f} deg",

@@ -78,8 +78,14 @@ def _describe(a: object) -> str:
 class Controller:
     """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
+    >>> import numpy as np
+    >>> from vtol_impedance import Controller
+    >>> from vtol_impedance.control import ControllerParams, Measurement, Reference
     >>> ctrl = Controller(ControllerParams.paper("pdc"))
+    >>> p_W, v_W, eta, gyro = np.array([0, 0, -1.0]), np.zeros(3), np.zeros(3), np.zeros(3)
     >>> out = ctrl.step(Measurement(p_W, v_W, eta, omega_B=gyro), Reference(np.array([0, 0, -1.0])))
+    >>> round(out.thrust, 2)  # hovering at the reference: the nominal weight, 1.2 kg x 9.81 m/s^2
+    11.77
 
     :meth:`step` validates its inputs (numeric, finite, shape ``(3,)`` or the batch's ``(B, 3)``, away from
     the Euler singularity) and returns a :class:`ControlOutput` (plain floats and ``(3,)`` arrays for one
@@ -273,8 +279,13 @@ class Estimator:
     """The momentum-based estimator of eqs. (6)-(13) alone, one sample at a time (an online loop fed by
     telemetry, another simulator): the same kernels as the simulator's controller and ``estimate``.
 
+    >>> import numpy as np
+    >>> from vtol_impedance import Estimator
     >>> est = Estimator(mass=1.0, inertia_B=[0.01, 0.01, 0.02], Ts=0.01)
-    >>> out = est.step(v_W, eta, thrust_prev=9.8, tau_B_prev=np.zeros(3), omega_B=gyro)
+    >>> z = np.zeros(3)
+    >>> out = [est.step(z, z, thrust_prev=9.81 + 1.0, tau_B_prev=z, omega_B=z) for _ in range(300)][-1]
+    >>> np.round(out.f_hat_W, 3)  # held still with 1 N more thrust than weight: the world pushes 1 N down
+    array([0., 0., 1.])
 
     ``thrust_prev`` (N) and ``tau_B_prev`` (N m, body FRD) are the command held over the period that just
     ended; without a torque command (``tau_B_prev=None``) the moment estimate is meaningless and reported

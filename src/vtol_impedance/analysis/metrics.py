@@ -8,6 +8,7 @@ import numpy as np
 
 from ..sim.result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
 
+#: Metric keys of a result's table (``rms_ep_cm``, ...) and the column titles they are printed with.
 METRIC_COLUMNS: dict[str, str] = {
     "rms_ep_cm": "RMS ‖e_p‖ [cm]",
     "max_ep_cm": "max ‖e_p‖ [cm]",

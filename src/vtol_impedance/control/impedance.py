@@ -56,6 +56,8 @@ from .thrust import thrust_and_attitude
 #: is designed with the attitude loop for each vehicle (:func:`vtol_impedance.robust.design`).
 ATTITUDE_FILTER_WN = 25.0
 
+#: The controller variants by name, with what each does: ``pd``, ``pid``, ``pdc`` (the paper's PD+C) and
+#: ``comply`` (impedance, per axis reject or yield).
 VARIANTS: dict[str, str] = {
     "pd": "PD (no compensation)",
     "pid": "PID (PD + integral of e_p)",
@@ -245,6 +247,12 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
 
 
 class ControllerState(NamedTuple):
+    """What the batched controllers carry from one period to the next (from
+    :func:`initial_controller_state`, returned by :func:`controller_step`): the estimator's state
+    ``est``, the attitude filter's ``filt``, the PID ``integral`` of ``e_p`` (``(..., 3)``, m s) and the
+    command held over the last period, ``thrust_prev`` (``(...)``, N, as allocated) and ``tau_B_prev``
+    (``(..., 3)``, N m, body FRD)."""
+
     est: EstimatorState
     filt: FilterState
     integral: np.ndarray  # (..., 3) integral of e_p, m s
@@ -253,6 +261,19 @@ class ControllerState(NamedTuple):
 
 
 def initial_controller_state(P: ControllerArrays) -> ControllerState:
+    """The controllers' state before the first period: no estimate, filter not started, zero PID
+    integral, the previous command a hover thrust ``m g`` with zero torque.
+
+    Parameters
+    ----------
+    P : ControllerArrays
+        The controllers' parameters as arrays, from :func:`compile_controllers`.
+
+    Returns
+    -------
+    ControllerState
+        With the batch shape of ``P``; pass it to the first :func:`controller_step`.
+    """
     bs = P.batch_shape
     z2 = np.zeros(bs + (2,))
     return ControllerState(

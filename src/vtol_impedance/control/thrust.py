@@ -35,10 +35,31 @@ def thrust_and_attitude(
     above ``min_lift_accel`` (the rotors cannot pull down), and the tilt of the thrust vector is bounded
     by ``tilt_max`` by shortening the horizontal part of ``mu_bar``.
 
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (..., 3)
+        ``mu - f_hat_ext_W / m``, the acceleration the thrust must give, world NED, m/s^2.
+    psi_d : ndarray, shape (...)
+        Desired yaw, rad.
+    mass : ndarray, shape (...)
+        Nominal mass, kg.
+    tilt_max : float or ndarray
+        Bound on the tilt of the thrust vector, rad (default 35 deg).
+    min_lift_accel : float or ndarray
+        Lower bound on the vertical part ``g - mu_bar_3``, m/s^2 (default 0.2 g).
+
     Returns
     -------
-    thrust, phi_d, theta_d : ``(...)``
-    limited : ``(...)`` bool, True where either limit acted.
+    thrust : ndarray, shape (...)
+        Collective thrust ``u``, N.
+    phi_d, theta_d : ndarray, shape (...)
+        Desired roll and pitch, rad.
+    limited : ndarray of bool, shape (...)
+        True where either limit acted.
+
+    References
+    ----------
+    Ruggiero et al. 2014, eqs. (16) and (20) (solved in NED; see :doc:`/equations`).
     """
     mu_bar = np.asarray(mu_bar, dtype=float)
     vert = G - mu_bar[..., 2]

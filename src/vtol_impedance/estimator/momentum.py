@@ -86,19 +86,29 @@ class EstimatorParams:
 
     Parameters
     ----------
-    wn : natural frequency (order 2 with ``prototype="zeta"``) or bandwidth of the prototype, rad/s;
+    wn : float or array_like, shape (6,)
+        Natural frequency (order 2 with ``prototype="zeta"``) or bandwidth of the prototype, rad/s;
         a scalar or six values. Paper: 10 rad/s for all six.
-    zeta : damping of eq. (10) (used by ``prototype="zeta"``, order 2). Paper: 1.
-    order : filter order n >= 1.
-    prototype : ``"zeta"`` (order 2, eq. (10)), ``"binomial"`` (n poles at ``-wn``) or ``"butterworth"``.
-    poles : optional explicit poles, shape ``(n,)`` or ``(6, n)``, all with negative real part;
-        complex poles must come in conjugate pairs. Overrides ``wn``/``prototype``.
-    velocity_delay, attitude_delay : age (s) of the velocity and of the attitude and its rates when they
-        reach the estimator; the force channel is evaluated on the velocity's time window and the moment
-        channel on the attitude's (module docstring, "Timing"). 0 (default): taken as simultaneous, as in
-        the paper.
-    rotor_tau : time constant (s) of the first-order rotor model the commands pass through before they
-        enter eq. (8); 0 (default): the commands are taken as produced at once, as in the paper.
+    zeta : float or array_like, shape (6,)
+        Damping of eq. (10) (used by ``prototype="zeta"``, order 2). Paper: 1.
+    order : int
+        Filter order n >= 1.
+    prototype : {"zeta", "binomial", "butterworth"}
+        ``"zeta"`` (order 2, eq. (10)), ``"binomial"`` (n poles at ``-wn``) or ``"butterworth"``.
+    poles : array_like, shape (n,) or (6, n), optional
+        Explicit poles, all with negative real part; complex poles must come in conjugate pairs.
+        Overrides ``wn`` and ``prototype``.
+    velocity_delay, attitude_delay : float
+        Age (s) of the velocity and of the attitude and its rates when they reach the estimator; the
+        force channel is evaluated on the velocity's time window and the moment channel on the
+        attitude's (module docstring, "Timing"). 0 (default): taken as simultaneous, as in the paper.
+    rotor_tau : float
+        Time constant (s) of the first-order rotor model the commands pass through before they enter
+        eq. (8); 0 (default): the commands are taken as produced at once, as in the paper.
+
+    References
+    ----------
+    Ruggiero et al. 2014, eqs. (10)-(13).
     """
 
     wn: np.ndarray | float = 10.0
@@ -279,6 +289,21 @@ class EstimatorState(NamedTuple):
 
 
 def initial_state(des: EstimatorDesign, batch_shape: tuple[int, ...] = ()) -> EstimatorState:
+    """The estimator's state before the first sample: filters at rest, no estimate yet.
+
+    Parameters
+    ----------
+    des : EstimatorDesign
+        The discretised filters, from :func:`design`.
+    batch_shape : tuple of int
+        Leading batch dimensions, ``()`` for one vehicle.
+
+    Returns
+    -------
+    EstimatorState
+        Zero filter states ``(*batch_shape, 6, n)``; the first :func:`estimator_step` only records the
+        momentum and returns a zero wrench.
+    """
     n = des.Ad.shape[-1]
     z3 = np.zeros(batch_shape + (3,))
     z6 = np.zeros(batch_shape + (6,))
@@ -320,15 +345,40 @@ def estimator_step(
 ) -> tuple[EstimatorState, np.ndarray]:
     """One update at the control rate.
 
+    Eqs. (6)-(13): the momentum ``q = [m v_W; M(eta) eta_dot]`` (6) against the integral of its known
+    rate ``beta`` (8), filtered by ``G(s)`` (10)-(13) discretised exactly at the control period (see
+    :doc:`/guide/estimator`).
+
     Parameters
     ----------
-    eta, eta_dot, v_W : measured attitude, Euler rates and world-frame velocity at this sample.
-    thrust_prev, tau_B_prev : the command held over the period that just ended.
-    mass, I_B : nominal parameters.
+    des : EstimatorDesign
+        The discretised filters and timing, from :func:`design`.
+    state : EstimatorState
+        The state returned by the previous call (or :func:`initial_state`).
+    eta, eta_dot : ndarray, shape (..., 3)
+        Measured ZYX Euler angles (rad) and their rates (rad/s) at this sample.
+    v_W : ndarray, shape (..., 3)
+        Measured velocity of the body origin, world NED frame, m/s.
+    thrust_prev : ndarray, shape (...)
+        Collective thrust ``u`` held over the period that just ended, N.
+    tau_B_prev : ndarray, shape (..., 3)
+        Body torque held over the same period, FRD, N m.
+    mass : ndarray, shape (...)
+        Nominal mass, kg.
+    I_B : ndarray, shape (..., 3, 3)
+        Nominal inertia about the centre of mass, body frame, kg m^2.
 
     Returns
     -------
-    state, wrench_hat : ``wrench_hat (..., 6) = [f_hat_ext_W; tau_hat_ext_eta]``; zero at the first call.
+    state : EstimatorState
+        The new state.
+    wrench_hat : ndarray, shape (..., 6)
+        ``[f_hat_ext_W; tau_hat_ext_eta]``: the external force (world NED, N) and the external
+        generalised moment in Euler-angle coordinates (N m); zero at the first call.
+
+    References
+    ----------
+    Ruggiero et al. 2014, eqs. (6)-(13).
     """
     q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)
     cmd = np.concatenate([np.asarray(thrust_prev, dtype=float)[..., None], np.asarray(tau_B_prev, dtype=float)], -1)

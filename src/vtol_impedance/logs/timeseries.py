@@ -31,7 +31,9 @@ from ..model.kinematics import (
     quat_to_rotation,
 )
 
+#: Rate of the uniform grid a log is resampled onto, Hz (``--rate``).
 DEFAULT_RATE_HZ = 100.0
+#: A longer gap in any signal (s) removes the grid points inside it and restarts the estimator (``--max-gap``).
 DEFAULT_MAX_GAP_S = 0.25
 #: The longest resampled log: 50 million samples (about 6 days at 100 Hz, some GB of arrays).
 MAX_SAMPLES = 50_000_000

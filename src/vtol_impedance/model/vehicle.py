@@ -145,13 +145,19 @@ class VehicleParams:
 
     Attributes
     ----------
-    mass : kg.
-    inertia : ``I_B``, 3x3 about the centre of mass in the body frame, kg m^2 (a 3-vector is a diagonal).
-    drag_factor : ``c`` of eq. (4d), N m per N.
-    rotors : explicit rotors (:class:`Rotor`); or leave ``None`` and give a ``layout`` with the shorthand
+    mass : float
+        Mass, kg.
+    inertia : ndarray, shape (3, 3)
+        ``I_B`` about the centre of mass in the body frame, kg m^2 (a 3-vector is a diagonal).
+    drag_factor : float
+        ``c`` of eq. (4d), N m per N.
+    rotors : tuple of Rotor or None
+        Explicit rotors (:class:`Rotor`); or leave ``None`` and give a ``layout`` with the shorthand
         ``arm_length`` (m), ``f_max``, ``f_min`` (N, the same for every rotor).
-    layout : ``"plus"`` (eq. (4), the default), ``"x"`` or ``"hex"`` (:func:`layout_positions`).
-    name : label.
+    layout : {"plus", "x", "hex"}
+        ``"plus"`` (eq. (4), the default), ``"x"`` or ``"hex"`` (:func:`layout_positions`).
+    name : str
+        Label.
     """
 
     mass: float
@@ -359,6 +365,8 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
 
 
 def preset_names() -> list[str]:
+    """Names of the vehicle presets shipped with the package (``pelican``, ``pelican-x``, ``hexarotor``),
+    for :func:`load_preset`."""
     files = resources.files("vtol_impedance") / "presets"
     return sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".toml"))
 

@@ -160,6 +160,7 @@ PENDULUM = replace(
     plant=replace(CASE_A.plant, pendulum_mass=0.1, pendulum_length=0.5),
 )
 
+#: The paper's case studies (Sec. VI.B): A hover with a payload, B the same before a fan, C a circle.
 PAPER_CASES: tuple[str, ...] = ("case-a-payload", "case-b-fan", "case-c-circle")
 
 for _spec in (

@@ -17,6 +17,7 @@ class Registry:
         self._specs: dict[str, ScenarioSpec] = {}
 
     def register(self, spec: ScenarioSpec) -> None:
+        """Add ``spec`` under its name, which must end in a version (``-v1``) and be new."""
         if not _VERSIONED.match(spec.name):
             raise ScenarioError(f"scenario names carry a version suffix like '-v1', got {spec.name!r}")
         if spec.name in self._specs:
@@ -24,6 +25,7 @@ class Registry:
         self._specs[spec.name] = spec
 
     def names(self, latest_only: bool = False) -> list[str]:
+        """Registered names, sorted; with ``latest_only`` only the latest version of each scenario."""
         if not latest_only:
             return sorted(self._specs)
         latest: dict[str, tuple[int, str]] = {}
@@ -36,6 +38,8 @@ class Registry:
         return sorted(n for _, n in latest.values())
 
     def resolve(self, name: str) -> str:
+        """The registered name ``name`` refers to: itself, or the latest version of a name without one.
+        Raises :class:`~vtol_impedance.errors.ScenarioError` listing the valid names."""
         if name in self._specs:
             return name
         versions = [n for n in self._specs if (m := _VERSIONED.match(n)) and m["base"] == name]
@@ -48,19 +52,25 @@ class Registry:
         )
 
     def get(self, name: str) -> ScenarioSpec:
+        """The scenario ``name`` (see :meth:`resolve`)."""
         return self._specs[self.resolve(name)]
 
 
+#: The package's registry: the paper's cases and the interaction scenarios, registered at import.
 DEFAULT = Registry()
 
 
 def register(spec: ScenarioSpec) -> None:
+    """Register ``spec`` in :data:`DEFAULT`, so that ``get``, the CLI and sweeps know it by name."""
     DEFAULT.register(spec)
 
 
 def get(name: str) -> ScenarioSpec:
+    """The registered scenario ``name``: ``"case-a-payload-v1"``, or ``"case-a-payload"`` for the latest
+    version. Raises :class:`~vtol_impedance.errors.ScenarioError` naming the valid scenarios."""
     return DEFAULT.get(name)
 
 
 def names(latest_only: bool = True) -> list[str]:
+    """Registered scenario names, sorted; by default only the latest version of each."""
     return DEFAULT.names(latest_only)

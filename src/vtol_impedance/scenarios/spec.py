@@ -187,6 +187,19 @@ def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
 
 @dataclass(frozen=True)
 class ScenarioSpec:
+    """A scenario: everything a flight needs but the controller variant, as plain values.
+
+    ``name`` carries a version (``case-a-payload-v1``); ``vehicle`` is a preset name or a vehicle
+    ``.toml``; ``ideal`` removes every unmodelled effect except the payload mass and the listed
+    disturbances; ``duration`` (s) 0 flies the trajectory's own length; ``plant_rate`` (Hz) is the RK4
+    rate. The sections :class:`TrajectorySpec`, :class:`PayloadSpec`, :class:`PlantSpec`,
+    ``sensors`` (:class:`~vtol_impedance.sim.SensorParams`), :class:`ControlSpec` and ``interaction``
+    (what the ``comply`` variant does) are the tables of a scenario file; ``disturbances`` are its
+    ``[[disturbances]]`` tables, each with a ``kind`` of :data:`vtol_impedance.sim.DISTURBANCE_KINDS`.
+    Build one from a file with :func:`load_toml`, change it with :func:`set_value`, fly it with
+    :func:`~vtol_impedance.scenarios.simulate`.
+    """
+
     name: str
     description: str = ""
     vehicle: str = "pelican"

@@ -566,6 +566,7 @@ class Gust(Disturbance):
         return _const(p_W, s[:3], s[3:])
 
 
+#: Disturbance classes by the ``kind`` a scenario file names them with (``[[disturbances]] kind = "fan"``).
 KINDS: dict[str, type[Disturbance]] = {
     c.kind: c
     for c in (ConstantWrench, StepWrench, RampWrench, SinusoidWrench, Push, BandLimitedNoise, FanJet, Wind, Wall, Gust)

@@ -275,21 +275,46 @@ def run_closed_loop(
 
     Parameters
     ----------
-    plant : one true plant for all vehicles, or one per vehicle.
-    controllers : nominal controllers, one per vehicle (they must share the control period).
-    trajectory : reference; the run starts at ``start_W`` (default: the trajectory's first point).
-    disturbances : explicit external disturbances; one realisation, drawn from the first vehicle's
-        seed, is shared by the batch.
-    sensors : noise and latency (default :class:`SensorParams`); use ``SensorParams.ideal()`` for none.
-    plant_rate : RK4 rate in Hz; ``plant_rate * Ts`` must be an integer.
-    seed : one seed for every vehicle (the same sensor noise, a fair comparison) or one per vehicle.
-    progress : called with the fraction done.
-    backend : ``"compiled"`` (numba), ``"numpy"`` (the reference) or ``"mujoco"`` (the NumPy controller
-        on MuJoCo's physics, an independent plant; needs the ``mujoco`` extra).
-    log : ``"full"`` (every control tick), ``"decimate:K"`` (every K-th), or ``"metrics"`` (no traces,
-        only the per-vehicle metrics of ``window``; for large batches).
-    window : task window for the metrics (default: the whole run).
-    limits : bounds on memory and work checked before the run (default :meth:`Limits.from_env`).
+    plant : PlantParams or sequence of PlantParams
+        One true plant for all vehicles, or one per vehicle.
+    controllers : ControllerParams or sequence of ControllerParams
+        Nominal controllers, one per vehicle (they must share the control period).
+    trajectory : Trajectory
+        The reference; the run starts at ``start_W`` (default: the trajectory's first point).
+    duration : float
+        Flight time, s.
+    disturbances : sequence of Disturbance
+        Explicit external disturbances; one realisation, drawn from the first vehicle's seed, is shared
+        by the batch.
+    sensors : SensorParams, optional
+        Noise and latency (default :class:`SensorParams`); use ``SensorParams.ideal()`` for none.
+    plant_rate : float
+        RK4 rate in Hz; ``plant_rate * Ts`` must be an integer.
+    seed : int or sequence of int
+        One seed for every vehicle (the same sensor noise, a fair comparison) or one per vehicle.
+    labels : sequence of str, optional
+        A name per vehicle (default: the controller variants).
+    start_W : ndarray, shape (3,), optional
+        Initial position of the body origin, world NED, m.
+    progress : callable, optional
+        Called with the fraction done.
+    config : dict, optional
+        Extra entries for the result's ``config``.
+    backend : {"compiled", "numpy", "mujoco"}
+        ``"compiled"`` (numba), ``"numpy"`` (the reference) or ``"mujoco"`` (the NumPy controller on
+        MuJoCo's physics, an independent plant; needs the ``mujoco`` extra).
+    log : str
+        ``"full"`` (every control tick), ``"decimate:K"`` (every K-th), or ``"metrics"`` (no traces, only
+        the per-vehicle metrics of ``window``; for large batches).
+    window : tuple of float, optional
+        Task window ``(t0, t1)`` in s for the metrics (default: the whole run).
+    limits : Limits, optional
+        Bounds on memory and work checked before the run (default ``Limits.from_env()``).
+
+    Returns
+    -------
+    Result
+        Arrays ``(B, N, ...)`` on the control ticks, the failures and the configuration.
     """
     if isinstance(controllers, ControllerParams):
         controllers = [controllers]

@@ -56,14 +56,27 @@ class PlantParams:
 
     Parameters
     ----------
-    vehicle : the bare vehicle's true rigid body and rotors (usually the nominal preset).
-    payload_mass : kg, a point mass rigidly attached at ``payload_offset_B`` (m, FRD, from the body origin).
-    inertia_scale : true bare inertia = ``inertia_scale * I_B`` elementwise on the diagonal (mismatch).
-    arm_length_scale, drag_factor_scale : true ``l``, ``c`` relative to the vehicle's.
-    rotor_tau_up, rotor_tau_down : first-order rotor time constants (s) spinning up and down; 0 makes that
-        direction instant (the other keeps its lag).
-    rotor_drag : linear drag coefficient, N per m/s of airspeed (0 disables).
-    ground : spring-damper ground at z = 0 (NED) under the body origin.
+    vehicle : VehicleParams
+        The bare vehicle's true rigid body and rotors (usually the nominal preset).
+    payload_mass : float
+        Mass (kg) of a point payload rigidly attached at ``payload_offset_B``.
+    payload_offset_B : tuple of float
+        Where the payload sits, m, body FRD frame, from the body origin.
+    inertia_scale : tuple of float
+        True bare inertia = ``inertia_scale * I_B`` elementwise on the diagonal (mismatch).
+    arm_length_scale, drag_factor_scale : float
+        True ``l`` and ``c`` relative to the vehicle's.
+    rotor_tau_up, rotor_tau_down : float
+        First-order rotor time constants, s, spinning up and down; 0 makes that direction instant (the
+        other keeps its lag).
+    rotor_drag : float
+        Linear drag coefficient, N per m/s of airspeed (0 disables).
+    ground : bool
+        A spring-damper ground at z = 0 (NED) under the body origin.
+    ground_stiffness, ground_damping, ground_friction : float
+        The ground's spring (N/m), damper (N s/m) and friction (N s/m on the sliding velocity).
+    pendulum_mass, pendulum_length : float
+        A bob (kg) on a rigid link (m) hung from the centre of mass, simulated as a second body; 0 kg: none.
     """
 
     vehicle: VehicleParams

@@ -96,6 +96,10 @@ def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
 
 @dataclass(frozen=True)
 class Axis:
+    """One axis of a sweep: the scenario value ``key`` (``"control.rate"``, ``"payload.offset_B[0]"``) and
+    either explicit ``values`` or a range ``lo`` .. ``hi`` with ``n`` values (geometric with ``log``);
+    random sweeps draw from the range. :meth:`grid` lists the values, :meth:`draw` draws one."""
+
     key: str
     values: tuple[Any, ...] | None = None  # explicit values
     lo: float | None = None
@@ -104,6 +108,7 @@ class Axis:
     log: bool = False
 
     def grid(self) -> list[Any]:
+        """The axis's values in grid and zip mode."""
         if self.values is not None:
             return list(self.values)
         assert self.lo is not None and self.hi is not None and self.n is not None
@@ -112,6 +117,8 @@ class Axis:
         return [float(v) for v in np.linspace(self.lo, self.hi, self.n)]
 
     def draw(self, rng: np.random.Generator) -> Any:
+        """One value drawn with ``rng`` (random mode): uniform over the range (in log with ``log``) or one of
+        the values."""
         if self.values is not None:
             return self.values[int(rng.integers(len(self.values)))]
         assert self.lo is not None and self.hi is not None
@@ -348,4 +355,5 @@ _BUILTIN = Path(__file__).resolve().parent / "studies"
 
 
 def builtin_names() -> list[str]:
+    """Names of the studies shipped with the package (``vtol-impedance sweep NAME``)."""
     return sorted(p.stem for p in _BUILTIN.glob("*.toml"))
