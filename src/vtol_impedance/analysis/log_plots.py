@@ -14,8 +14,12 @@ if TYPE_CHECKING:
 
 
 def _gaps(ax, est: LogEstimate) -> None:
+    """Restarts (the data stop) as red dashed lines, bridged dropouts as grey bands."""
     for t0 in est.t[est.flight.restart][1:]:
-        ax.axvline(t0, color="gray", lw=0.8, ls=":")
+        ax.axvline(t0, color="tab:red", lw=0.9, ls="--")
+    for g in est.flight.gaps:
+        if g["action"] == "bridged":
+            ax.axvspan(g["t0_s"], g["t1_s"], color="gray", alpha=0.18, lw=0)
 
 
 def plot_log_wrench(est: LogEstimate, path: Path, title: str = "") -> Path:
@@ -43,7 +47,8 @@ def plot_log_wrench(est: LogEstimate, path: Path, title: str = "") -> Path:
         _gaps(x, est)
         x.grid(alpha=0.3)
         x.legend(loc="best", fontsize=7, ncol=3)
-    ax[0].set_title(title or "Estimated external wrench (green: quiet segment; dotted: restart after a gap)")
+    ax[0].set_title(title or "Estimated external wrench")
+    _legend_note(fig, est)
     return _save(fig, path)
 
 
@@ -55,6 +60,10 @@ def plot_log_inputs(est: LogEstimate, path: Path, title: str = "") -> Path:
         ax[0].plot(fl.t, fl.v_W[:, i], color=AXIS_COLORS[i], lw=0.9, label=f"v_{AXES[i]}")
         ax[1].plot(fl.t, np.degrees(fl.eta[:, i]), color=AXIS_COLORS[i], lw=0.9, label=("roll", "pitch", "yaw")[i])
     ax[2].plot(est.t, est.thrust_N, color="black", lw=0.9, label="thrust")
+    if est.hover is not None and np.ptp(est.hover) > 0:
+        ax2 = ax[2].twinx()
+        ax2.plot(est.t, est.hover, color="tab:purple", lw=0.8, ls="--", label="hover thrust (normalised)")
+        ax2.set_ylabel("hover thrust [0..1]", color="tab:purple")
     ax[0].set_ylabel("velocity, NED [m/s]")
     ax[1].set_ylabel("attitude (ZYX) [deg]")
     ax[2].set_ylabel("collective thrust [N]")
@@ -64,4 +73,19 @@ def plot_log_inputs(est: LogEstimate, path: Path, title: str = "") -> Path:
         x.grid(alpha=0.3)
         x.legend(loc="best", fontsize=7, ncol=3)
     ax[0].set_title(title or f"Inputs resampled at {fl.rate_hz:g} Hz")
+    _legend_note(fig, est)
     return _save(fig, path)
+
+
+def _legend_note(fig, est: LogEstimate) -> None:
+    restarts = int(est.flight.restart.sum()) - 1
+    bridged = sum(1 for g in est.flight.gaps if g["action"] == "bridged")
+    parts = []
+    if est.bias is not None:
+        parts.append("green band: quiet segment")
+    if bridged:
+        parts.append(f"grey bands: {bridged} bridged dropout(s), estimator state carried")
+    if restarts:
+        parts.append(f"red dashed: {restarts} restart(s) where the data stop")
+    if parts:
+        fig.text(0.01, 0.005, "; ".join(parts), fontsize=7, color="dimgray", ha="left", va="bottom")
