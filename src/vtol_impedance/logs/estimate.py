@@ -43,8 +43,9 @@ THRUST_SOURCES = ("auto", "commands", "rotors")
 #: WEIGHT_WARN).
 WEIGHT_ERROR = (0.5, 2.0)
 WEIGHT_WARN = (0.8, 1.25)
-#: A hover fit that leaves more than this share of the weight as RMS residual is refused.
-MAX_HOVER_RESIDUAL = 0.10
+#: A hover fit that leaves more than this share of the weight as RMS residual (of 0.25 s averages, so that
+#: command noise does not count) is refused: not a hover.
+MAX_HOVER_RESIDUAL = 0.03
 
 
 @dataclass
@@ -125,8 +126,9 @@ def _stationary_ground(flight: FlightLog, sel: np.ndarray, u: np.ndarray) -> str
 def fit_hover_thrust(flight: FlightLog, mass: float, segment: Any) -> tuple[float, float]:
     """Normalised hover thrust from a hover segment by least squares on the vertical balance
     ``k u cos(phi) cos(theta) = m (g - a_z)`` (NED, ``a_z`` from the velocity); returns ``(m g / k, rms
-    residual in N)``. Refuses a segment on the ground or one the balance does not fit (an RMS residual above
-    10 % of the weight: not a hover)."""
+    residual in N)``. Refuses a segment on the ground and one the balance does not fit (an RMS residual of
+    0.25 s averages above 3 % of the weight: a take-off with the ground still carrying part of the weight,
+    a landing, a manoeuvre in ground effect)."""
     sel = _segment("hover segment", segment, flight.t, 0.5)
     if flight.thrust is None:
         raise InputError("the log has no thrust command to fit a hover thrust on")
@@ -140,11 +142,15 @@ def fit_hover_thrust(flight: FlightLog, mass: float, segment: Any) -> tuple[floa
     if not k > 0:
         raise InputError("the hover segment has no positive thrust: cannot fit a hover thrust on it")
     res = float(np.sqrt(np.mean((k * uc - rhs) ** 2)))
-    if res > MAX_HOVER_RESIDUAL * mass * G:
+    n = max(1, int(round(0.25 * flight.rate_hz)))
+    kern = np.ones(n) / n
+    res_avg = float(np.sqrt(np.mean(np.convolve(k * uc - rhs, kern, "valid") ** 2))) if sel.sum() > n else res
+    if res_avg > MAX_HOVER_RESIDUAL * mass * G:
         raise InputError(
-            f"the hover fit on {segment[0]:g}-{segment[1]:g} s leaves {res:.3g} N RMS on a {mass * G:.3g} N vehicle "
-            f"({100 * res / (mass * G):.0f} % of its weight; a hover leaves a few %): the segment is not a hover "
-            "(a take-off, a landing, a manoeuvre?); choose a steady hover"
+            f"the hover fit on {segment[0]:g}-{segment[1]:g} s leaves {res_avg:.3g} N RMS on a {mass * G:.3g} N "
+            f"vehicle ({100 * res_avg / (mass * G):.1f} % of its weight; a hover leaves about 1 %): the segment is "
+            "not a hover (a take-off with the ground still carrying part of the weight, a landing, a manoeuvre?); "
+            "choose a steady hover"
         )
     return mass * G / k, res
 
@@ -439,37 +445,49 @@ def peak_impulse_response(des: Any) -> np.ndarray:
 
 def _gap_bounds(flight: FlightLog, thrust: np.ndarray, tau: np.ndarray | None, des: Any) -> None:
     """Add to each bridged gap the bound of the module :mod:`~vtol_impedance.logs.timeseries` docstring:
-    ``g_max (E + dW T / 2)``, with ``E = T^3 / 12 max|x''|`` and ``max|x''|`` of the thrust vector
-    ``u R e3`` (moment: the body torque) taken in the second before and after the gap (smoothed 0.1 s)."""
+    ``g_max (E + |dx| T / 4 + dW T / 2)``. The bridge interpolates the thrust ``u`` linearly and the thrust
+    axis ``r = R e3`` (nearly) linearly, so the impulse of ``x = u r`` it misses is ``E <= T^3 / 12
+    (max|u''| + max|u| max|r''|)``, the curvatures those of quadratics fitted to the second before and the
+    second after the gap (the larger); ``dx`` is ``x`` after the gap minus before it. ``bound_f_N`` is the
+    bound for a steady wrench, ``bound_f_per_N_change`` what each newton of change inside the gap adds. The
+    moment channel likewise with the body torque."""
     bridged = [g for g in flight.gaps if g["action"] == "bridged"]
     if not bridged:
         return
     gmax = peak_impulse_response(des)
     from ..model.kinematics import rotation_zyx
 
-    x = thrust[:, None] * rotation_zyx(flight.eta)[:, :, 2]
-    dt = flight.Ts
-    n = max(1, int(round(0.1 / dt)))
-    kern = np.ones(n) / n
+    r = rotation_zyx(flight.eta)[:, :, 2]
+    x = thrust[:, None] * r
 
-    def curvature(sig: np.ndarray) -> np.ndarray:
-        s = np.stack([np.convolve(sig[:, j], kern, "same") for j in range(sig.shape[1])], -1)
-        return np.linalg.norm(np.gradient(np.gradient(s, dt, axis=0), dt, axis=0), axis=-1)
+    def curvature(sig: np.ndarray, sel: np.ndarray) -> float:
+        """|second derivative| of a quadratic fitted to the selected samples (robust to noise and steps)."""
+        if sel.sum() < 5:
+            return 0.0
+        tt = flight.t[sel] - flight.t[sel].mean()
+        c = np.polyfit(tt, sig.reshape(len(sig), -1)[sel], 2)
+        return float(np.linalg.norm(2.0 * c[0]))
 
-    cx = curvature(x)
-    ct = curvature(tau) if tau is not None else None
     for g in bridged:
         T = g["length_s"]
-        near = ((flight.t > g["t0_s"] - 1.0) & (flight.t < g["t0_s"])) | (
-            (flight.t > g["t1_s"]) & (flight.t < g["t1_s"] + 1.0)
-        )
+        sides = [
+            (flight.t > g["t0_s"] - 1.0) & (flight.t <= g["t0_s"]),
+            (flight.t >= g["t1_s"]) & (flight.t < g["t1_s"] + 1.0),
+        ]
+        cu = max(curvature(thrust, s) for s in sides)
+        cr = max(curvature(r, s) for s in sides)
+        near = sides[0] | sides[1]
         if not near.any():
             continue
-        E = T**3 / 12.0 * float(np.max(cx[near]))
-        g["bound_f_N"] = float(gmax[:3].max() * E)
+        E = T**3 / 12.0 * (cu + float(np.max(np.abs(thrust[near]))) * cr)
+        k0 = max(int(np.searchsorted(flight.t, g["t0_s"], side="right")) - 1, 0)
+        k1 = min(int(np.searchsorted(flight.t, g["t1_s"], side="left")), len(flight.t) - 1)
+        dx = float(np.linalg.norm(x[k1] - x[k0]))
+        g["bound_f_N"] = float(gmax[:3].max() * (E + dx * T / 4.0))
         g["bound_f_per_N_change"] = float(gmax[:3].max() * T / 2.0)
-        if ct is not None:
-            g["bound_tau_Nm"] = float(gmax[3:].max() * T**3 / 12.0 * float(np.max(ct[near])))
+        if tau is not None:
+            ct = max(curvature(tau, s) for s in sides)
+            g["bound_tau_Nm"] = float(gmax[3:].max() * T**3 / 12.0 * ct)
 
 
 def estimate(

@@ -201,7 +201,7 @@ def _truncation_dataflash(path: Path, reader: Any) -> str | None:
     if end > data_len and last is not None:
         have = data_len - int(offsets[last][-1])
         return (
-            f"{path.name} ends inside a {formats[last].name} message ({have} of {formats[last].len} bytes): "
+            f"{path.name} ends inside its last message ({formats[last].name}, {have} of {formats[last].len} bytes): "
             "the file was cut short; the incomplete message was dropped"
         )
     if data_len > end:
@@ -333,33 +333,41 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
 
 def _tlog_frames(path: Path) -> tuple[int, int, str | None]:
     """Walk the tlog's frames (8-byte big-endian time, then a MAVLink 1 or 2 packet): ``(complete frames,
-    bytes in them, note about a cut or damaged tail)``."""
+    damaged bytes skipped, note about a cut or damaged file)``. After damage the walk resynchronises on the
+    next frame whose time is within a day of the last good one."""
     data = path.read_bytes()
-    ofs, n = 0, 0
+    ofs, n, skipped, last_t = 0, 0, 0, None
+    cut = None
     while ofs + 8 + 2 <= len(data):
         marker = data[ofs + 8]
-        if marker == 0xFE:
+        t = struct.unpack(">Q", data[ofs : ofs + 8])[0]
+        plausible = last_t is None or abs(int(t) - last_t) < 86_400_000_000
+        size = None
+        if marker == 0xFE and plausible:
             size = 8 + data[ofs + 9] + 8
-        elif marker == 0xFD:
-            if ofs + 8 + 3 > len(data):
-                break
+        elif marker == 0xFD and plausible and ofs + 8 + 3 <= len(data):
             size = 8 + data[ofs + 9] + 12 + (13 if data[ofs + 10] & 1 else 0)
-        else:
-            return n, ofs, f"{path.name}: {len(data) - ofs} byte(s) at offset {ofs} are not MAVLink frames: skipped"
+        if size is None:
+            ofs += 1
+            skipped += 1
+            continue
         if ofs + size > len(data):
+            cut = len(data) - ofs
             break
+        last_t = int(t)
         ofs += size
         n += 1
-    if ofs < len(data):
-        return (
-            n,
-            ofs,
-            (
-                f"{path.name} ends inside a MAVLink frame ({len(data) - ofs} byte(s)): the file was cut short; "
-                "the incomplete message was dropped"
-            ),
+    if cut is None and ofs < len(data):
+        cut = len(data) - ofs
+    notes = []
+    if skipped:
+        notes.append(f"{skipped} damaged byte(s) skipped")
+    if cut:
+        notes.append(
+            f"the file ends inside a MAVLink frame ({cut} byte(s)): it was cut short; the incomplete message was "
+            "dropped"
         )
-    return n, ofs, None
+    return n, skipped, (f"{path.name}: " + "; ".join(notes)) if notes else None
 
 
 TLOG_TYPES = [

@@ -14,9 +14,10 @@ from the rotors.
 
 The thrust coefficient ``k_T`` (N per (rad/s)^2), in this order: given; fitted on the vertical balance
 ``k_T sum w_i^2 cos(phi) cos(theta) = m (g - a_z)`` (NED) over a hover segment when one is given;
-matched to the commanded thrust in newtons (0.5 s averages, longer than the rotor lag) when the commands
-can be converted (thrust in N, or a hover thrust from the log): the rotors then carry the commands'
-calibration without their lag, and an external force stays in the estimate; else fitted on the vertical
+matched to the commanded thrust in newtons (0.5 s averages, longer than the rotor lag, over the calmest
+quarter of the flight) when the commands can be converted (thrust in N, or a hover thrust from the log):
+the rotors then carry the commands' calibration without their lag, and an external force stays in the
+estimate; else fitted on the vertical
 balance over every airborne sample (rotors above 30 % of their usual speed). A vertical-balance fit,
 like a hover-thrust fit, absorbs the mean vertical external force over its samples (a payload becomes
 part of the vehicle). Every fit's residual is checked: one that leaves more than 10 % of the weight is
@@ -112,14 +113,19 @@ def fit_thrust_coefficient(
 def match_thrust_coefficient(
     sq_sum: np.ndarray, thrust_N: np.ndarray, select: np.ndarray, rate_hz: float
 ) -> tuple[float, float]:
-    """``(k_T, rms difference in N)``: ``k_T sum w_i^2`` fitted to the commanded thrust in newtons over the
-    selected samples, both averaged over 0.5 s (longer than the rotor lag, so the lag does not bias it).
-    The rotors then carry the commands' calibration without their lag, and no external force enters
-    the fit."""
+    """``(k_T, rms difference in N)``: ``k_T sum w_i^2`` fitted to the commanded thrust in newtons, both
+    averaged over 0.5 s (longer than the rotor lag), over the calmest quarter of the selected samples (the
+    smallest thrust variation in 0.5 s: where the rotors follow the command closely, so that an
+    asymmetric spin-up and spin-down does not bias the fit). The rotors then carry the commands'
+    calibration without their lag, and no external force enters the fit."""
     n = max(1, int(round(0.5 * rate_hz)))
     kern = np.ones(n) / n
+    mean = np.convolve(thrust_N, kern, "same")
+    spread = np.sqrt(np.maximum(np.convolve(thrust_N**2, kern, "same") - mean**2, 0.0))
+    if select.sum() >= 40:
+        select = select & (spread <= np.percentile(spread[select], 25))
     x = np.convolve(sq_sum, kern, "same")[select]
-    y = np.convolve(thrust_N, kern, "same")[select]
+    y = mean[select]
     if len(x) < 10:
         raise InputError(f"matching the rotor speeds to the thrust needs at least 10 airborne samples, got {len(x)}")
     k = float(np.dot(x, y) / max(np.dot(x, x), 1e-300))

@@ -16,14 +16,16 @@ How a log becomes one time base (documented in the README, "Estimating from flig
   signal is interpolated linearly across it (commands too: across a dropout the held value is not what
   the vehicle flew), and the estimator carries its state. The momentum change across the gap is
   measured exactly (real samples at both ends); what the bridge cannot know is how the wrench and the
-  thrust vector varied inside. After a bridged gap of length ``T`` the estimate differs from an
-  uninterrupted one by at most ``g_max (E + dW T / 2)``, with ``g_max`` the peak of G's impulse response
-  (``wn / e`` for the paper's G), ``E <= T^3 / 12 max|d^2 (u R e3) / dt^2|`` the error of the bridged
-  impulse of the thrust vector and ``dW`` the change of the external wrench inside the gap (derivation in
-  the README). A step longer than ``max_gap_s`` means the data stop: the grid points inside are removed
-  and the estimator **restarts** after it. By default ``max_gap_s`` comes from the log's own rates:
-  ten periods of its slowest signal, at least 0.5 s, at most 5 s (an 8 Hz log bridges its normal
-  0.3-0.5 s dropouts). Every gap is listed in ``gaps`` and summarised in ``notes``.
+  thrust vector ``x = u R e3`` varied inside. The bridged residual is ``f + x_bridge(s) - mean(x)``
+  instead of ``f``, so after a bridged gap of length ``T`` the estimate differs from an uninterrupted one
+  by at most ``g_max (E + |dx| T / 4 + dW T / 2)``: ``g_max`` the peak of G's impulse response (``wn / e``
+  for the paper's G), ``E <= T^3 / 12 (max|u''| + max|u| max|r''|)`` the impulse of the thrust vector the
+  interpolation misses (thrust ``u``, thrust axis ``r = R e3``), ``dx`` the change of the thrust vector
+  across the gap (the bridge spreads the impulse as a ramp) and ``dW`` the change of the external wrench
+  inside it. A step longer than ``max_gap_s`` (dropout or not) means the data stop: the grid points
+  inside are removed and the estimator **restarts** after it. By default ``max_gap_s`` comes from the
+  log's own rates: ten periods of its slowest signal, at least 0.5 s, at most 5 s (an 8 Hz log bridges
+  its normal 0.3-0.5 s dropouts). Every gap is listed in ``gaps`` and summarised in ``notes``.
 """
 
 from __future__ import annotations
@@ -186,10 +188,10 @@ def default_max_gap(sigs: list[Signal]) -> tuple[float, str]:
     return value, why
 
 
-def _dropouts(sig: Signal, rate_hz: float) -> np.ndarray:
-    """Indices ``i`` with ``t[i + 1] - t[i]`` a dropout of this signal."""
+def _dropouts(sig: Signal, rate_hz: float, max_gap_s: float) -> np.ndarray:
+    """Indices ``i`` with ``t[i + 1] - t[i]`` a dropout of this signal (or longer than ``max_gap_s``)."""
     limit = max(DROPOUT_PERIODS * typical_period(sig.t), 2.0 / rate_hz)
-    return np.flatnonzero(np.diff(sig.t) > limit)
+    return np.flatnonzero(np.diff(sig.t) > min(limit, max_gap_s))
 
 
 def _interp(sig: Signal, grid: np.ndarray, bridge: float = 0.0) -> np.ndarray:
@@ -263,7 +265,7 @@ def resample(
     gaps: list[dict[str, Any]] = []
     for s in sigs:
         n_bridged, longest = 0, 0.0
-        for i in _dropouts(s, rate_hz):
+        for i in _dropouts(s, rate_hz, max_gap_s):
             a, b = float(s.t[i]), float(s.t[i + 1])
             if not (a < hi and b > lo):
                 continue
