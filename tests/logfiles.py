@@ -134,8 +134,8 @@ def synth_tlog_messages(fl, drop=(), thrust_stream="ATTITUDE_TARGET"):
     return [m for m in msgs if m[1] not in drop]
 
 
-def write_synth_tlog(fl, path, drop=(), truncate: int | None = None, thrust_stream="ATTITUDE_TARGET"):
-    write_tlog(path, synth_tlog_messages(fl, drop, thrust_stream))
+def write_synth_tlog(fl, path, drop=(), truncate: int | None = None, thrust_stream="ATTITUDE_TARGET", protocol=2):
+    write_tlog(path, synth_tlog_messages(fl, drop, thrust_stream), protocol=protocol)
     if truncate is not None:
         data = path.read_bytes()
         path.write_bytes(data[: len(data) - truncate])

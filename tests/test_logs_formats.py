@@ -101,9 +101,12 @@ def test_tlog_written_here_follows_g_of_the_true_wrench(fl, tmp_path):
     _check_force(estimate(f, S.MASS, None), f.t - 5.0, bound)
 
 
-def test_tlog_with_whole_percent_throttle(fl, tmp_path):
-    """ArduPilot streams only VFR_HUD.throttle: whole percent, no time field (placed by receive time)."""
-    path = write_synth_tlog(fl, tmp_path / "hud.tlog", thrust_stream="VFR_HUD")
+@pytest.mark.parametrize("protocol", [1, 2])
+def test_tlog_with_whole_percent_throttle(fl, tmp_path, protocol):
+    """ArduPilot streams only VFR_HUD.throttle: whole percent, no time field (placed by receive time); MAVLink
+    1 and 2 framing."""
+    path = write_synth_tlog(fl, tmp_path / "hud.tlog", thrust_stream="VFR_HUD", protocol=protocol)
+    assert path.read_bytes()[8] == (0xFE if protocol == 1 else 0xFD)
     raw, _ = read_any(path)
     assert any("VFR_HUD" in n and "receive time" in n for n in raw.notes)
     f = resample(raw, 100.0)

@@ -28,8 +28,9 @@ other set fits clearly better; otherwise the error names the difference, its mos
 flags that fix it. ``--conventions auto`` takes the best set, keeping the declared value of any convention
 the data cannot decide (for instance the world frame of a log with no horizontal acceleration), and
 reports what it chose. Separately :func:`check_thrust_signal` refuses a thrust column of zeros or one held
-constant and treats a stretch the logger froze as a dropout (a thrust quantised to a few hundred levels,
-such as MAVLink's whole-percent throttle, repeats values honestly and is left alone).
+constant and treats a stretch the logger froze as a dropout (idle thrust on the ground, saturation, and a
+thrust quantised to a few hundred levels, such as MAVLink's whole-percent throttle, repeat values honestly
+and are left alone).
 """
 
 from __future__ import annotations
@@ -263,13 +264,10 @@ def evidence(raw: RawLog, hold_out: float = 0.0) -> Evidence:
 
 
 def _strong_symptoms(ev: Evidence) -> bool:
-    """A contradiction no flight explains, whatever its wrench."""
+    """A contradiction no flight explains, whatever its wrench (the body-rate prior of the score is a
+    preference between readings, not a contradiction)."""
     return (
-        not ev.time_ok
-        or ev.tilt_rad > 0.5
-        or not ev.thrust_gain > 0
-        or (ev.kin_motion > KIN_MOTION and ev.kin > 0.6)
-        or ev.rate_rms < MIN_FLIGHT_RATE
+        not ev.time_ok or ev.tilt_rad > 0.5 or not ev.thrust_gain > 0 or (ev.kin_motion > KIN_MOTION and ev.kin > 0.6)
     )
 
 
@@ -368,6 +366,9 @@ def check_conventions(
                 "the log contradicts physics: " + "; ".join(ev0.symptoms()) + ". Its format fixes the frames and "
                 "units, so the data themselves are suspect (a converted or edited log?)" + escape
             )
+        rep.notes.append(
+            f"conventions fixed by the format ({raw.meta.get('format', 'log')}); checked against physics: consistent"
+        )
         return raw, rep
     scored: list[tuple[float, Conventions, Evidence | None]] = []
     for c in candidates(declared, relevant):
@@ -447,8 +448,9 @@ def check_conventions(
 
 def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
     """Refuse a thrust column of zeros or one constant throughout; a stretch of at least 1 s (and 10
-    samples) where the logger repeated the same value, strictly between the column's extremes (not idle,
-    not saturated), becomes a dropout (its repeated rows are dropped; the resampler bridges or restarts)."""
+    samples) where the logger repeated the same value, below the column's maximum (not saturated) and above
+    a fifth of its usual level (not idle on the ground), becomes a dropout (its repeated rows are dropped;
+    the resampler bridges or restarts)."""
     if sig is None:
         return None
     v = np.asarray(sig.values, dtype=float)[:, 0]
@@ -458,8 +460,9 @@ def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
     vf = v[finite]
     if np.all(vf == 0):
         raise InputError(
-            f"the thrust ({sig.source}) is zero throughout: the logger did not record it; give another thrust "
-            "column, or rotor speeds (CSV rpm1..rpmN, ESC telemetry) to take the thrust from"
+            f"the thrust ({sig.source}) is zero throughout: the vehicle never flew in this log (disarmed, on the "
+            "ground), or the logger did not record it; give another thrust column, or rotor speeds (CSV "
+            "rpm1..rpmN, ESC telemetry) to take the thrust from"
         )
     if np.ptp(vf) <= 1e-9 * max(1.0, float(np.max(np.abs(vf)))):
         raise InputError(
@@ -467,7 +470,8 @@ def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
             "not what the vehicle flew; give another thrust column or rotor speeds"
         )
     t = np.asarray(sig.t, dtype=float)
-    lo, hi = float(np.min(vf)), float(np.max(vf))
+    hi = float(np.max(vf))
+    lo = max(float(np.min(vf)), 0.2 * float(np.percentile(np.abs(vf), 95)))  # idle on the ground repeats honestly
     levels = np.unique(vf)
     if len(levels) <= 200 and np.min(np.diff(levels)) >= 1e-3 * (hi - lo):
         return sig  # a coarsely quantised thrust (whole percent) repeats its values honestly

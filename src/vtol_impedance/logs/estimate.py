@@ -176,8 +176,9 @@ def check_weight(
         return r, None
     if not WEIGHT_ERROR[0] <= r <= WEIGHT_ERROR[1]:
         raise InputError(
-            f"the thrust ({what}) does not carry the weight: in flight it gives {1 / r:.3g} times m g = "
-            f"{mass * G:.3g} N. Check {fixes}"
+            f"the thrust ({what}) does not carry the weight: while the rotors run it gives {1 / r:.3g} times "
+            f"m g = {mass * G:.3g} N. Check {fixes}; or the vehicle was not flying on its own thrust (carried, "
+            "on a stand, landed)"
         )
     if not WEIGHT_WARN[0] <= r <= WEIGHT_WARN[1]:
         return r, (
@@ -247,9 +248,7 @@ def commands_in_si(
         raise InputError("thrust from rotor speeds: the log has no rotor speeds (ESC telemetry, CSV rpm1..rpmN)")
     if thrust_from == "commands" and flight.thrust is None:
         raise InputError("thrust from the commands: the log has no thrust command, only rotor speeds")
-    use_rotors = thrust_from == "rotors" or (
-        thrust_from == "auto" and have_rotors and (flight.thrust is None or 1.0 / _period(raw.rotor_speed.t) >= 20.0)
-    )
+    use_rotors = have_rotors and uses_rotor_speeds(raw, thrust_from)
     if thrust_coefficient is not None and not use_rotors:
         raise InputError("a thrust coefficient converts rotor speeds; this estimate takes the thrust from the commands")
     geometry = rotor_geometry if rotor_geometry is not None else raw.rotor_geometry
@@ -325,6 +324,14 @@ def commands_in_si(
         return thrust, tau_rotors, info, notes
     tau = _torque_from_commands(flight, raw, info, notes, torque_scale, weight)
     return thrust, tau, info, notes
+
+
+def uses_rotor_speeds(raw: Any, thrust_from: str) -> bool:
+    """Whether the thrust comes from the log's rotor speeds: ``"rotors"``, or ``"auto"`` with rotor speeds at
+    20 Hz or more (or no thrust command at all)."""
+    if raw.rotor_speed is None or thrust_from == "commands":
+        return False
+    return thrust_from == "rotors" or raw.thrust is None or 1.0 / _period(raw.rotor_speed.t) >= 20.0
 
 
 def _period(t: np.ndarray) -> float:

@@ -19,9 +19,9 @@ import numpy as np
 from ..errors import InputError
 from .checks import ConventionReport, ImplausibleTime, check_conventions, check_thrust_signal, time_plausible
 from .csvlog import CsvTable, read_csv_table, table_to_raw
-from .estimate import LogEstimate, check_inertia, estimate
+from .estimate import LogEstimate, check_inertia, estimate, uses_rotor_speeds
 from .frames import TIME_UNITS, Conventions
-from .timeseries import RawLog, resample
+from .timeseries import RawLog, resample, typical_period
 
 FORMATS = {".ulg": "ulog", ".bin": "dataflash", ".tlog": "tlog"}
 #: A CSV file longer than this is checked on its most dynamic block of rows (the checks need minutes, not
@@ -182,6 +182,15 @@ def estimate_file(
     :func:`~vtol_impedance.logs.estimate.estimate`."""
     raw, rep = read_any(path, **(read_options or {}))
     m, I_B, geometry, vchoices = _vehicle(raw, mass, inertia, vehicle)
+    thrust_from = estimate_options.get("thrust_from", "auto")
+    if raw.rotor_speed is not None and thrust_from == "auto" and not uses_rotor_speeds(raw, thrust_from):
+        raw.notes.append(
+            f"rotor speeds ({raw.rotor_speed.source}) at {1 / typical_period(raw.rotor_speed.t):.3g} Hz, below "
+            "20 Hz: not used (the thrust comes from the commands; --thrust-from rotors to use them)"
+        )
+        raw.rotor_speed = None  # neither on the grid nor in the gap threshold
+    elif raw.rotor_speed is not None and thrust_from == "commands":
+        raw.rotor_speed = None
     flight = resample(raw, rate_hz, max_gap_s, t_start, t_end)
     if estimate_options.get("rotor_geometry") is None and geometry is not None:
         estimate_options["rotor_geometry"] = geometry

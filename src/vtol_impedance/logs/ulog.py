@@ -167,10 +167,14 @@ def pick_fastest(
     where: str,
     all_found: list[str],
     required: bool = True,
+    skip_zero: bool = False,
 ) -> tuple[str, np.ndarray, np.ndarray] | None:
     """The highest-rate option ``(topic, fields, sign)`` found in ``available[topic] = (t, data)``: returns
-    ``(source, t, values)`` and records the choice; raises (``required``) listing what the log has."""
-    found = []
+    ``(source, t, values)`` and records the choice; raises (``required``) listing what the log has. With
+    ``skip_zero`` a field that is zero throughout (a command field this PX4 version logs but never fills)
+    is passed over and reported."""
+    found: list[tuple[str, np.ndarray, np.ndarray, float]] = []
+    empty: list[str] = []
     for topic, fields, sign in options:
         got = available.get(topic)
         if got is None or not all(f in got[1] for f in fields):
@@ -179,8 +183,14 @@ def pick_fastest(
         if len(t) < 2:
             continue
         vals = np.stack([np.asarray(data[f], dtype=float) for f in fields], -1) * sign
+        if skip_zero and not np.any(np.isfinite(vals) & (vals != 0)):
+            empty.append(f"{topic}.{','.join(fields)}")  # a field this PX4 version logs but never fills
+            continue
         name = f"{topic}.{','.join(fields)}" + (" (negated)" if sign < 0 else "")
         found.append((name, t, vals, 1.0 / typical_period(t)))
+    if not found and empty:
+        choices.append(f"{role}: {', '.join(empty)} logged but zero throughout")
+        return None
     if not found:
         if not required:
             return None
@@ -252,11 +262,11 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
     if sample_times:
         meta["measurement_times"] = "timestamp_sample of " + ", ".join(sorted(sample_times))
     thrust = None
-    got = pick_fastest("thrust", THRUST, available, choices, str(path), all_found, required=False)
+    got = pick_fastest("thrust", THRUST, available, choices, str(path), all_found, required=False, skip_zero=True)
     if got is not None:
         thrust = Signal("thrust", got[0], got[1], got[2], hold=True)
     torque = None
-    got = pick_fastest("torque", TORQUE, available, choices, str(path), all_found, required=False)
+    got = pick_fastest("torque", TORQUE, available, choices, str(path), all_found, required=False, skip_zero=True)
     if got is not None:
         torque = Signal("torque", got[0] + " (normalised)", got[1], got[2], hold=True)
     else:
@@ -287,8 +297,10 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
     d = found.get("esc_status")
     if d is not None:
         n = int(np.max(d.data["esc_count"])) if "esc_count" in d.data else 0
-        fields = [f"esc[{i}].esc_rpm" for i in range(n)]
-        if n >= 3 and all(f in d.data for f in fields):
+        fields = [f"esc[{i}].esc_rpm" for i in range(n) if f"esc[{i}].esc_rpm" in d.data]
+        fields = [f for f in fields if np.any(d.data[f] != 0)]  # ESC slots without a motor report zero
+        n = len(fields)
+        if n >= 3:
             rpm = np.stack([d.data[f].astype(float) for f in fields], -1)
             kw["rotor_speed"] = Signal(
                 "rotor speeds", f"esc_status.esc[0..{n - 1}].esc_rpm", available["esc_status"][0],
@@ -299,6 +311,12 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
                 f"rotor speeds: esc_status ({n} ESCs) at {1 / typical_period(available['esc_status'][0]):.3g} Hz"
             )
     if thrust is None and "rotor_speed" not in kw:
+        zero = [c for c in choices if c.startswith("thrust:") and "zero throughout" in c]
+        if zero:
+            raise InputError(
+                f"{path}: the thrust is zero throughout ({zero[0][len('thrust: ') :]}): the vehicle never flew in "
+                "this log (disarmed, on the ground), or the logger did not record it"
+            )
         wanted = " or ".join(f"{t} ({', '.join(f)})" for t, f, _ in THRUST)
         raise InputError(
             f"{path}: no thrust: needs {wanted}, or esc_status rotor speeds; the log has: {', '.join(all_found)}"

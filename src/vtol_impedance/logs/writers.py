@@ -196,10 +196,16 @@ def write_dataflash(path: Path, messages: list[DFMessage]) -> Path:
 # ----------------------------------------------------------------------------------------------------- tlog
 
 
-def tlog_bytes(messages: list[tuple[float, str, dict[str, Any]]], system: int = 1, component: int = 1) -> bytes:
-    """A tlog: ``messages = [(receive time in s, MAVLink message name, fields)]`` packed as MAVLink 2
-    (ardupilotmega dialect) in time order, each after its receive time in big-endian microseconds."""
-    from pymavlink.dialects.v20 import ardupilotmega as dialect
+def tlog_bytes(
+    messages: list[tuple[float, str, dict[str, Any]]], system: int = 1, component: int = 1, protocol: int = 2
+) -> bytes:
+    """A tlog: ``messages = [(receive time in s, MAVLink message name, fields)]`` packed as MAVLink 2 (or 1,
+    ``protocol``; ardupilotmega dialect) in time order, each after its receive time in big-endian
+    microseconds."""
+    if protocol == 1:
+        from pymavlink.dialects.v10 import ardupilotmega as dialect
+    else:
+        from pymavlink.dialects.v20 import ardupilotmega as dialect
 
     mav = dialect.MAVLink(None, srcSystem=system, srcComponent=component)
     out = bytearray()
@@ -209,8 +215,8 @@ def tlog_bytes(messages: list[tuple[float, str, dict[str, Any]]], system: int = 
     return bytes(out)
 
 
-def write_tlog(path: Path, messages: list[tuple[float, str, dict[str, Any]]]) -> Path:
-    data = tlog_bytes(messages)
+def write_tlog(path: Path, messages: list[tuple[float, str, dict[str, Any]]], protocol: int = 2) -> Path:
+    data = tlog_bytes(messages, protocol=protocol)
     return write_with(Path(path), lambda fh: fh.write(data))
 
 
