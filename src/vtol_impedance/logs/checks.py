@@ -64,8 +64,8 @@ MIN_FLIGHT_RATE = 0.003
 DYN_MOTION = 0.03
 
 CAUSES = {
-    ("quat_direction", "world-to-body"): "the attitude looks mirrored: is the quaternion world-to-body?",
-    ("quat_direction", "body-to-world"): "the attitude looks mirrored: is the quaternion body-to-world?",
+    ("quat_direction", "world-to-body"): "the attitude looks mirrored (is the quaternion world-to-body?)",
+    ("quat_direction", "body-to-world"): "the attitude looks mirrored (is the quaternion body-to-world?)",
     ("quat_order", "xyzw"): "the quaternion looks scalar-last (x, y, z, w), read as scalar-first",
     ("quat_order", "wxyz"): "the quaternion looks scalar-first (w, x, y, z), read as scalar-last",
     ("angle_unit", "deg"): "the angles look like degrees read as radians",
@@ -341,6 +341,35 @@ def _describe(c: Conventions, names: tuple[str, ...]) -> str:
     return c.as_flags(names)
 
 
+def _minimal_flags(declared: Conventions, diff: dict[str, str]) -> list[str]:
+    """The flags to give: ``--angle-unit`` also sets the rates' unit and ``--world`` the velocity's frame when
+    they were tied in the declared conventions."""
+    names = list(diff)
+    for lead, follow in (("angle_unit", "rate_unit"), ("world", "velocity_world")):
+        tied = getattr(declared, lead) == getattr(declared, follow)
+        if lead in diff and follow in diff and diff[lead] == diff[follow] and tied:
+            names.remove(follow)
+    return names
+
+
+def _causes(diff: dict[str, str]) -> list[str]:
+    """Each difference in words; angles and rates in the same unit, or world and velocity in the same frame,
+    as one cause."""
+    diff = dict(diff)
+    out = []
+    if diff.get("angle_unit") and diff.get("angle_unit") == diff.get("rate_unit"):
+        unit = diff.pop("angle_unit")
+        diff.pop("rate_unit")
+        other = "radians" if unit == "deg" else "degrees"
+        out.append(f"the angles and rates look like {'degrees' if unit == 'deg' else 'radians'} read as {other}")
+    if diff.get("world") and diff.get("world") == diff.get("velocity_world"):
+        frame = diff.pop("world")
+        diff.pop("velocity_world")
+        out.append(f"the log's world frame looks {frame.upper()}, read as {'NED' if frame == 'enu' else 'ENU'}")
+    out += [CAUSES.get((k, v), f"{k} looks like {v}") for k, v in diff.items()]
+    return out
+
+
 def check_conventions(
     raw: RawLog,
     mode: str = "check",
@@ -411,13 +440,13 @@ def check_conventions(
             return raw, rep
         best = scored[0]
         diff = declared.differences(best[1], relevant)
-        causes = "; ".join(CAUSES.get((k, v), f"{k} looks like {v}") for k, v in diff.items())
-        flags = best[1].as_flags(tuple(diff))
+        causes = "; ".join(_causes(diff))
+        flags = best[1].as_flags(tuple(_minimal_flags(declared, diff)))
         raise InputError(
             f"the log contradicts physics under the declared conventions ({_describe(declared, relevant)}): "
             + "; ".join(ev0.symptoms() or [f"it fits much worse (score {ev0.score:.2f}) than another reading"])
-            + f". Most likely {causes}: with {flags} the data agree (score {best[0]:.2f} against {ev0.score:.2f}). "
-            f"Give {flags}, or --conventions auto to choose from the data" + escape
+            + f". Most likely: {causes}. With {flags} the data agree (score {best[0]:.2f} against {ev0.score:.2f}): "
+            f"give {flags}, or --conventions auto to choose from the data" + escape
         )
     # auto: the best reading; on a near tie, the one closer to the declared
     s_c, chosen, ev_c = min(near, key=lambda x: x[0] + 0.05 * len(declared.differences(x[1], relevant)))

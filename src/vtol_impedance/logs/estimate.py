@@ -248,7 +248,7 @@ def commands_in_si(
         raise InputError("thrust from rotor speeds: the log has no rotor speeds (ESC telemetry, CSV rpm1..rpmN)")
     if thrust_from == "commands" and flight.thrust is None:
         raise InputError("thrust from the commands: the log has no thrust command, only rotor speeds")
-    use_rotors = have_rotors and uses_rotor_speeds(raw, thrust_from)
+    use_rotors = have_rotors and uses_rotor_speeds(raw, thrust_from, thrust_coefficient)
     if thrust_coefficient is not None and not use_rotors:
         raise InputError("a thrust coefficient converts rotor speeds; this estimate takes the thrust from the commands")
     geometry = rotor_geometry if rotor_geometry is not None else raw.rotor_geometry
@@ -326,12 +326,17 @@ def commands_in_si(
     return thrust, tau, info, notes
 
 
-def uses_rotor_speeds(raw: Any, thrust_from: str) -> bool:
-    """Whether the thrust comes from the log's rotor speeds: ``"rotors"``, or ``"auto"`` with rotor speeds at
-    20 Hz or more (or no thrust command at all)."""
+def uses_rotor_speeds(raw: Any, thrust_from: str, thrust_coefficient: float | None = None) -> bool:
+    """Whether the thrust comes from the log's rotor speeds: ``"rotors"``, or ``"auto"`` with a thrust
+    coefficient given, rotor speeds at 20 Hz or more, or no thrust command at all."""
     if raw.rotor_speed is None or thrust_from == "commands":
         return False
-    return thrust_from == "rotors" or raw.thrust is None or 1.0 / _period(raw.rotor_speed.t) >= 20.0
+    return (
+        thrust_from == "rotors"
+        or thrust_coefficient is not None
+        or raw.thrust is None
+        or 1.0 / _period(raw.rotor_speed.t) >= 20.0
+    )
 
 
 def _period(t: np.ndarray) -> float:

@@ -183,7 +183,8 @@ def estimate_file(
     raw, rep = read_any(path, **(read_options or {}))
     m, I_B, geometry, vchoices = _vehicle(raw, mass, inertia, vehicle)
     thrust_from = estimate_options.get("thrust_from", "auto")
-    if raw.rotor_speed is not None and thrust_from == "auto" and not uses_rotor_speeds(raw, thrust_from):
+    k_T = estimate_options.get("thrust_coefficient")
+    if raw.rotor_speed is not None and thrust_from == "auto" and not uses_rotor_speeds(raw, thrust_from, k_T):
         raw.notes.append(
             f"rotor speeds ({raw.rotor_speed.source}) at {1 / typical_period(raw.rotor_speed.t):.3g} Hz, below "
             "20 Hz: not used (the thrust comes from the commands; --thrust-from rotors to use them)"
