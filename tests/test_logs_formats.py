@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 import synthflight as S
-from logfiles import HOVER, K_T, csv_cols, write_csv, write_synth_dataflash, write_synth_tlog
+from logfiles import HOVER, K_T, ROTORS, csv_cols, write_csv, write_synth_dataflash, write_synth_tlog
 from ulog_writer import write_ulog
 
 from vtol_impedance.cli import main
@@ -71,10 +71,16 @@ def test_dataflash_written_here_reads_back_through_pymavlink(fl, tmp_path):
     f = resample(raw, 100.0)
     bound = _accel_bound(0.04) + _hold_bound(fl, 0.02) + S.MASS * S.G * math.radians(0.01) + 2e-3
     _check_force(estimate(f, S.MASS, None, thrust_from="commands"), f.t - 2.0, bound)
-    # the same flight from the ESC rotor speeds with the rotors' coefficient
-    e = estimate(f, S.MASS, None, thrust_from="rotors", thrust_coefficient=K_T)
-    assert "ESC.RPM" in e.info["thrust"]
+    # the same flight from the ESC rotor speeds with the rotors' coefficient, and the moment through the X
+    # geometry (DataFlash logs none: a user gives it with --vehicle)
+    geometry = (np.array([[x, y, 0.0] for x, y, _ in ROTORS]), np.array([k for _, _, k in ROTORS]))
+    e = estimate(f, S.MASS, S.INERTIA, thrust_from="rotors", thrust_coefficient=K_T, rotor_geometry=geometry)
+    assert "ESC.RPM" in e.info["thrust"] and e.info["torque"].startswith("rotor speeds")
     _check_force(e, f.t - 2.0, bound)
+    t = f.t - 2.0
+    steady = ((t > 3.0) & (t < 4.9)) | ((t > 10.0) & (t < 12.0))
+    # G applied to the body moment directly: the attitude stays within 3 deg, so Q^-T G Q^T is G to 1e-3 N m
+    np.testing.assert_allclose(e.tau_B[steady], S.g_of_true_wrench(t, "tau")[steady], atol=1e-3)
 
 
 def test_a_truncated_dataflash_log_is_repaired_and_reported(fl, tmp_path):

@@ -4,10 +4,11 @@ A wrong convention (a quaternion read in the wrong order or direction, degrees r
 as NED, milliseconds read as seconds) gives an estimate that looks plausible and is wrong. Three
 physical facts hold in every flight, whatever the wrench, and each convention error breaks at least one:
 
-* **kinematics**: the logged body rates are the attitude's rate of change, ``[w_B]x = R^T dR/dt``. The
-  score ``kin`` is the RMS of their difference over the RMS of the rates (0: agree; 1: unrelated; 2:
-  opposite, a mirrored attitude). The per-axis gain tells a scale error: about 1000 for milliseconds
-  read as seconds, 57.3 for deg/s read as rad/s.
+* **kinematics**: the logged body rates are the attitude's rate of change, ``[w_B]x = R^T dR/dt`` (both
+  averaged over 0.5 s). The score ``kin`` is the RMS of their difference over the sum of their RMS (0:
+  they agree; about 1: opposite, as from a mirrored attitude, unrelated, or off by a large factor). The
+  per-axis gain tells a scale error: about 1000 for milliseconds read as seconds, 57.3 for deg/s read as
+  rad/s, -1 for a mirrored attitude.
 * **gravity**: the thrust axis points along the specific force ``g e3 - a`` that the velocity shows, up
   to the external force (a few degrees): ``tilt`` is the median angle between them; an upside-down or
   tumbling attitude (a quaternion read in the wrong order, degrees read as radians) gives tens of
@@ -20,7 +21,10 @@ physical facts hold in every flight, whatever the wrench, and each convention er
   disturbance (it tilts against a force and does not move) the correlation says little, and a flight
   without enough acceleration leaves it out.
 
-Plus the time base: every signal's rate must be plausible for a flight log (0.5 Hz to 20 kHz).
+Plus the time base: every signal's rate must be plausible for a flight log (0.5 Hz to 20 kHz). The score
+sums these (``Evidence.score``) with two priors that only rank readings: body rates whose RMS is below
+0.003 rad/s (no flying vehicle is that still: radians read as degrees) and mixed frames or units (the
+velocity in another world frame than the attitude, the rates in another unit than the angles).
 
 A log is scored under its declared conventions and, where the reader can re-read it under others (a
 CSV file), under every combination of the conventions that apply to it. The declared set passes when no
@@ -193,7 +197,7 @@ def _windows(sigs: list[Signal], lo: float, hi: float, rate: float) -> list[np.n
     return [s0 + np.arange(int(chunk * rate)) / rate for s0 in np.sort(starts[best])]
 
 
-def evidence(raw: RawLog, hold_out: float = 0.0) -> Evidence:
+def evidence(raw: RawLog) -> Evidence:
     """Score one reading of a log (world NED / body FRD, SI) against physics (module docstring)."""
     notes: list[str] = []
     thrust_sig = raw.thrust

@@ -170,6 +170,7 @@ def _esc_dataflash(tables: dict[str, dict[str, np.ndarray]], choices: list[str])
 
 
 def _combine_escs(per: dict[int, tuple[np.ndarray, np.ndarray]], src: str, choices: list[str]) -> Signal | None:
+    per = {k: v for k, v in per.items() if np.any(v[1] != 0)}  # ESC slots without a motor report zero
     if len(per) < 3:
         return None
     n = max(per) + 1
@@ -609,7 +610,6 @@ def _esc_tlog(tables: dict[str, dict[str, np.ndarray]], choices: list[str]) -> S
                 if f"rpm[{j}]" in d:
                     per[j] = (d["_t"], d[f"rpm[{j}]"])
         src = "ESC_TELEMETRY_1_TO_4.rpm"
-    per = {k: v for k, v in per.items() if np.any(v[1] > 0)}
     return _combine_escs(per, src, choices)
 
 
