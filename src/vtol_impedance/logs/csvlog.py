@@ -175,29 +175,54 @@ def table_to_raw(
     conv: Conventions,
     rotor_speed_unit: str = "rpm",
     check_quaternion: bool = True,
+    cache: dict | None = None,
 ) -> RawLog:
-    """The table's signals in world NED / body FRD, SI units, read under ``conv``."""
+    """The table's signals in world NED / body FRD, SI units, read under ``conv``. ``cache`` (a dict kept
+    between calls on the same table) reuses every signal whose conventions did not change: the convention
+    checks read one table under hundreds of conventions."""
     c = table.cols
     notes = list(table.notes)
     if rotor_speed_unit not in ROTOR_SPEED_UNITS:
         raise InputError(f"rotor speed unit must be one of {', '.join(ROTOR_SPEED_UNITS)}, got {rotor_speed_unit!r}")
-    t = c[table.time_role] * TIME_UNITS[conv.time_unit]
+
+    def cached(key: tuple, make):
+        if cache is None:
+            return make()
+        if key not in cache:
+            cache[key] = make()
+        return cache[key]
+
+    t = cached(("t", conv.time_unit), lambda: c[table.time_role] * TIME_UNITS[conv.time_unit])
     a_scale = np.pi / 180.0 if conv.angle_unit == "deg" else 1.0
     r_scale = np.pi / 180.0 if conv.rate_unit == "deg" else 1.0
-    if table.has_quaternion:
-        att = _signal("attitude", "q0..q3", t, [c[f"q{i}"] for i in range(4)])
-        q = att.values
-        if not check_quaternion:  # exploring other conventions: a non-unit quaternion reads as garbage, not error
-            q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-12)
-        R = frames.quaternion_rotation(q, conv.quat_order, conv.quat_direction)
-    else:
-        att = _signal("attitude", "roll, pitch, yaw", t, [c[k] * a_scale for k in ("roll", "pitch", "yaw")])
-        R = frames.euler_rotation(*att.values.T)
-    att.values = frames.eta_ned_frd(R, conv.world, conv.body)
-    vel = _signal("velocity", f"vx, vy, vz ({conv.velocity_world.upper()})", t, [c["vx"], c["vy"], c["vz"]])
-    vel.values = frames.world_vector_to_ned(vel.values, conv.velocity_world)
-    rates = _signal("body rates", f"wx, wy, wz ({conv.body.upper()})", t, [c[k] * r_scale for k in ("wx", "wy", "wz")])
-    rates.values = frames.body_vector_to_frd(rates.values, conv.body)
+
+    def attitude() -> Signal:
+        if table.has_quaternion:
+            att = _signal("attitude", "q0..q3", t, [c[f"q{i}"] for i in range(4)])
+            q = att.values
+            if not check_quaternion:  # exploring conventions: a non-unit quaternion reads as garbage, not error
+                q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-12)
+            R = frames.quaternion_rotation(q, conv.quat_order, conv.quat_direction)
+        else:
+            att = _signal("attitude", "roll, pitch, yaw", t, [c[k] * a_scale for k in ("roll", "pitch", "yaw")])
+            R = frames.euler_rotation(*att.values.T)
+        att.values = frames.eta_ned_frd(R, conv.world, conv.body)
+        return att
+
+    def velocity() -> Signal:
+        vel = _signal("velocity", f"vx, vy, vz ({conv.velocity_world.upper()})", t, [c["vx"], c["vy"], c["vz"]])
+        vel.values = frames.world_vector_to_ned(vel.values, conv.velocity_world)
+        return vel
+
+    def body_rates() -> Signal:
+        w = _signal("body rates", f"wx, wy, wz ({conv.body.upper()})", t, [c[k] * r_scale for k in ("wx", "wy", "wz")])
+        w.values = frames.body_vector_to_frd(w.values, conv.body)
+        return w
+
+    form = (conv.quat_order, conv.quat_direction) if table.has_quaternion else (conv.angle_unit,)
+    att = cached(("att", conv.time_unit, *form, conv.world, conv.body, check_quaternion), attitude)
+    vel = cached(("vel", conv.time_unit, conv.velocity_world), velocity)
+    rates = cached(("rates", conv.time_unit, conv.rate_unit, conv.body), body_rates)
     raw_kw: dict = {}
     thrust = None
     if "thrust_n" in c:

@@ -97,11 +97,12 @@ def read_any(
         check_thrust_signal(raw.thrust, notes)  # zeros or constant: refused before anything else
     block = _check_block(table)
     t_col = block.cols[block.time_role]
+    cache: dict = {}
 
     def reread(c: Conventions) -> RawLog:
         if not time_plausible(t_col * TIME_UNITS[c.time_unit]):
             raise ImplausibleTime
-        r = table_to_raw(block, c, rotor_speed_unit, check_quaternion=False)
+        r = table_to_raw(block, c, rotor_speed_unit, check_quaternion=False, cache=cache)
         if r.thrust is not None:
             r.thrust = check_thrust_signal(r.thrust, [])
         return r
