@@ -19,6 +19,7 @@ import synthflight as S
 from logfiles import csv_cols, write_csv
 
 from vtol_impedance.cli import main
+from vtol_impedance.errors import InputError
 from vtol_impedance.logs import estimate, read_any, resample
 from vtol_impedance.logs.timeseries import RawLog, Signal
 from vtol_impedance.model.kinematics import rotation_zyx
@@ -133,3 +134,32 @@ def test_where_the_data_stop_the_estimator_restarts_and_says_so(fl, tmp_path, ca
     assert np.all(data["segment"][data["t_s"] > 8.5] == 1)
     html = (out / "report.html").read_text()
     assert "Gaps: bridged" in html and "restart" in html and "the data stop" in html
+
+
+def test_a_log_with_no_usable_segment_is_refused(fl, tmp_path, capsys):
+    t = fl.t
+    sig = lambda name, tt, v, hold=False: Signal(name, name, tt, v, hold)  # noqa: E731
+    apart = RawLog(
+        sig("velocity", t[t < 5.0], fl.v_W[t < 5.0]),
+        sig("attitude", t[t > 6.0], fl.eta[t > 6.0]),
+        sig("body rates", t, fl.omega_B),
+        sig("thrust", t, fl.thrust[:, None], True),
+        None,
+    )
+    with pytest.raises(InputError, match="share no common time span.*velocity 0.000-4.996 s, attitude 6.004"):
+        resample(apart)
+    sparse = RawLog(
+        sig("velocity", np.array([0.0, 10.0]), fl.v_W[[0, -1]]),
+        sig("attitude", t, fl.eta),
+        sig("body rates", t, fl.omega_B),
+        sig("thrust", t, fl.thrust[:, None], True),
+        None,
+    )
+    with pytest.raises(InputError, match="no usable segment: every sample but 2 falls inside a gap"):
+        resample(sparse, max_gap_s=1.0)
+    cols = csv_cols(fl, every=2)
+    keep = cols["t_s"] < 0.02  # two rows
+    rc = main(["estimate", str(write_csv(tmp_path / "two.csv", {k: v[keep] for k, v in cols.items()})), "--mass",
+               "1.2", "--out", str(tmp_path / "o")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and "error:" in err and "Traceback" not in err

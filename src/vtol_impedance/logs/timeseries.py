@@ -50,6 +50,8 @@ MAX_GAP_PERIODS = 10.0
 MAX_GAP_BOUNDS_S = (0.5, 5.0)
 #: A step between samples longer than this many typical periods is a dropout.
 DROPOUT_PERIODS = 3.0
+#: The fewest grid points an estimate is made on.
+MIN_SAMPLES = 10
 #: The longest resampled log: 50 million samples (about 6 days at 100 Hz, some GB of arrays).
 MAX_SAMPLES = 50_000_000
 
@@ -288,8 +290,11 @@ def resample(
                 f"{s.name}: {n_bridged} dropout(s) up to {longest:.3f} s bridged (estimator state carried; "
                 f"max gap {max_gap_s:.3g} s)"
             )
-    if not keep.any():
-        raise InputError("every sample falls inside a gap; nothing to estimate")
+    if keep.sum() < MIN_SAMPLES:
+        raise InputError(
+            f"no usable segment: every sample but {int(keep.sum())} falls inside a gap longer than the max gap "
+            f"({max_gap_s:.3g} s, {gap_source}); nothing to estimate (a longer --max-gap bridges them)"
+        )
     grid, restart, bridged = grid[keep], restart[keep], bridged[keep]
     restart[0] = True
     by_name = {s.name: s for s in sigs}
