@@ -274,3 +274,20 @@ def test_rotor_speed_units_are_checked(fl, tmp_path):
     raw, _ = read_any(write_csv(tmp_path / "erpm.csv", rpm))
     with pytest.raises(InputError, match="above 48000 rpm.*electrical rpm"):
         estimate(resample(raw), S.MASS, None)
+
+
+def test_a_tlog_across_a_reboot_keeps_the_longest_boot(fl, tmp_path):
+    """The vehicle's clock starts again mid-tlog: sorted by it, two boots would interleave; the longest one
+    is kept (and said)."""
+    from logfiles import synth_tlog_messages
+
+    from vtol_impedance.logs.writers import write_tlog
+
+    first = [m for m in synth_tlog_messages(fl) if m[0] < 1.7e9 + 5.0 + 3.0]  # 3 s before the reboot
+    second = [(t + 60.0, name, fields) for t, name, fields in synth_tlog_messages(fl)]  # the same clock again
+    raw, _ = read_any(write_tlog(tmp_path / "reboot.tlog", first + second))
+    assert any("rebooted 1 time(s)" in n for n in raw.notes)
+    f = resample(raw, 100.0)
+    assert f.t[-1] - f.t[0] > 11.5 and f.restart.sum() == 1
+    bound = _accel_bound(0.04) + _hold_bound(fl, 0.02) + 2e-3
+    _check_force(estimate(f, S.MASS, None), f.t - 5.0, bound)

@@ -565,10 +565,11 @@ def _tlog_tables(msgs: dict[str, list]) -> tuple[dict[str, dict[str, np.ndarray]
             d["_t"] = d["time_boot_ms"] * 1e-3
         elif "time_usec" in d and np.median(d["time_usec"]) < 1e14:  # since boot, not a unix time
             d["_t"] = d["time_usec"] * 1e-6
+        tables[typ] = d
+    note = _one_boot(tables)
+    for d in tables.values():
         if "_t" in d:
             offsets.append(d["_recv"] - d["_t"])
-        tables[typ] = d
-    note = None
     if offsets:
         off = np.concatenate(offsets)
         delay = float(np.percentile(off, 2))
@@ -578,10 +579,10 @@ def _tlog_tables(msgs: dict[str, list]) -> tuple[dict[str, dict[str, np.ndarray]
                 d["_t"] = d["_recv"] - delay
                 placed.append(typ)
         if placed:
-            note = (
+            note = "; ".join(filter(None, [note, (
                 f"{', '.join(sorted(placed))}: no time field; placed on the vehicle clock by receive time minus the "
                 "link's smallest delay"
-            )
+            )]))  # fmt: skip
     else:
         for d in tables.values():
             d["_t"] = d["_recv"]
@@ -591,6 +592,30 @@ def _tlog_tables(msgs: dict[str, list]) -> tuple[dict[str, dict[str, np.ndarray]
         for k in list(d):
             d[k] = d[k][order]
     return tables, note
+
+
+def _one_boot(tables: dict[str, dict[str, np.ndarray]]) -> str | None:
+    """A tlog may span a reboot of the vehicle (its clock starts again): keep the boot with the longest
+    stretch of attitude messages (by receive time), drop the rest, and say so."""
+    ref = tables.get("ATTITUDE") or tables.get("ATTITUDE_QUATERNION")
+    if not ref or "_t" not in ref:
+        return None
+    order = np.argsort(ref["_recv"], kind="stable")
+    t, recv = ref["_t"][order], ref["_recv"][order]
+    resets = np.flatnonzero(np.diff(t) < -1.0)
+    if not len(resets):
+        return None
+    edges = np.concatenate([[0], resets + 1, [len(t)]])
+    spans = [(recv[a], recv[b - 1]) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    lo, hi = max(spans, key=lambda ab: ab[1] - ab[0])
+    for d in tables.values():
+        keep = (d["_recv"] >= lo - 0.5) & (d["_recv"] <= hi + 0.5)
+        for k in list(d):
+            d[k] = d[k][keep]
+    return (
+        f"the vehicle rebooted {len(resets)} time(s) during the tlog (its clock starts again): the longest boot "
+        f"({hi - lo:.0f} s) is used"
+    )
 
 
 def _esc_tlog(tables: dict[str, dict[str, np.ndarray]], choices: list[str]) -> Signal | None:
