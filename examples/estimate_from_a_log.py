@@ -7,13 +7,15 @@ Estimate the wrench a vehicle felt from its flight log, as you would with a ROS 
 The "flight" here is the simulator's case B (unmodelled payload, then a fan) flown with PD, so that the
 true wrench is known. Its measured velocity, attitude, gyro and commands are written the way a ROS
 stack logs them (world ENU, body FLU, quaternion x y z w, angles in degrees, thrust normalised with a
-hover-thrust column) and then read back by ``vtol-impedance estimate``, which converts everything to NED /
-FRD and runs the paper's estimator.
+hover-thrust column) and then read back by ``vtol-impedance estimate``, which checks the declared
+conventions against physics, converts everything to NED / FRD and runs the paper's estimator. Without the
+convention flags, ``--conventions auto`` finds them from the data (the second run below).
 
 Run: ``python examples/estimate_from_a_log.py [--duration 30] [--out results/example-estimate]``
 """
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +67,15 @@ def run(folder: Path = Path("results/example-estimate"), duration: float = 30.0)
         ]
     )  # fmt: skip
     assert rc == 0
+    # the same file without the convention flags: the data decide them
+    renames = ["--column", "t_s=time", "--column", "vx=vel_x", "--column", "vy=vel_y", "--column", "vz=vel_z"]
+    rc = cli(["estimate", str(folder / "flight.csv"), "--vehicle", "pelican", *renames, "--conventions", "auto",
+              "--out", str(folder / "estimate-auto"), "--no-plots", "--quiet"])  # fmt: skip
+    assert rc == 0
+    chosen = json.loads((folder / "estimate-auto" / "estimate.json").read_text())["info"]["conventions"]["chosen"]
+    assert (chosen["world"], chosen["body"], chosen["quat_order"], chosen["rate_unit"]) == ("enu", "flu", "xyzw", "deg")
+    print("conventions found by --conventions auto:", {k: chosen[k] for k in ("world", "body", "quat_order")},
+          f"rates in {chosen['rate_unit']}")  # fmt: skip
     est = np.genfromtxt(folder / "estimate" / "wrench.csv", delimiter=",", names=True)
     on_log = {k: np.stack([np.interp(est["t_s"], truth["t"], truth[k][:, i]) for i in range(3)], -1) for k in truth
               if k != "t"}  # fmt: skip

@@ -9,6 +9,7 @@ ODE solver. So the log's commands produce exactly the logged motion under the kn
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,3 +104,18 @@ def g_response(t: np.ndarray, w_of, wn: float = 10.0, zeta: float = 1.0) -> np.n
         _, y, _ = scipy.signal.lsim(sys, w[:, j], fine)
         out[:, j] = np.interp(t, fine, y)
     return out
+
+
+@functools.cache
+def _g_of_wrench_from_zero(which: str, wn: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
+    fine = np.arange(0.0, 12.5, 1e-4)
+    w_of = f_ext_of if which == "f" else tau_ext_of
+    return fine, g_response(fine, w_of, wn, zeta)
+
+
+def g_of_true_wrench(t: np.ndarray, which: str = "f", wn: float = 10.0, zeta: float = 1.0) -> np.ndarray:
+    """:func:`g_response` of the true force (``which="f"``) or body moment (``"tau"``) from rest at t = 0,
+    computed once (lsim on a 0.1 ms grid) and interpolated at ``t`` (which must start near 0: an estimate
+    starting later differs only in its first second)."""
+    fine, y = _g_of_wrench_from_zero(which, float(wn), float(zeta))
+    return np.stack([np.interp(t, fine, y[:, j]) for j in range(y.shape[1])], -1)

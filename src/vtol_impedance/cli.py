@@ -432,56 +432,99 @@ def _estimate_tables(est: Any, s: dict[str, Any]) -> list[tuple[str, list[str], 
         rows = [[k] + [f"{v:.4g}" for v in est.bias[k]] for k in ("f_W_N", "tau_B_Nm") if k in est.bias]
         a, b = est.bias["segment_s"]
         tables.append((f"Bias: mean estimate over the quiet segment {a:g}-{b:g} s", ["", "x", "y", "z"], rows))
-    info_rows = [[k, str(v)] for k, v in est.info.items() if k not in ("estimator", "inertia_kg_m2")]
+    choices = est.info.get("choices", [])
+    if choices:
+        tables.append(("What was chosen from the log", ["choice"], [[c] for c in choices]))
+    conv = est.info.get("conventions")
+    if conv and conv.get("evidence_chosen"):
+        ev = conv["evidence_chosen"]
+        rows = [[k, str(v)] for k, v in ev.items()] + [["mode", conv["mode"]], ["readings tried", str(conv["tried"])]]
+        if conv.get("chosen"):
+            rows.append(["conventions", ", ".join(f"{k} {v}" for k, v in conv["chosen"].items())])
+        tables.append(("Conventions checked against physics", ["item", "value"], rows))
+    gaps = est.info.get("gaps") or []
+    if gaps:
+        rows = []
+        for g in gaps[:200]:
+            bound = (
+                f"{g['bound_f_N']:.3g} N (+{g['bound_f_per_N_change']:.2g} per N of change)" if "bound_f_N" in g else ""
+            )
+            rows.append(
+                [g["signal"], f"{g['t0_s']:.3f}", f"{g['t1_s']:.3f}", f"{g['length_s']:.3f}", g["action"], bound]
+            )
+        caption = "Gaps: bridged (estimator state carried) or restart (the data stop)"
+        if len(gaps) > 200:
+            caption += f"; the first 200 of {len(gaps)}"
+        tables.append((caption, ["signal", "from s", "to s", "length s", "action", "bound after it"], rows))
+    skip = ("estimator", "inertia_kg_m2", "choices", "conventions", "gaps")
+    info_rows = [[k, str(v)] for k, v in est.info.items() if k not in skip]
     tables.append(("How the log was read", ["item", "value"], info_rows))
     return tables
 
 
 def cmd_estimate(args: argparse.Namespace) -> int:
-    """Estimate the external wrench along a flight log (CSV or PX4 ULog)."""
+    """Estimate the external wrench along a flight log (CSV, PX4 ULog, ArduPilot DataFlash, MAVLink tlog)."""
     from .errors import InputError
     from .estimator import EstimatorParams
     from .io import RunFolder
-    from .logs import estimate, read_log, resample
+    from .logs import estimate_file, log_format
+    from .logs import samples as sample_logs
 
-    log = Path(args.log)
-    if not log.is_file():
-        raise InputError(f"log file {log} {'is not a file' if log.exists() else 'does not exist'}")
-    mass = args.mass
+    if args.example is not None:
+        if args.example == "list":
+            print(sample_logs.listing())
+            print(f"\ne.g. vtol-impedance estimate --example px4 --mass {sample_logs.MASS_KG}")
+            return 0
+        if args.log is not None:
+            raise InputError("give a log file or --example NAME, not both")
+        log = sample_logs.path(args.example)
+        stem = args.example
+    else:
+        if args.log is None:
+            raise InputError("give a log file (CSV, .ulg, .bin, .tlog) or --example NAME (--example list)")
+        log = Path(args.log)
+        if not log.is_file():
+            raise InputError(f"log file {log} {'is not a file' if log.exists() else 'does not exist'}")
+        stem = log.stem
     inertia: Any = _floats("--inertia", args.inertia, (3, 9))
+    if inertia is not None and len(inertia) == 9:
+        inertia = [inertia[0:3], inertia[3:6], inertia[6:9]]
+    vehicle = None
     if args.vehicle:
         from .model import load_preset
 
-        veh = load_preset(args.vehicle)
-        mass = veh.mass if mass is None else mass
-        inertia = veh.inertia if inertia is None else inertia
-    if mass is None or inertia is None:
-        raise InputError(
-            "the estimator needs the nominal mass and inertia: give --vehicle NAME|FILE.toml or --mass and --inertia"
-        )
-    if len(inertia) == 9:
-        inertia = [inertia[0:3], inertia[3:6], inertia[6:9]]
+        vehicle = load_preset(args.vehicle)
     columns = {}
     for item in args.column:
         role, sep, name = item.partition("=")
         if not sep or not role or not name:
             raise InputError(f"--column takes ROLE=NAME, got {item!r}")
         columns[role.strip()] = name.strip()
-    is_ulog = log.suffix.lower() == ".ulg"
-    if is_ulog and (columns or args.world != "ned" or args.body != "frd"):
-        raise InputError("--column, --world and --body apply to CSV logs; a ULog is always NED/FRD")
-    csv_options = dict(
-        world=args.world, body=args.body, angle_unit=args.angle_unit, quat_order=args.quat_order,
-        quat_direction=args.quat_direction, columns=columns,
-    )  # fmt: skip
-    raw = read_log(log, **({} if is_ulog else csv_options))
-    flight = resample(raw, args.rate, args.max_gap, args.start, args.end)
+    csv_flags = {
+        "world": args.world, "body": args.body, "angle_unit": args.angle_unit, "quat_order": args.quat_order,
+        "quat_direction": args.quat_direction, "time_unit": args.time_unit, "rate_unit": args.rate_unit,
+        "velocity_world": args.velocity_world,
+    }  # fmt: skip
+    given = {k: v for k, v in csv_flags.items() if v is not None}
+    read_options: dict[str, Any] = {"conventions": args.conventions}
+    if log_format(log) == "csv":
+        read_options.update(given, columns=columns, rotor_speed_unit=args.rotor_speed_unit or "rpm")
+    elif given or columns or args.rotor_speed_unit:
+        flags = ", ".join(["--" + k.replace("_", "-") for k in given] + (["--column"] if columns else []))
+        raise InputError(f"{flags or '--rotor-speed-unit'} appl{'y' if ',' in flags else 'ies'} to CSV logs; "
+                         f"a {log_format(log)} log states its own frames and units")  # fmt: skip
     params = EstimatorParams(
         wn=args.wn, zeta=args.zeta, order=args.order, prototype=args.prototype, velocity_delay=args.velocity_delay,
         attitude_delay=args.attitude_delay, rotor_tau=args.rotor_tau,
     )  # fmt: skip
-    est = estimate(
-        flight, mass, inertia, params,
+    est = estimate_file(
+        log, args.mass, inertia, params,
+        vehicle=vehicle,
+        rate_hz=args.rate,
+        max_gap_s=args.max_gap,
+        t_start=args.start,
+        t_end=args.end,
+        read_options=read_options,
         zero_phase_too=args.zero_phase,
         quiet_segment=_floats("--quiet-segment", args.quiet_segment, 2),
         remove_bias=args.remove_bias,
@@ -489,8 +532,11 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         hover_segment=_floats("--hover-segment", args.hover_segment, 2),
         torque_scale=_floats("--torque-scale", args.torque_scale, (1, 3)),
         backend=args.backend,
+        thrust_from=args.thrust_from,
+        thrust_coefficient=args.thrust_coefficient,
     )  # fmt: skip
-    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"estimate-{log.stem}"
+    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"estimate-{stem}"
+    flight = est.flight
     with RunFolder(out) as folder:
         from .analysis.report import write_html
         from .logs.output import summary, write_estimate
@@ -505,7 +551,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
                 plot_log_wrench(est, folder.path("wrench.png"), f"{log.name}: estimated external wrench"),
                 plot_log_inputs(est, folder.path("inputs.png"), f"{log.name}: inputs at {flight.rate_hz:g} Hz"),
             ]
-        notes = [
+        notes = [f"WARNING: {w}" for w in est.warnings] + [
             "Force in world NED, moment in body FRD. The estimate contains everything the nominal model misses: "
             "a thrust-map or mass error appears as a constant force along the thrust axis (see the bias).",
             *est.notes,
@@ -513,11 +559,18 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         write_html(folder.staging, f"Wrench estimate: {log.name}", tables=_estimate_tables(est, s),
                    figures={"Figures": figs}, notes=notes, config=s["info"])  # fmt: skip
         final = folder.commit(s["info"])
+    for w in est.warnings:
+        print(f"WARNING: {w}", file=sys.stderr)
     if not args.quiet:
+        for c in est.info.get("choices", []):
+            print(f"chose: {c}", file=sys.stderr)
         for n in est.notes:
             print(f"note: {n}", file=sys.stderr)
         st = s["stats"]["f_W_N"]
-        print(f"{len(est.t)} samples at {flight.rate_hz:g} Hz, {est.info['segments']} segment(s)")
+        restarts = int(flight.restart.sum()) - 1
+        bridged = sum(1 for g in flight.gaps if g["action"] == "bridged")
+        print(f"{len(est.t)} samples at {flight.rate_hz:g} Hz, {est.info['segments']} segment(s) "
+              f"({restarts} restart(s), {bridged} bridged dropout(s))")  # fmt: skip
         print("force, world NED [N]  mean " + " ".join(f"{v:+.3f}" for v in st["mean"]) + "   max |.| "
               + " ".join(f"{v:.3f}" for v in st["max_abs"]))  # fmt: skip
         if est.bias is not None:
@@ -731,29 +784,50 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser(
         "estimate",
-        help="estimate the external wrench along a flight log (CSV or PX4 .ulg): series, figures, report",
-        description="Runs the momentum-based estimator (eqs. (6)-(13)) on a flight log. CSV columns: t_s, "
-        "vx, vy, vz, roll, pitch, yaw (or q0..q3), wx, wy, wz, thrust_n (or thrust_norm), optional tx, ty, tz; "
-        "see the README, section 'Estimating from flight logs'.",
+        help="estimate the external wrench along a flight log (CSV, PX4 .ulg, ArduPilot .bin, MAVLink .tlog): "
+        "series, figures, report",
+        description="Runs the momentum-based estimator (eqs. (6)-(13)) on a flight log, after checking its "
+        "conventions against physics. CSV columns: t_s, vx, vy, vz, roll, pitch, yaw (or q0..q3), wx, wy, wz, "
+        "thrust_n (or thrust_norm), optional tx, ty, tz and rpm1..rpm8; see the README, section 'Estimating "
+        "from flight logs'. --example list shows the sample logs that ship with the package.",
     )
-    sp.add_argument("log", help="a .ulg (PX4) or .csv file")
-    sp.add_argument("--vehicle", default=None, help="preset name or vehicle .toml for the nominal mass and inertia")
-    sp.add_argument("--mass", type=float, default=None, help="nominal mass, kg (overrides --vehicle)")
-    sp.add_argument("--inertia", default=None, help="nominal inertia Ixx,Iyy,Izz or 9 values, kg m^2")
-    g = sp.add_argument_group("CSV conventions")
-    g.add_argument("--world", default="ned", choices=["ned", "enu"], help="world frame of the velocity")
-    g.add_argument("--body", default="frd", choices=["frd", "flu"], help="body frame of rates, torques, attitude")
-    g.add_argument("--angle-unit", default="rad", choices=["rad", "deg"], help="Euler angles and body rates")
-    g.add_argument("--quat-order", default="wxyz", choices=["wxyz", "xyzw"], help="order of q0..q3")
-    g.add_argument("--quat-direction", default="body-to-world", choices=["body-to-world", "world-to-body"])
+    sp.add_argument("log", nargs="?", default=None, help="a .ulg (PX4), .bin (ArduPilot), .tlog (MAVLink) or .csv file")
+    sp.add_argument("--example", default=None, metavar="NAME", help="a sample log that ships with the package "
+                    "(--example list)")  # fmt: skip
+    sp.add_argument(
+        "--vehicle", default=None, help="preset name or vehicle .toml: nominal mass, inertia, rotor geometry"
+    )
+    sp.add_argument("--mass", type=float, default=None, help="nominal mass, kg (overrides --vehicle and the log)")
+    sp.add_argument("--inertia", default=None, help="nominal inertia Ixx,Iyy,Izz or 9 values, kg m^2 (for the moment)")
+    g = sp.add_argument_group("conventions (CSV; checked against physics for every format)")
+    g.add_argument("--conventions", default="check", choices=["check", "auto", "unchecked"],
+                   help="check the declared conventions against physics (default), choose them from the data "
+                   "(auto), or skip the check")  # fmt: skip
+    g.add_argument("--world", default=None, choices=["ned", "enu"], help="world frame of the attitude (and velocity)")
+    g.add_argument("--velocity-world", default=None, choices=["ned", "enu"], help="world frame of the velocity")
+    g.add_argument("--body", default=None, choices=["frd", "flu"], help="body frame of attitude, rates, torques")
+    g.add_argument("--angle-unit", default=None, choices=["rad", "deg"], help="Euler angles (and rates)")
+    g.add_argument("--rate-unit", default=None, choices=["rad", "deg"], help="body rates (default: --angle-unit)")
+    g.add_argument("--quat-order", default=None, choices=["wxyz", "xyzw"], help="order of q0..q3")
+    g.add_argument("--quat-direction", default=None, choices=["body-to-world", "world-to-body"])
+    g.add_argument("--time-unit", default=None, choices=["s", "ms", "us", "ns"],
+                   help="unit of the time column (default: s for t_s, us for timestamp_us)")  # fmt: skip
+    g.add_argument("--rotor-speed-unit", default=None, choices=["rpm", "rad/s"], help="CSV rpm1..rpmN (default rpm)")
     g.add_argument("--column", action="append", default=[], metavar="ROLE=NAME",
                    help="read role ROLE (e.g. vx) from column NAME (repeatable)")  # fmt: skip
     g = sp.add_argument_group("time base")
     g.add_argument("--rate", type=float, default=100.0, help="resampling rate, Hz (default 100)")
-    g.add_argument("--max-gap", type=float, default=0.25, help="longer gaps in any signal restart the estimator, s")
+    g.add_argument("--max-gap", type=float, default=None, metavar="S",
+                   help="dropouts up to this long are bridged, longer ones restart the estimator (default: ten "
+                   "periods of the log's slowest signal, within 0.5-5 s)")  # fmt: skip
     g.add_argument("--start", type=float, default=None, help="estimate from this time on, s")
     g.add_argument("--end", type=float, default=None, help="estimate up to this time, s")
-    g = sp.add_argument_group("commands")
+    g = sp.add_argument_group("thrust and torque")
+    g.add_argument("--thrust-from", default="auto", choices=["auto", "commands", "rotors"],
+                   help="commands, or measured rotor speeds (no rotor lag); auto: rotor speeds when the log has "
+                   "them at 20 Hz or more")  # fmt: skip
+    g.add_argument("--thrust-coefficient", type=float, default=None, metavar="KT",
+                   help="rotor thrust per speed squared, N/(rad/s)^2 (default: calibrated on the log)")  # fmt: skip
     g.add_argument("--hover-thrust", type=float, default=None, help="normalised hover thrust (0..1)")
     g.add_argument("--hover-segment", default=None, metavar="T0,T1", help="fit the hover thrust on this hover")
     g.add_argument("--torque-scale", default=None, metavar="KX,KY,KZ",
@@ -768,7 +842,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.0,
         metavar="S",
-        help="latency of the logged velocity against the commands, s (the estimator aligns to it)",
+        help="latency of the logged velocity against the commands, s (the estimator aligns to it; a PX4 log's "
+        "timestamp_sample already does)",
     )
     g.add_argument(
         "--attitude-delay",
@@ -790,7 +865,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
     sp.add_argument("--out", default=None, help=f"results folder (default: {DEFAULT_OUT}/estimate-<log name>)")
     sp.add_argument("--no-plots", action="store_true", help="skip figures")
-    sp.add_argument("--quiet", action="store_true", help="no notes or progress")
+    sp.add_argument("--quiet", action="store_true", help="no notes or progress (warnings are still printed)")
     sp.set_defaults(func=cmd_estimate)
 
     sp = sub.add_parser(

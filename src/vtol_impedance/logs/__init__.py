@@ -1,34 +1,55 @@
-"""Wrench estimation on flight logs: CSV and PX4 ULog readers, frame conversion, resampling onto one
-time base, and the estimator (causal or zero-phase) with a bias calibration."""
+"""Wrench estimation on flight logs: CSV, PX4 ULog, ArduPilot DataFlash and MAVLink tlog readers,
+conventions checked against physics, frame conversion, resampling onto one time base with gaps bridged,
+thrust from commands or rotor speeds, and the estimator (causal or zero-phase) with a bias calibration.
+Sample logs with a known wrench ship in :mod:`vtol_impedance.logs.samples`."""
 
-from .csvlog import read_csv
-from .estimate import LogEstimate, commands_in_si, estimate, fit_hover_thrust
-from .timeseries import DEFAULT_MAX_GAP_S, DEFAULT_RATE_HZ, FlightLog, RawLog, Signal, resample
+from pathlib import Path
+
+from .checks import ConventionReport, check_conventions, evidence
+from .csvlog import read_csv, read_csv_table, table_to_raw
+from .estimate import LogEstimate, check_inertia, commands_in_si, estimate, fit_hover_thrust
+from .frames import Conventions
+from .pipeline import estimate_file, log_format, read_any
+from .timeseries import DEFAULT_RATE_HZ, FlightLog, RawLog, Signal, default_max_gap, resample
 from .ulog import read_ulog, torque_per_unit
 
 
 def read_log(path, **csv_options) -> RawLog:
-    """A ``.ulg`` file through :func:`read_ulog`, anything else as CSV through :func:`read_csv`."""
-    from pathlib import Path
-
-    if Path(path).suffix.lower() == ".ulg":
+    """Read a log by its extension (``.ulg``, ``.bin``, ``.tlog``, else CSV through :func:`read_csv`), without
+    the convention checks of :func:`read_any`."""
+    fmt = log_format(path)
+    if fmt == "ulog":
         return read_ulog(path)
+    if fmt in ("dataflash", "tlog"):
+        from .mavlog import read_dataflash, read_tlog
+
+        return (read_dataflash if fmt == "dataflash" else read_tlog)(Path(path))
     return read_csv(path, **csv_options)
 
 
 __all__ = [
-    "DEFAULT_MAX_GAP_S",
     "DEFAULT_RATE_HZ",
+    "ConventionReport",
+    "Conventions",
     "FlightLog",
     "LogEstimate",
     "RawLog",
     "Signal",
+    "check_conventions",
+    "check_inertia",
     "commands_in_si",
+    "default_max_gap",
     "estimate",
+    "estimate_file",
+    "evidence",
     "fit_hover_thrust",
+    "log_format",
+    "read_any",
     "read_csv",
+    "read_csv_table",
     "read_log",
     "read_ulog",
     "resample",
+    "table_to_raw",
     "torque_per_unit",
 ]

@@ -3,18 +3,27 @@
 Columns (names as below, or mapped with ``columns={"vx": "my_vx", ...}``; extra columns are ignored):
 
 ==================  ==========================================================================
-``t_s``             time in seconds (or ``timestamp_us`` in microseconds)
-``vx, vy, vz``      velocity in the world frame, m/s (``world="ned"`` or ``"enu"``)
+``t_s``             time, in seconds unless ``time_unit`` says ``ms``, ``us`` or ``ns`` (or
+                    ``timestamp_us``, in microseconds unless ``time_unit`` says otherwise)
+``vx, vy, vz``      velocity in the world frame, m/s (``velocity_world``, default ``world``)
 ``roll, pitch, yaw`` ZYX Euler angles (body to world), rad or deg (``angle_unit``), or instead
 ``q0, q1, q2, q3``  a unit quaternion, order ``quat_order`` (``wxyz``/``xyzw``) and direction
                     ``quat_direction`` (``body-to-world``/``world-to-body``)
 ``wx, wy, wz``      body rates in the body frame (``body="frd"`` or ``"flu"``), rad/s or deg/s
+                    (``rate_unit``, default ``angle_unit``)
 ``thrust_n``        collective thrust in newtons, or instead
 ``thrust_norm``     normalised collective thrust (0..1) with ``hover_thrust`` given, a
-                    ``hover_thrust`` column, or a hover segment to fit it from
+                    ``hover_thrust`` column (used per sample), or a hover segment to fit it from
 ``tx, ty, tz``      optional body torque commands, N m, body frame; without them the moment
-                    estimate is skipped
+                    estimate is skipped unless rotor speeds and a rotor geometry give it
+``rpm1 .. rpm8``    optional measured rotor speeds (ESC telemetry), in ``rotor_speed_unit``
+                    (``rpm``, default, or ``rad/s``), numbered as the vehicle's rotors
 ==================  ==========================================================================
+
+The frames and units are a :class:`~vtol_impedance.logs.frames.Conventions`. Reading happens in two
+steps so that the convention checks can re-read the same numbers under other conventions:
+:func:`read_csv_table` parses the file once, :func:`table_to_raw` converts it under one set of
+conventions.
 
 Every row must have as many fields as the header; a last row cut short (a truncated file) is dropped
 and reported. Samples may have empty fields (a signal logged at a lower rate): those rows are skipped for
@@ -25,27 +34,65 @@ from __future__ import annotations
 
 import csv
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from . import frames
+from .frames import ANGLE_UNITS, ROTOR_SPEED_UNITS, TIME_UNITS, Conventions
 from .timeseries import RawLog, Signal
 
-ANGLE_UNITS = ("rad", "deg")
+MAX_ROTORS = 8
 COLUMNS = (
     "t_s", "timestamp_us", "vx", "vy", "vz", "roll", "pitch", "yaw", "q0", "q1", "q2", "q3",
     "wx", "wy", "wz", "thrust_n", "thrust_norm", "hover_thrust", "tx", "ty", "tz",
+    *(f"rpm{i}" for i in range(1, MAX_ROTORS + 1)),
 )  # fmt: skip
 
+__all__ = ["ANGLE_UNITS", "COLUMNS", "CsvTable", "read_csv", "read_csv_table", "table_to_raw"]
 
-def _read_table(path: Path, notes: list[str]) -> tuple[list[str], list[list[str]]]:
+
+@dataclass
+class CsvTable:
+    """The numbers of a CSV log by role (raw, in the file's own frames and units) and what was found."""
+
+    path: Path
+    header: list[str]
+    cols: dict[str, np.ndarray]
+    time_role: str
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def has_quaternion(self) -> bool:
+        return all(f"q{i}" in self.cols for i in range(4))
+
+    @property
+    def rotor_roles(self) -> list[str]:
+        roles = []
+        for i in range(1, MAX_ROTORS + 1):
+            if f"rpm{i}" not in self.cols:
+                break
+            roles.append(f"rpm{i}")
+        return roles
+
+    def relevant_conventions(self) -> tuple[str, ...]:
+        """The convention fields that change how this file is read."""
+        names = ["world", "velocity_world", "body", "rate_unit", "time_unit"]
+        names += ["quat_order", "quat_direction"] if self.has_quaternion else ["angle_unit"]
+        return tuple(names)
+
+
+def _read_rows(path: Path, notes: list[str]) -> tuple[list[str], list[list[str]]]:
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except UnicodeDecodeError:
-        raise InputError(f"{path} is not a text CSV file (is it a ULog? use a .ulg extension)") from None
+        raise InputError(
+            f"{path} is not a text CSV file (a ULog needs the .ulg extension, a DataFlash log .bin, a MAVLink "
+            "telemetry log .tlog)"
+        ) from None
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
         raise InputError(f"{path} is empty")
@@ -64,42 +111,26 @@ def _read_table(path: Path, notes: list[str]) -> tuple[list[str], list[list[str]
 
 def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> np.ndarray:
     j = header.index(name)
-    out = np.empty(len(rows))
-    for i, r in enumerate(rows):
-        cell = r[j].strip()
-        if cell == "" or cell.lower() == "nan":
-            out[i] = np.nan
-            continue
-        try:
-            out[i] = float(cell)
-        except ValueError:
-            raise InputError(f"{path}: line {i + 2}, column {name!r}: {cell!r} is not a number") from None
-    return out
+    cells = np.char.strip(np.array([r[j] for r in rows], dtype=str))
+    cells = np.where((cells == "") | (np.char.lower(cells) == "nan"), "nan", cells)
+    try:
+        return cells.astype(float)
+    except ValueError:
+        for i, cell in enumerate(cells):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(f"{path}: line {i + 2}, column {name!r}: {cell!r} is not a number") from None
+        raise  # pragma: no cover - astype and float agree
 
 
-def _signal(name: str, source: str, t: np.ndarray, cols: list[np.ndarray], hold: bool = False) -> Signal:
-    v = np.stack(cols, -1)
-    have = ~np.all(np.isnan(v), axis=1)  # rows where this signal was not logged at all
-    return Signal(name, source, t[have], v[have], hold)
-
-
-def read_csv(
-    path: str | os.PathLike[str],
-    world: str = "ned",
-    body: str = "frd",
-    angle_unit: str = "rad",
-    quat_order: str = "wxyz",
-    quat_direction: str = "body-to-world",
-    columns: dict[str, str] | None = None,
-) -> RawLog:
-    """Read a CSV log (see the module docstring for the columns) into world NED / body FRD signals."""
+def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None = None) -> CsvTable:
+    """Parse a CSV log once: every known role's column as floats (NaN where empty)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
-    if angle_unit not in ANGLE_UNITS:
-        raise InputError(f"angle unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     notes: list[str] = []
-    header, rows = _read_table(path, notes)
+    header, rows = _read_rows(path, notes)
     mapping = {k: k for k in COLUMNS}
     for k, v in (columns or {}).items():
         if k not in COLUMNS:
@@ -112,54 +143,148 @@ def read_csv(
         if miss:
             raise InputError(f"{path}: {what} needs column(s) {', '.join(miss)}; the file has: {', '.join(header)}")
 
-    def col(role: str) -> np.ndarray:
-        return _column(path, header, rows, mapping[role])
-
     if "t_s" in present:
-        t = col("t_s")
+        time_role = "t_s"
     elif "timestamp_us" in present:
-        t = col("timestamp_us") * 1e-6
+        time_role = "timestamp_us"
     else:
         need(("t_s",), "time")
     need(("vx", "vy", "vz"), "velocity")
     need(("wx", "wy", "wz"), "body rates")
-    scale = np.pi / 180.0 if angle_unit == "deg" else 1.0
-    if {"q0", "q1", "q2", "q3"} <= present:
-        att = _signal("attitude", "q0..q3", t, [col(c) for c in ("q0", "q1", "q2", "q3")])
-        R = frames.quaternion_rotation(att.values, quat_order, quat_direction)
-    else:
+    if not {"q0", "q1", "q2", "q3"} <= present:
         need(("roll", "pitch", "yaw"), "attitude (or q0..q3)")
-        att = _signal("attitude", "roll, pitch, yaw", t, [col(c) * scale for c in ("roll", "pitch", "yaw")])
-        R = frames.euler_rotation(*att.values.T)
-    att.values = frames.eta_ned_frd(R, world, body)
-    vel = _signal("velocity", f"vx, vy, vz ({world.upper()})", t, [col(c) for c in ("vx", "vy", "vz")])
-    vel.values = frames.world_vector_to_ned(vel.values, world)
-    rates = _signal("body rates", f"wx, wy, wz ({body.upper()})", t, [col(c) * scale for c in ("wx", "wy", "wz")])
-    rates.values = frames.body_vector_to_frd(rates.values, body)
-    raw_kw: dict = {}
     if "thrust_n" in present and "thrust_norm" in present:
         raise InputError(f"{path}: give thrust_n (newtons) or thrust_norm (normalised), not both")
-    if "thrust_n" in present:
-        thrust = _signal("thrust", "thrust_n [N]", t, [col("thrust_n")], hold=True)
+    if not ({"thrust_n", "thrust_norm"} & present or "rpm1" in present):
+        need(("thrust_n",), "collective thrust (or thrust_norm, or rotor speeds rpm1..)")
+    cols = {role: _column(path, header, rows, mapping[role]) for role in COLUMNS if role in present}
+    if {"q0", "q1", "q2", "q3"} <= present:
+        for r in ("roll", "pitch", "yaw"):
+            cols.pop(r, None)
+    return CsvTable(path, header, cols, time_role, notes)
+
+
+def _signal(name: str, source: str, t: np.ndarray, cols: list[np.ndarray], hold: bool = False) -> Signal:
+    v = np.stack(cols, -1)
+    have = ~np.all(np.isnan(v), axis=1)  # rows where this signal was not logged at all
+    return Signal(name, source, t[have], v[have], hold)
+
+
+def table_to_raw(
+    table: CsvTable,
+    conv: Conventions,
+    rotor_speed_unit: str = "rpm",
+    check_quaternion: bool = True,
+    cache: dict | None = None,
+) -> RawLog:
+    """The table's signals in world NED / body FRD, SI units, read under ``conv``. ``cache`` (a dict kept
+    between calls on the same table) reuses every signal whose conventions did not change: the convention
+    checks read one table under hundreds of conventions."""
+    c = table.cols
+    notes = list(table.notes)
+    if rotor_speed_unit not in ROTOR_SPEED_UNITS:
+        raise InputError(f"rotor speed unit must be one of {', '.join(ROTOR_SPEED_UNITS)}, got {rotor_speed_unit!r}")
+
+    def cached(key: tuple, make):
+        if cache is None:
+            return make()
+        if key not in cache:
+            cache[key] = make()
+        return cache[key]
+
+    t = cached(("t", conv.time_unit), lambda: c[table.time_role] * TIME_UNITS[conv.time_unit])
+    a_scale = np.pi / 180.0 if conv.angle_unit == "deg" else 1.0
+    r_scale = np.pi / 180.0 if conv.rate_unit == "deg" else 1.0
+
+    def attitude() -> Signal:
+        if table.has_quaternion:
+            att = _signal("attitude", "q0..q3", t, [c[f"q{i}"] for i in range(4)])
+            q = att.values
+            if not check_quaternion:  # exploring conventions: a non-unit quaternion reads as garbage, not error
+                q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-12)
+            R = frames.quaternion_rotation(q, conv.quat_order, conv.quat_direction)
+        else:
+            att = _signal("attitude", "roll, pitch, yaw", t, [c[k] * a_scale for k in ("roll", "pitch", "yaw")])
+            R = frames.euler_rotation(*att.values.T)
+        att.values = frames.eta_ned_frd(R, conv.world, conv.body)
+        return att
+
+    def velocity() -> Signal:
+        vel = _signal("velocity", f"vx, vy, vz ({conv.velocity_world.upper()})", t, [c["vx"], c["vy"], c["vz"]])
+        vel.values = frames.world_vector_to_ned(vel.values, conv.velocity_world)
+        return vel
+
+    def body_rates() -> Signal:
+        w = _signal("body rates", f"wx, wy, wz ({conv.body.upper()})", t, [c[k] * r_scale for k in ("wx", "wy", "wz")])
+        w.values = frames.body_vector_to_frd(w.values, conv.body)
+        return w
+
+    form = (conv.quat_order, conv.quat_direction) if table.has_quaternion else (conv.angle_unit,)
+    att = cached(("att", conv.time_unit, *form, conv.world, conv.body, check_quaternion), attitude)
+    vel = cached(("vel", conv.time_unit, conv.velocity_world), velocity)
+    rates = cached(("rates", conv.time_unit, conv.rate_unit, conv.body), body_rates)
+    raw_kw: dict = {}
+    thrust = None
+    if "thrust_n" in c:
+        thrust = _signal("thrust", "thrust_n [N]", t, [c["thrust_n"]], hold=True)
         raw_kw["thrust_unit"] = "N"
-    elif "thrust_norm" in present:
-        thrust = _signal("thrust", "thrust_norm", t, [col("thrust_norm")], hold=True)
+    elif "thrust_norm" in c:
+        thrust = _signal("thrust", "thrust_norm", t, [c["thrust_norm"]], hold=True)
         raw_kw["thrust_unit"] = "normalized"
-        if "hover_thrust" in present:
-            h = col("hover_thrust")
-            h = h[np.isfinite(h)]
-            if len(h):
-                raw_kw["hover_thrust"] = float(np.median(h))
-                raw_kw["hover_source"] = "median of the hover_thrust column"
-    else:
-        need(("thrust_n",), "collective thrust (or thrust_norm)")
+        if "hover_thrust" in c:
+            h = _signal("hover thrust", "hover_thrust column", t, [c["hover_thrust"]])
+            if len(h.t) >= 2:
+                raw_kw["hover"] = h
+            elif len(h.t) == 1:
+                raw_kw["hover_thrust"] = float(h.values[0, 0])
+                raw_kw["hover_source"] = "the hover_thrust column (one value)"
     torque = None
-    if {"tx", "ty", "tz"} <= present:
-        torque = _signal("torque", f"tx, ty, tz [N m] ({body.upper()})", t, [col(c) for c in ("tx", "ty", "tz")], True)
-        torque.values = frames.body_vector_to_frd(torque.values, body)
-    else:
-        notes.append("no body torque columns (tx, ty, tz): the moment estimate is skipped, the force estimate is not")
-    meta = {"format": "csv", "file": str(path), "world": world, "body": body, "angle_unit": angle_unit}
-    if "q0" in present:
-        meta.update(quat_order=quat_order, quat_direction=quat_direction)
+    if {"tx", "ty", "tz"} <= set(c):
+        torque = _signal("torque", f"tx, ty, tz [N m] ({conv.body.upper()})", t, [c["tx"], c["ty"], c["tz"]], True)
+        torque.values = frames.body_vector_to_frd(torque.values, conv.body)
+    rotor_roles = table.rotor_roles
+    if rotor_roles:
+        k = ROTOR_SPEED_UNITS[rotor_speed_unit]
+        raw_kw["rotor_speed"] = _signal(
+            "rotor speeds", f"{', '.join(rotor_roles)} [{rotor_speed_unit}]", t, [c[r] * k for r in rotor_roles]
+        )
+        raw_kw["n_rotors"] = len(rotor_roles)
+    if torque is None:
+        notes.append("no body torque columns (tx, ty, tz): the moment needs rotor speeds and a rotor geometry")
+    meta = {"format": "csv", "file": str(table.path), "conventions": conv.to_dict()}
+    if rotor_roles:
+        meta["rotor_speed_unit"] = rotor_speed_unit
     return RawLog(vel, att, rates, thrust, torque, notes=notes, meta=meta, **raw_kw)
+
+
+def read_csv(
+    path: str | os.PathLike[str],
+    world: str = "ned",
+    body: str = "frd",
+    angle_unit: str = "rad",
+    quat_order: str = "wxyz",
+    quat_direction: str = "body-to-world",
+    columns: dict[str, str] | None = None,
+    *,
+    time_unit: str | None = None,
+    rate_unit: str | None = None,
+    velocity_world: str | None = None,
+    rotor_speed_unit: str = "rpm",
+    conventions: Conventions | None = None,
+) -> RawLog:
+    """Read a CSV log (see the module docstring for the columns) into world NED / body FRD signals.
+
+    The conventions are the keyword arguments or ``conventions`` (which then wins). ``time_unit``
+    defaults to seconds for a ``t_s`` column and microseconds for ``timestamp_us``.
+    """
+    if angle_unit not in ANGLE_UNITS:
+        raise InputError(f"angle unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+    table = read_csv_table(path, columns)
+    if conventions is None:
+        if time_unit is None:
+            time_unit = "us" if table.time_role == "timestamp_us" else "s"
+        conventions = Conventions(
+            world=world, body=body, angle_unit=angle_unit, quat_order=quat_order, quat_direction=quat_direction,
+            time_unit=time_unit, velocity_world=velocity_world, rate_unit=rate_unit,
+        )  # fmt: skip
+    return table_to_raw(table, conventions, rotor_speed_unit)

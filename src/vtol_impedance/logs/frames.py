@@ -7,9 +7,15 @@ rotating body to world (PX4's ``vehicle_attitude.q``, ROS ``orientation``) or wo
 
 ENU to NED swaps x and y and flips z; FLU to FRD flips y and z. Both matrices are their own inverse, so
 ``R_NED_FRD = T_world R_source T_body`` and back ``R_source = T_world R_NED_FRD T_body``.
+
+:class:`Conventions` gathers everything a log may state differently (frames, quaternion layout, units
+of angles, rates and time); :mod:`vtol_impedance.logs.checks` tests a declared set against physics and
+can choose one from the data.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -21,6 +27,78 @@ WORLDS = ("ned", "enu")
 BODIES = ("frd", "flu")
 QUAT_ORDERS = ("wxyz", "xyzw")
 QUAT_DIRECTIONS = ("body-to-world", "world-to-body")
+ANGLE_UNITS = ("rad", "deg")
+#: Seconds per unit of a time column.
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+ROTOR_SPEED_UNITS = {"rpm": 2.0 * np.pi / 60.0, "rad/s": 1.0}
+
+
+@dataclass(frozen=True)
+class Conventions:
+    """How a log states its quantities; the library works in world NED, body FRD, radians and seconds.
+
+    ``world`` is the world frame of the attitude (and of the velocity unless ``velocity_world`` is given),
+    ``body`` the body frame of the attitude, rates and torques; ``angle_unit`` applies to Euler angles and
+    ``rate_unit`` (default: ``angle_unit``) to body rates; ``quat_order`` and ``quat_direction`` to a
+    quaternion attitude; ``time_unit`` to the time column. Each field has the command-line flag of
+    :attr:`FLAGS`.
+    """
+
+    world: str = "ned"
+    body: str = "frd"
+    angle_unit: str = "rad"
+    quat_order: str = "wxyz"
+    quat_direction: str = "body-to-world"
+    time_unit: str = "s"
+    velocity_world: str | None = None
+    rate_unit: str | None = None
+
+    FLAGS = {
+        "world": "--world",
+        "body": "--body",
+        "angle_unit": "--angle-unit",
+        "quat_order": "--quat-order",
+        "quat_direction": "--quat-direction",
+        "time_unit": "--time-unit",
+        "velocity_world": "--velocity-world",
+        "rate_unit": "--rate-unit",
+    }
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "world", _choice("world frame", self.world, WORLDS))
+        object.__setattr__(self, "body", _choice("body frame", self.body, BODIES))
+        object.__setattr__(self, "angle_unit", _choice("angle unit", self.angle_unit, ANGLE_UNITS))
+        object.__setattr__(self, "quat_order", _choice("quaternion order", self.quat_order, QUAT_ORDERS))
+        object.__setattr__(
+            self, "quat_direction", _choice("quaternion direction", self.quat_direction, QUAT_DIRECTIONS)
+        )
+        object.__setattr__(self, "time_unit", _choice("time unit", self.time_unit, tuple(TIME_UNITS)))
+        vw = self.world if self.velocity_world is None else self.velocity_world
+        object.__setattr__(self, "velocity_world", _choice("velocity world frame", vw, WORLDS))
+        ru = self.angle_unit if self.rate_unit is None else self.rate_unit
+        object.__setattr__(self, "rate_unit", _choice("rate unit", ru, ANGLE_UNITS))
+
+    def with_(self, **changes: str) -> Conventions:
+        """A copy with some fields changed (``velocity_world``/``rate_unit`` follow ``world``/``angle_unit``
+        when they were equal to them)."""
+        if "world" in changes and "velocity_world" not in changes and self.velocity_world == self.world:
+            changes["velocity_world"] = changes["world"]
+        if "angle_unit" in changes and "rate_unit" not in changes and self.rate_unit == self.angle_unit:
+            changes["rate_unit"] = changes["angle_unit"]
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, str]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def differences(self, other: Conventions, relevant: tuple[str, ...] | None = None) -> dict[str, str]:
+        """``{field: other's value}`` where ``other`` differs from ``self`` (among ``relevant`` fields)."""
+        names = relevant or tuple(f.name for f in fields(self))
+        return {n: getattr(other, n) for n in names if getattr(self, n) != getattr(other, n)}
+
+    def as_flags(self, names: tuple[str, ...] | None = None) -> str:
+        """The command-line flags that state these conventions (``names``: only those fields)."""
+        names = names or tuple(self.FLAGS)
+        return " ".join(f"{self.FLAGS[n]} {getattr(self, n)}" for n in names)
 
 
 def _choice(name: str, value: str, allowed: tuple[str, ...]) -> str:

@@ -11,8 +11,21 @@ How a log becomes one time base (documented in the README, "Estimating from flig
   sampled every ``dt``: 1.25e-3 * max|x''| at 10 Hz), attitude by normalised linear interpolation of the
   quaternion (sign made continuous first), the commands by zero-order hold (a controller output holds
   until the next one, which is what the vehicle flew);
-* a gap longer than ``max_gap_s`` in any signal removes the grid points inside it, and the estimator
-  restarts after it (``restart``); every such repair is listed in ``notes``.
+* gaps. A *dropout* is a step between two samples of a signal longer than three of its typical periods
+  (the median step). A dropout up to ``max_gap_s`` is **bridged**: the grid runs through it, the
+  signal is interpolated linearly across it (commands too: across a dropout the held value is not what
+  the vehicle flew), and the estimator carries its state. The momentum change across the gap is
+  measured exactly (real samples at both ends); what the bridge cannot know is how the wrench and the
+  thrust vector ``x = u R e3`` varied inside. The bridged residual is ``f + x_bridge(s) - mean(x)``
+  instead of ``f``, so after a bridged gap of length ``T`` the estimate differs from an uninterrupted one
+  by at most ``g_max (E + |dx| T / 4 + dW T / 2)``: ``g_max`` the peak of G's impulse response (``wn / e``
+  for the paper's G), ``E <= T^3 / 12 (max|u''| + max|u| max|r''|)`` the impulse of the thrust vector the
+  interpolation misses (thrust ``u``, thrust axis ``r = R e3``), ``dx`` the change of the thrust vector
+  across the gap (the bridge spreads the impulse as a ramp) and ``dW`` the change of the external wrench
+  inside it. A step longer than ``max_gap_s`` (dropout or not) means the data stop: the grid points
+  inside are removed and the estimator **restarts** after it. By default ``max_gap_s`` comes from the
+  log's own rates: ten periods of its slowest signal, at least 0.5 s, at most 5 s (an 8 Hz log bridges
+  its normal 0.3-0.5 s dropouts). Every gap is listed in ``gaps`` and summarised in ``notes``.
 """
 
 from __future__ import annotations
@@ -33,8 +46,14 @@ from ..model.kinematics import (
 
 #: Rate of the uniform grid a log is resampled onto, Hz (``--rate``).
 DEFAULT_RATE_HZ = 100.0
-#: A longer gap in any signal (s) removes the grid points inside it and restarts the estimator (``--max-gap``).
-DEFAULT_MAX_GAP_S = 0.25
+#: The default ``max_gap_s``: this many periods of the log's slowest signal, within :data:`MAX_GAP_BOUNDS_S`.
+MAX_GAP_PERIODS = 10.0
+#: Bounds (s) of the default ``max_gap_s``.
+MAX_GAP_BOUNDS_S = (0.5, 5.0)
+#: A step between samples longer than this many typical periods is a dropout.
+DROPOUT_PERIODS = 3.0
+#: The fewest grid points an estimate is made on.
+MIN_SAMPLES = 10
 #: The longest resampled log: 50 million samples (about 6 days at 100 Hz, some GB of arrays).
 MAX_SAMPLES = 50_000_000
 
@@ -63,16 +82,36 @@ class RawLog:
     velocity_W: Signal
     attitude: Signal
     omega_B: Signal
-    thrust: Signal
+    thrust: Signal | None
     torque_B: Signal | None
     thrust_unit: str = "N"
     torque_unit: str = "N m"
     torque_per_unit: np.ndarray | None = None
     n_rotors: int | None = None
-    hover_thrust: float | None = None  # normalised, from the log
+    hover_thrust: float | None = None  # normalised, a constant from the log (a parameter)
     hover_source: str = ""
     notes: list[str] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
+    #: per-sample normalised hover thrust logged over the flight (an estimate that follows the battery)
+    hover: Signal | None = None
+    #: measured rotor speeds, rad/s, one column per rotor (ESC telemetry, a simulator's rotor states)
+    rotor_speed: Signal | None = None
+    #: rotor geometry from the log: ``(positions_B (n, 3) FRD m, yaw moment per newton (n,), with sign)``
+    rotor_geometry: tuple[np.ndarray, np.ndarray] | None = None
+    #: the log's parameters (PX4 and ArduPilot), by name
+    params: dict[str, float] = field(default_factory=dict)
+    #: nominal mass and inertia found in the log's parameters, with where they came from
+    mass: float | None = None
+    inertia: np.ndarray | None = None
+    vehicle_source: str = ""
+    #: what the reader chose and why (the source of each signal), printed and kept in the report
+    choices: list[str] = field(default_factory=list)
+
+    def signals(self) -> list[Signal]:
+        """Every signal that goes onto the grid (the commands and rotor speeds present)."""
+        out = [self.velocity_W, self.attitude, self.omega_B]
+        out += [s for s in (self.thrust, self.torque_B, self.rotor_speed) if s is not None]
+        return out
 
 
 @dataclass
@@ -84,12 +123,20 @@ class FlightLog:
     eta: np.ndarray
     omega_B: np.ndarray
     eta_dot: np.ndarray
-    thrust: np.ndarray  # as in the raw log (N or normalised) until converted
+    thrust: np.ndarray | None  # as in the raw log (N or normalised) until converted
     tau_B: np.ndarray | None
     restart: np.ndarray
     rate_hz: float
     notes: list[str]
     raw: RawLog
+    #: grid points inside a bridged dropout of any signal
+    bridged: np.ndarray | None = None
+    #: every dropout: ``{"signal", "t0_s", "t1_s", "length_s", "action": "bridged" | "restart"}``
+    gaps: list[dict[str, Any]] = field(default_factory=list)
+    max_gap_s: float = 0.0
+    max_gap_source: str = ""
+    hover: np.ndarray | None = None
+    rotor_speed: np.ndarray | None = None
 
     @property
     def Ts(self) -> float:  # noqa: N802
@@ -125,15 +172,46 @@ def clean(sig: Signal, notes: list[str]) -> Signal:
     return Signal(sig.name, sig.source, t, v, sig.hold)
 
 
-def _gaps(t: np.ndarray, max_gap: float) -> list[tuple[float, float]]:
-    i = np.flatnonzero(np.diff(t) > max_gap)
-    return [(float(t[k]), float(t[k + 1])) for k in i]
+def typical_period(t: np.ndarray) -> float:
+    """The median step between samples, s."""
+    d = np.diff(t)
+    d = d[d > 0]
+    return float(np.median(d)) if len(d) else float("inf")
 
 
-def _interp(sig: Signal, grid: np.ndarray) -> np.ndarray:
+def default_max_gap(sigs: list[Signal]) -> tuple[float, str]:
+    """``(max_gap_s, why)`` from the signals' typical periods (see the module docstring)."""
+    periods = {s.name: typical_period(s.t) for s in sigs}
+    slow = max(periods, key=periods.get)
+    lo, hi = MAX_GAP_BOUNDS_S
+    value = float(np.clip(MAX_GAP_PERIODS * periods[slow], lo, hi))
+    why = (
+        f"{value:.3g} s: {MAX_GAP_PERIODS:g} periods of the slowest signal ({slow} at {1.0 / periods[slow]:.3g} Hz), "
+        f"within [{lo:g}, {hi:g}] s"
+    )
+    return value, why
+
+
+def _dropouts(sig: Signal, rate_hz: float, max_gap_s: float) -> np.ndarray:
+    """Indices ``i`` with ``t[i + 1] - t[i]`` a dropout of this signal (or longer than ``max_gap_s``)."""
+    limit = max(DROPOUT_PERIODS * typical_period(sig.t), 2.0 / rate_hz)
+    return np.flatnonzero(np.diff(sig.t) > min(limit, max_gap_s))
+
+
+def _interp(sig: Signal, grid: np.ndarray, bridge: float = 0.0) -> np.ndarray:
+    """Linear interpolation, or zero-order hold for commands; a command is interpolated linearly across a
+    step longer than ``bridge`` (a bridged dropout) instead of held."""
     if sig.hold:
         idx = np.clip(np.searchsorted(sig.t, grid, side="right") - 1, 0, len(sig.t) - 1)
-        return sig.values[idx]
+        out = sig.values[idx].copy()
+        if bridge > 0:
+            nxt = np.minimum(idx + 1, len(sig.t) - 1)
+            step = sig.t[nxt] - sig.t[idx]
+            lin = (step > bridge) & (nxt > idx)
+            if lin.any():
+                frac = ((grid[lin] - sig.t[idx[lin]]) / step[lin])[:, None]
+                out[lin] = sig.values[idx[lin]] + frac * (sig.values[nxt[lin]] - sig.values[idx[lin]])
+        return out
     return np.stack([np.interp(grid, sig.t, sig.values[:, j]) for j in range(sig.values.shape[1])], -1)
 
 
@@ -149,18 +227,25 @@ def _interp_attitude(sig: Signal, grid: np.ndarray) -> np.ndarray:
 def resample(
     raw: RawLog,
     rate_hz: float = DEFAULT_RATE_HZ,
-    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    max_gap_s: float | None = None,
     t_start: float | None = None,
     t_end: float | None = None,
 ) -> FlightLog:
-    """Clean every signal and bring them onto one grid at ``rate_hz`` (see the module docstring)."""
+    """Clean every signal and bring them onto one grid at ``rate_hz`` (see the module docstring).
+
+    ``max_gap_s``: dropouts up to this long are bridged, longer ones restart the estimator; ``None``
+    (default): from the log's rates (:func:`default_max_gap`).
+    """
     if not (np.isfinite(rate_hz) and 1.0 <= rate_hz <= 10000.0):
         raise InputError(f"resampling rate must be within [1, 10000] Hz, got {rate_hz}")
-    if not (np.isfinite(max_gap_s) and max_gap_s >= 2.0 / rate_hz):
-        raise InputError(f"max gap must be at least two periods ({2.0 / rate_hz:g} s), got {max_gap_s}")
     notes = list(raw.notes)
-    sigs = [raw.velocity_W, raw.attitude, raw.omega_B, raw.thrust] + ([raw.torque_B] if raw.torque_B else [])
-    sigs = [clean(s, notes) for s in sigs]
+    sigs = [clean(s, notes) for s in raw.signals()]
+    if max_gap_s is None:
+        max_gap_s, gap_source = default_max_gap(sigs)
+    else:
+        if not (np.isfinite(max_gap_s) and max_gap_s >= 2.0 / rate_hz):
+            raise InputError(f"max gap must be at least two periods ({2.0 / rate_hz:g} s), got {max_gap_s}")
+        gap_source = f"{max_gap_s:g} s (given)"
     lo = max(s.t[0] for s in sigs)
     hi = min(s.t[-1] for s in sigs)
     if t_start is not None:
@@ -180,24 +265,59 @@ def resample(
     grid = lo + np.arange(n_grid) / rate_hz
     keep = np.ones(len(grid), bool)
     restart = np.zeros(len(grid), bool)
+    bridged = np.zeros(len(grid), bool)
+    gaps: list[dict[str, Any]] = []
     for s in sigs:
-        for a, b in _gaps(s.t, max_gap_s):
+        n_bridged, longest = 0, 0.0
+        for i in _dropouts(s, rate_hz, max_gap_s):
+            a, b = float(s.t[i]), float(s.t[i + 1])
+            if not (a < hi and b > lo):
+                continue
             inside = (grid > a) & (grid < b)
-            if a < hi and b > lo:
-                notes.append(f"gap in {s.name} from {a:.3f} s to {b:.3f} s ({b - a:.3f} s): estimator restarted")
-            keep &= ~inside
-            after = np.searchsorted(grid, b, side="left")
-            if after < len(grid):
-                restart[after] = True
-    if not keep.any():
-        raise InputError("every sample falls inside a gap; nothing to estimate")
-    grid, restart = grid[keep], restart[keep]
+            if b - a > max_gap_s:
+                keep &= ~inside
+                after = np.searchsorted(grid, b, side="left")
+                if after < len(grid):
+                    restart[after] = True
+                gaps.append({"signal": s.name, "t0_s": a, "t1_s": b, "length_s": b - a, "action": "restart"})
+                notes.append(f"gap in {s.name} from {a:.3f} s to {b:.3f} s ({b - a:.3f} s): the data stop, "
+                             "estimator restarted")  # fmt: skip
+            else:
+                bridged |= inside
+                n_bridged += 1
+                longest = max(longest, b - a)
+                gaps.append({"signal": s.name, "t0_s": a, "t1_s": b, "length_s": b - a, "action": "bridged"})
+        if n_bridged:
+            notes.append(
+                f"{s.name}: {n_bridged} dropout(s) up to {longest:.3f} s bridged (estimator state carried; "
+                f"max gap {max_gap_s:.3g} s)"
+            )
+    if keep.sum() < MIN_SAMPLES:
+        raise InputError(
+            f"no usable segment: every sample but {int(keep.sum())} falls inside a gap longer than the max gap "
+            f"({max_gap_s:.3g} s, {gap_source}); nothing to estimate (a longer --max-gap bridges them)"
+        )
+    grid, restart, bridged = grid[keep], restart[keep], bridged[keep]
     restart[0] = True
-    v_W = _interp(sigs[0], grid)
-    eta = _interp_attitude(sigs[1], grid)
-    omega_B = _interp(sigs[2], grid)
-    thrust = _interp(sigs[3], grid)[:, 0]
-    tau_B = _interp(sigs[4], grid) if raw.torque_B else None
+    by_name = {s.name: s for s in sigs}
+
+    def on_grid(sig: Signal | None) -> np.ndarray | None:
+        if sig is None:
+            return None
+        s = by_name[sig.name]
+        return _interp(s, grid, max(DROPOUT_PERIODS * typical_period(s.t), 2.0 / rate_hz))
+
+    v_W = on_grid(raw.velocity_W)
+    eta = _interp_attitude(by_name[raw.attitude.name], grid)
+    omega_B = on_grid(raw.omega_B)
+    thrust = on_grid(raw.thrust)
+    thrust = None if thrust is None else thrust[:, 0]
+    tau_B = on_grid(raw.torque_B)
+    rotor_speed = on_grid(raw.rotor_speed)
+    hover = None
+    if raw.hover is not None:
+        h = clean(raw.hover, notes)
+        hover = np.interp(grid, h.t, h.values[:, 0])  # held at its first and last values outside its span
     ct = np.abs(np.cos(eta[:, 1]))
     try:
         check_euler_regular(eta)
@@ -205,4 +325,8 @@ def resample(
         k = int(np.argmin(ct))
         raise InputError(f"at t = {grid[k]:.3f} s: {exc}") from None
     eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B[..., None])[..., 0]
-    return FlightLog(grid, v_W, eta, omega_B, eta_dot, thrust, tau_B, restart, float(rate_hz), notes, raw)
+    return FlightLog(
+        grid, v_W, eta, omega_B, eta_dot, thrust, tau_B, restart, float(rate_hz), notes, raw,
+        bridged=bridged, gaps=gaps, max_gap_s=float(max_gap_s), max_gap_source=gap_source, hover=hover,
+        rotor_speed=rotor_speed,
+    )  # fmt: skip

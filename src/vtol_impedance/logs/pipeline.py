@@ -1,0 +1,216 @@
+"""From a log file to an estimate, with every choice made from the log recorded.
+
+:func:`read_any` reads any supported format (by extension: ``.ulg`` PX4, ``.bin`` ArduPilot DataFlash,
+``.tlog`` MAVLink, anything else CSV), refuses a thrust of zeros or one held constant, and checks the
+conventions against physics (:mod:`vtol_impedance.logs.checks`; for a CSV file every combination of
+the conventions that apply to it is tried). :func:`estimate_file` then takes the nominal vehicle from the
+arguments, a vehicle preset or the log's parameters, resamples (gap threshold from the log's rates) and
+estimates. What was chosen and why is in ``LogEstimate.info["choices"]``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from .checks import ConventionReport, ImplausibleTime, check_conventions, check_thrust_signal, time_plausible
+from .csvlog import CsvTable, read_csv_table, table_to_raw
+from .estimate import LogEstimate, check_inertia, estimate, uses_rotor_speeds
+from .frames import TIME_UNITS, Conventions
+from .timeseries import RawLog, resample, typical_period
+
+FORMATS = {".ulg": "ulog", ".bin": "dataflash", ".tlog": "tlog"}
+#: A CSV file longer than this is checked on its most dynamic block of rows (the checks need minutes, not
+#: hours of flight).
+CHECK_ROWS = 30000
+
+
+def log_format(path: str | os.PathLike[str]) -> str:
+    """``"ulog"``, ``"dataflash"``, ``"tlog"`` or ``"csv"`` from the file name."""
+    return FORMATS.get(Path(path).suffix.lower(), "csv")
+
+
+def _check_block(table: CsvTable) -> CsvTable:
+    n = len(table.cols[table.time_role])
+    if n <= CHECK_ROWS:
+        return table
+    v = np.column_stack([table.cols[k] for k in ("vx", "vy", "vz")])
+    starts = np.arange(0, n - CHECK_ROWS + 1, CHECK_ROWS // 4)
+    act = [float(np.nansum(np.nanstd(v[s : s + CHECK_ROWS], 0))) for s in starts]
+    s = int(starts[int(np.argmax(act))])
+    cols = {k: c[s : s + CHECK_ROWS] for k, c in table.cols.items()}
+    return CsvTable(table.path, table.header, cols, table.time_role, list(table.notes))
+
+
+def read_any(
+    path: str | os.PathLike[str],
+    *,
+    conventions: str = "check",
+    world: str = "ned",
+    body: str = "frd",
+    angle_unit: str = "rad",
+    quat_order: str = "wxyz",
+    quat_direction: str = "body-to-world",
+    time_unit: str | None = None,
+    rate_unit: str | None = None,
+    velocity_world: str | None = None,
+    columns: dict[str, str] | None = None,
+    rotor_speed_unit: str = "rpm",
+) -> tuple[RawLog, ConventionReport]:
+    """Read a log of any supported format and check it (module docstring). The frame and unit arguments
+    are a CSV file's declared conventions; ``conventions`` is ``"check"``, ``"auto"`` or ``"unchecked"``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
+    fmt = log_format(path)
+    if fmt != "csv":
+        if fmt == "ulog":
+            from .ulog import read_ulog
+
+            raw = read_ulog(path)
+        elif fmt == "dataflash":
+            from .mavlog import read_dataflash
+
+            raw = read_dataflash(path)
+        else:
+            from .mavlog import read_tlog
+
+            raw = read_tlog(path)
+        if raw.thrust is not None:
+            raw.thrust = check_thrust_signal(raw.thrust, raw.notes)
+        raw, rep = check_conventions(raw, conventions)
+        return raw, rep
+    table = read_csv_table(path, columns)
+    if time_unit is None:
+        time_unit = "us" if table.time_role == "timestamp_us" else "s"
+    declared = Conventions(
+        world=world, body=body, angle_unit=angle_unit, quat_order=quat_order, quat_direction=quat_direction,
+        time_unit=time_unit, velocity_world=velocity_world, rate_unit=rate_unit,
+    )  # fmt: skip
+    raw = table_to_raw(table, declared, rotor_speed_unit)
+    notes: list[str] = []
+    if raw.thrust is not None:
+        check_thrust_signal(raw.thrust, notes)  # zeros or constant: refused before anything else
+    block = _check_block(table)
+    t_col = block.cols[block.time_role]
+    cache: dict = {}
+
+    def reread(c: Conventions) -> RawLog:
+        if not time_plausible(t_col * TIME_UNITS[c.time_unit]):
+            raise ImplausibleTime
+        r = table_to_raw(block, c, rotor_speed_unit, check_quaternion=False, cache=cache)
+        if r.thrust is not None:
+            r.thrust = check_thrust_signal(r.thrust, [])
+        return r
+
+    if block is table:
+        raw_block = raw
+    else:
+        raw_block = table_to_raw(block, declared, rotor_speed_unit)
+        notes.append(f"conventions checked on rows {len(t_col)} of the most dynamic part of the file")
+    if raw_block.thrust is not None:
+        raw_block.thrust = check_thrust_signal(raw_block.thrust, [])
+    _, rep = check_conventions(raw_block, conventions, declared, reread, table.relevant_conventions())
+    if rep.chosen is not None and rep.chosen != declared:
+        raw = table_to_raw(table, rep.chosen, rotor_speed_unit)
+    if raw.thrust is not None:
+        raw.thrust = check_thrust_signal(raw.thrust, raw.notes)
+    raw.notes.extend(notes)
+    return raw, rep
+
+
+def _vehicle(
+    raw: RawLog, mass: float | None, inertia: Any, vehicle: Any
+) -> tuple[float, np.ndarray | None, tuple[np.ndarray, np.ndarray] | None, list[str]]:
+    """The nominal mass, inertia (or ``None``: force only) and rotor geometry, and where each came from;
+    ``vehicle`` is a :class:`~vtol_impedance.model.VehicleParams`, a preset name or a vehicle TOML."""
+    if isinstance(vehicle, str | os.PathLike):
+        from ..model.vehicle import load_preset
+
+        vehicle = load_preset(str(vehicle))
+    choices = []
+    geometry = None
+    if mass is not None:
+        m, m_src = float(mass), "given (--mass)"
+    elif vehicle is not None:
+        m, m_src = float(vehicle.mass), f"the vehicle {vehicle.name}"
+    elif raw.mass is not None:
+        m, m_src = float(raw.mass), raw.vehicle_source
+    else:
+        raise InputError(
+            "the estimator needs the vehicle's nominal mass: give --mass KG or --vehicle NAME|FILE.toml (the log "
+            "has no mass parameter)"
+        )
+    if raw.mass is not None and mass is not None and abs(raw.mass - float(mass)) > 0.02 * float(mass):
+        choices.append(f"mass: the log's parameters say {raw.mass:.4g} kg; using the given {float(mass):.4g} kg")
+    choices.append(f"mass: {m:.4g} kg, {m_src}")
+    if inertia is not None:
+        I_B, i_src = check_inertia(inertia), "given (--inertia)"
+    elif vehicle is not None:
+        I_B, i_src = np.asarray(vehicle.inertia, dtype=float), f"the vehicle {vehicle.name}"
+    elif raw.inertia is not None:
+        I_B, i_src = check_inertia(raw.inertia), raw.vehicle_source
+    else:
+        I_B, i_src = None, "none given: the force only (the moment needs --inertia or --vehicle)"
+    choices.append("inertia: " + ("" if I_B is None else f"diag {np.round(np.diag(I_B), 6).tolist()} kg m^2, ") + i_src)
+    if raw.rotor_geometry is not None:
+        geometry = raw.rotor_geometry
+        choices.append(f"rotor geometry: the log's parameters ({len(geometry[0])} rotors)")
+    elif vehicle is not None:
+        from .rotors import geometry_from_vehicle
+
+        geometry = geometry_from_vehicle(vehicle)
+        choices.append(f"rotor geometry: the vehicle {vehicle.name} ({len(geometry[0])} rotors)")
+    return m, I_B, geometry, choices
+
+
+def estimate_file(
+    path: str | os.PathLike[str],
+    mass: float | None = None,
+    inertia: Any = None,
+    params: Any = None,
+    *,
+    vehicle: Any = None,
+    rate_hz: float = 100.0,
+    max_gap_s: float | None = None,
+    t_start: float | None = None,
+    t_end: float | None = None,
+    read_options: dict[str, Any] | None = None,
+    **estimate_options: Any,
+) -> LogEstimate:
+    """Read, check, resample and estimate a log file (module docstring). ``vehicle``: a
+    :class:`~vtol_impedance.model.vehicle.VehicleParams` for the nominal mass, inertia and rotor geometry
+    where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
+    :func:`~vtol_impedance.logs.estimate.estimate`."""
+    raw, rep = read_any(path, **(read_options or {}))
+    m, I_B, geometry, vchoices = _vehicle(raw, mass, inertia, vehicle)
+    thrust_from = estimate_options.get("thrust_from", "auto")
+    k_T = estimate_options.get("thrust_coefficient")
+    if raw.rotor_speed is not None and thrust_from == "auto" and not uses_rotor_speeds(raw, thrust_from, k_T):
+        raw.notes.append(
+            f"rotor speeds ({raw.rotor_speed.source}) at {1 / typical_period(raw.rotor_speed.t):.3g} Hz, below "
+            "20 Hz: not used (the thrust comes from the commands; --thrust-from rotors to use them)"
+        )
+        raw.rotor_speed = None  # neither on the grid nor in the gap threshold
+    elif raw.rotor_speed is not None and thrust_from == "commands":
+        raw.rotor_speed = None
+    flight = resample(raw, rate_hz, max_gap_s, t_start, t_end)
+    if estimate_options.get("rotor_geometry") is None and geometry is not None:
+        estimate_options["rotor_geometry"] = geometry
+    est = estimate(flight, m, I_B, params, **estimate_options)
+    choices = list(raw.choices) + vchoices + [f"max gap: {flight.max_gap_source}"]
+    choices.append(f"thrust: {est.info['thrust']}")
+    if "torque" in est.info:
+        choices.append(f"torque: {est.info['torque']}")
+    est.info["choices"] = choices
+    est.info["conventions"] = rep.to_dict()
+    est.notes = rep.notes + est.notes
+    est.warnings = rep.warnings + est.warnings
+    return est
+
+
+__all__ = ["FORMATS", "estimate_file", "log_format", "read_any"]
