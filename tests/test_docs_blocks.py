@@ -57,13 +57,7 @@ NOT_RUN = {
 RUN_ELSEWHERE = {"bench": "tests/test_bench.py runs `bench --quick`"}
 #: Documented commands that fail today, by the start of their argv: (the error they give, why). The test
 #: fails when one starts to pass, so that it is taken off this list.
-KNOWN_FAILURES = {
-    ("tune", "examples/sweeps/tune-case-b.toml"): (
-        "no attitude bandwidth keeps the position loop stable",
-        "a trial whose gains the design rule cannot stabilise stops the whole study instead of counting as a "
-        "failed trial (docs/guide/sweeps.md, the note; CHANGELOG, known issues)",
-    ),
-}
+KNOWN_FAILURES: dict[tuple[str, ...], tuple[str, str]] = {}
 FLYING = {"run", "compare", "paper"}
 FLIGHT_S = "2"
 

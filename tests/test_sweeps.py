@@ -375,3 +375,21 @@ def test_tune_names_its_folder_once_and_says_when_the_best_sits_on_a_bound(tmp_p
     bad = _tuning(tmp_path, '"control.estimator_prototype" = ["zeta", "bogus"]')
     assert main(["tune", str(bad), "--quiet", "--out", str(tmp_path / "b")]) == 2
     assert "bogus" in capsys.readouterr().err and not (tmp_path / "b").exists()
+
+
+def test_tune_counts_gains_without_a_robust_design_as_failed_trials(tmp_path):
+    """D_p above what any attitude bandwidth keeps stable (20 ms latency, the Pelican: about 29 N s/m) is a
+    property of the trial, not bad input: the study runs on, those trials cost the failure penalty and say
+    why, and a designable trial wins."""
+    from vtol_impedance.sweeps.tune import tune, tuning_from_dict
+
+    t = tuning_from_dict({"name": "t", "base": "case-a-payload", "controller": "pdc", "trials": 4, "seed": 2,
+                          "population": 1, "set": {"duration": 2.0, "trajectory.hover_duration": 1.0},
+                          "search": {"control.Dp": [60.0, 12.0]},
+                          "cost": {"failure_penalty": 777.0}})  # fmt: skip
+    res = tune(t)
+    by_dp = {r["control.Dp"]: r for r in res["trials"]}
+    assert set(by_dp) == {60.0, 12.0}
+    assert by_dp[60.0]["cost"] == 777.0 and "Dp must come down" in by_dp[60.0]["no_design"]
+    assert by_dp[12.0]["no_design"] == "" and by_dp[12.0]["cost"] < 777.0
+    assert res["best"]["control.Dp"] == 12.0

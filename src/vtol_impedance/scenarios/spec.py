@@ -340,8 +340,8 @@ def resolved_control(spec: ScenarioSpec) -> ControlSpec:
         return c
     try:
         d = design(load_preset(spec.vehicle), c.Kp, c.Dp, c.rate, assumed_timing(spec))
-    except DesignError as exc:
-        raise ScenarioError(
+    except DesignError as exc:  # stays a DesignError: a property of the gains (a tuning counts it as a failed trial)
+        raise DesignError(
             f"{exc} (to fly it anyway, set control.wn_o, control.wn_o_yaw, control.attitude_filter_wn and "
             "control.estimator_wn by hand)"
         ) from None

@@ -316,8 +316,8 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
                 warnings.simplefilter("always", EstimatorBandwidthWarning)
                 try:
                     check(sweep.point_spec(i), ctrls)
-                except InputError as exc:
-                    raise InputError(f"point {i} ({_fmt_point(points[i])}): {exc}") from None
+                except InputError as exc:  # keeps its kind (a DesignError is a property of the gains)
+                    raise type(exc)(f"point {i} ({_fmt_point(points[i])}): {exc}") from None
             if any(issubclass(w.category, EstimatorBandwidthWarning) for w in caught):
                 sweep.fast_estimator_points.append(i)
     return sweep

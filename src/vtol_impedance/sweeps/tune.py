@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, check_keys, scalar
+from ..robust.design import DesignError
 from .run import METRICS, Executor, warm_up
 from .spec import _INDEXED, Axis, _axis, _flatten, _get, from_dict
 
@@ -170,14 +171,15 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
                                           hi=90.0)),
         margin_penalty=float(scalar("margin_penalty", cost.get("margin_penalty", 1000.0), lo=0.0)),
     )  # fmt: skip
-    # every corner of the search box, and every listed value, must be a valid scenario: checked now
-    for corner in ({a.key: a.lo if a.values is None else a.values[0] for a in search},
-                   {a.key: a.hi if a.values is None else a.values[-1] for a in search}):  # fmt: skip
-        from_dict(t.trial_sweep(corner), where)
-    for a in search:
-        for v in a.values or ():
-            from_dict(t.trial_sweep({**{b.key: b.lo if b.values is None else b.values[0] for b in search}, a.key: v}),
-                      where)  # fmt: skip
+    # every corner of the search box, and every listed value, must be a valid scenario: checked now (gains
+    # that no attitude bandwidth keeps stable are valid input: such a trial fails and the search moves on)
+    lo = {a.key: a.lo if a.values is None else a.values[0] for a in search}
+    hi = {a.key: a.hi if a.values is None else a.values[-1] for a in search}
+    for point in [lo, hi, *({**lo, a.key: v} for a in search for v in a.values or ())]:
+        try:
+            from_dict(t.trial_sweep(point), where)
+        except DesignError:
+            pass
     return t
 
 
@@ -223,8 +225,10 @@ def tune(
     """Search the gains; returns the best parameters, cost and every trial with its cost components."""
     n_trials = t.trials if trials is None else int(scalar("--trials", trials, lo=1, hi=100_000, integer=True))
     records: list[dict[str, Any]] = []
-    first = from_dict(t.trial_sweep({a.key: a.grid()[0] if a.values else a.lo for a in t.search}), t.where)
-    warm_up(first, backend)
+    try:
+        warm_up(from_dict(t.trial_sweep({a.key: a.grid()[0] if a.values else a.lo for a in t.search}), t.where), backend)
+    except DesignError:
+        pass  # the lower corner has no robust design: the first trial that has one compiles
     executor = Executor(workers, scheduler)
     if executor.note:
         log(f"note: {executor.note}")
@@ -235,11 +239,17 @@ def tune(
             sweep = from_dict(desc, t.where, check_points=False)
             rows: dict[str, list] = {}
             payload = {"source": desc, "where": str(t.where) if t.where else None}
-            for _, r, _ in ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)), backend):
-                for k, v in r.items():
-                    rows.setdefault(k, []).extend(v)
+            try:
+                for _, r, _ in ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)), backend):
+                    for k, v in r.items():
+                        rows.setdefault(k, []).extend(v)
+            except DesignError as exc:  # gains no bandwidth keeps stable on some plant: a failed trial, not a stop
+                cost = float(t.failure_penalty)
+                records.append({**params, "cost": cost, "metric_mean": float("nan"), "failed": sweep.n_flights,
+                                "no_design": str(exc).split(": ", 1)[-1][:200]})  # fmt: skip
+                return cost
             cost, parts = trial_cost(t, rows)
-            records.append({**params, "cost": cost, **parts})
+            records.append({**params, "cost": cost, **parts, "no_design": ""})
             return cost
 
         def progress(i: int, params: dict[str, float], value: float) -> None:
@@ -275,7 +285,7 @@ def best_scenario_toml(t: Tuning, best: dict[str, Any]) -> str:
 def trials_csv(records: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
     if records:
-        w = csv.DictWriter(buf, fieldnames=list(records[0]))
+        w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for r in records for k in r)))
         w.writeheader()
         w.writerows(records)
     return buf.getvalue()
