@@ -226,7 +226,8 @@ def tune(
     n_trials = t.trials if trials is None else int(scalar("--trials", trials, lo=1, hi=100_000, integer=True))
     records: list[dict[str, Any]] = []
     try:
-        warm_up(from_dict(t.trial_sweep({a.key: a.grid()[0] if a.values else a.lo for a in t.search}), t.where), backend)
+        lower = {a.key: a.grid()[0] if a.values else a.lo for a in t.search}
+        warm_up(from_dict(t.trial_sweep(lower), t.where), backend)
     except DesignError:
         pass  # the lower corner has no robust design: the first trial that has one compiles
     executor = Executor(workers, scheduler)
