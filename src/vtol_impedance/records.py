@@ -52,13 +52,16 @@ def signal_shape(name: str, n_rotors: int) -> tuple[int, ...]:
 LOG_ROW = np.dtype([(name, np.float64, signal_shape(name, MAX_ROTORS)) for name in SIGNALS])
 
 
+def empty_log(batch: int, samples: int) -> np.ndarray:
+    """Log rows ``(batch, samples)`` of :data:`LOG_ROW`, all NaN (a row never written stays NaN)."""
+    rows = np.empty((batch, samples), dtype=LOG_ROW)
+    rows.view(np.float64)[...] = np.nan  # every field is float64: one fill of the whole block
+    return rows
+
+
 def rows_to_data(rows: np.ndarray, n_rotors: int) -> dict[str, np.ndarray]:
-    """Named signals ``(B, N, *shape)`` from log rows ``(B, N)`` of :data:`LOG_ROW`."""
-    out = {}
-    for name in SIGNALS:
-        v = rows[name]
-        out[name] = np.ascontiguousarray(v[..., :n_rotors] if "rotors" in SIGNALS[name][0] else v)
-    return out
+    """Named signals ``(B, N, *shape)`` from log rows ``(B, N)`` of :data:`LOG_ROW` (views, no copy)."""
+    return {name: rows[name][..., :n_rotors] if "rotors" in SIGNALS[name][0] else rows[name] for name in SIGNALS}
 
 
 #: A vehicle is stopped and flagged when its tilt exceeds this (the Euler parametrisation fails at 90 deg).

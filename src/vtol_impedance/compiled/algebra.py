@@ -6,24 +6,23 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from ..conventions import G
+from .jit import kernel
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _Q9(f, t):
     cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
     return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _Qd9(f, t, df, dt):
     cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
     return (0.0, 0.0, -ct * dt, 0.0, -sf * df, cf * ct * df - sf * st * dt, 0.0, -cf * df, -sf * ct * df - cf * st * dt)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _mm9(A, B):
     return (
         A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
@@ -38,12 +37,12 @@ def _mm9(A, B):
     )
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _t9(A):
     return (A[0], A[3], A[6], A[1], A[4], A[7], A[2], A[5], A[8])
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _mv9(A, x0, x1, x2):
     return (
         A[0] * x0 + A[1] * x1 + A[2] * x2,
@@ -52,7 +51,7 @@ def _mv9(A, x0, x1, x2):
     )
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _solve9(A, b0, b1, b2):
     """``A^{-1} b`` for a 3x3 ``A`` (row-major 9-tuple) by the adjugate: no LAPACK call on the hot path."""
     c00 = A[4] * A[8] - A[5] * A[7]
@@ -65,7 +64,7 @@ def _solve9(A, b0, b1, b2):
     return x0 * inv, x1 * inv, x2 * inv
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
     """``Q``, ``M = Q^T I Q``, ``C = Q^T S(I Q eta_dot)^T Q + Q^T I Q_dot`` as 9-tuples (eq. (3b), (7))."""
     Q = _Q9(e0, e1)
@@ -90,7 +89,7 @@ def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
     return Q, M, C
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
     """Angular part of eq. (8): ``Q^T tau_B + C^T eta_dot``."""
     a = _mv9(_t9(Q), t0, t1, t2)
@@ -98,7 +97,7 @@ def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
     return a[0] + b[0], a[1] + b[1], a[2] + b[2]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _beta_lin(e0, e1, e2, u, m):
     """Linear part of eq. (8): ``-u R(eta) e3 + m g``."""
     cf, sf = math.cos(e0), math.sin(e0)

@@ -18,13 +18,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import from_dtype, njit, types
+from numba import from_dtype, types
 
 from ..control.impedance import ControllerArrays
 from ..conventions import SINGULARITY_COS_EPS, G
 from .algebra import _mm9, _mv9, _solve9, _t9
 from .estimator import estimator_update, pack_design
 from .estimator import initial_state as estimator_initial_state
+from .jit import kernel
 from .layouts import CONTROLLER, CONTROLLER_STATE, DESIGN, HISTORY, OUTPUT, pack
 
 
@@ -47,7 +48,7 @@ def new_output(batch: int) -> np.ndarray:
     return np.zeros(batch, dtype=OUTPUT)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):
     """Eq. (16) solved in NED with the tilt and lift limits of :func:`vtol_impedance.control.thrust_and_attitude`."""
     vert = G - mu_bar[2]
@@ -64,12 +65,12 @@ def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):
     return m * a, phi, theta, (vert < min_lift) or (scale < 1.0)
 
 
-@njit(cache=True)
+@kernel()
 def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@njit(cache=True)
+@kernel()
 def _allocate(p, u, t0, t1, t2, f):
     """Prioritised inverse of eq. (4) for any rotor layout, as :func:`vtol_impedance.model.mixer.allocate`.
 
@@ -147,7 +148,7 @@ def _allocate(p, u, t0, t1, t2, f):
     return sat, k, ys
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _mix_row(p, f, row):
     """Row ``row`` of ``E f``, eq. (4): the thrust (0) or a body moment (1-3) of the rotor forces ``f``."""
     acc = 0.0
@@ -156,7 +157,7 @@ def _mix_row(p, f, row):
     return acc
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _impedance_axis(p, s, r, i, m, e, ev, fh, fl, fdot, lead):
     """``mu_bar`` on world axis ``i``: eq. (18a) with compensation, blended with the comply impedance
     (which feeds forward ``fl``, the estimate with its filter delay taken out, and leads its command by
@@ -174,7 +175,7 @@ def _impedance_axis(p, s, r, i, m, e, ev, fh, fl, fdot, lead):
     return mu + lam * lead * rate
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _attitude_axis(p, d, s, r, i, tb, eta_d_ddot, de, ee, th, la):
     """``tau_bar`` on Euler angle ``i`` blended with ``M_o e'' + D_o e' + K_o e = tau_ext_eta``, and the
     moment (14) cancels; both use the estimate advanced by G's delay and the attitude latency ``la``, as
@@ -185,7 +186,7 @@ def _attitude_axis(p, d, s, r, i, tb, eta_d_ddot, de, ee, th, la):
     return (1.0 - lam) * tb + lam * comply, th + lam * (lead - th)
 
 
-@njit(cache=True)
+@kernel()
 def controller_step(p, d, s, h, y, r, o):
     """One control period for one vehicle; updates ``s``, ``h`` in place and writes ``o``. Mirrors
     :func:`vtol_impedance.control.impedance.controller_step`, with no heap allocation."""
@@ -310,7 +311,7 @@ _CHECKED = types.int64(
 )  # fmt: skip
 
 
-@njit(_CHECKED, cache=True)
+@kernel(_CHECKED)
 def checked_step(p, d, s, h, b, y, r, o):
     """:func:`controller_step` for vehicle ``b`` of the arrays ``p``, ``s``, ``h``, ``o`` after input checks;
     returns :data:`OK` or why it refused (the state is then unchanged): :data:`NON_FINITE`, :data:`SINGULAR`
@@ -335,13 +336,13 @@ def checked_step(p, d, s, h, b, y, r, o):
     return OK
 
 
-@njit(cache=True)
+@kernel()
 def step_one(p, d, s, h, b, y, r, o):
     """:func:`controller_step` for vehicle ``b`` of the arrays (inputs checked by the caller)."""
     controller_step(p[b], d[0], s[b], h[b], y, r, o[b])
 
 
-@njit(cache=True)
+@kernel()
 def allocate_one(p, u, t0, t1, t2, o):
     """:func:`_allocate` for ``p[0]`` into ``o[0].f_rotor`` (the allocator alone, for its tests)."""
     return _allocate(p[0], u, t0, t1, t2, o[0].f_rotor)

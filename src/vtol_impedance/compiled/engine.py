@@ -12,11 +12,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, MAX_DISTANCE_M, MAX_TILT_RAD
 from .algebra import _Q9, _solve9
 from .controller import controller_step
+from .jit import kernel
 from .layouts import OUTPUT, STATE
 from .plant import (
     _origin,
@@ -32,14 +33,14 @@ from .plant import (
 _COS_TILT_MAX = math.cos(MAX_TILT_RAD)
 
 
-@njit(cache=True)
+@kernel()
 def _ago(hist, count, head, k):
     """The state ``k`` plant steps ago (the oldest kept when fewer are)."""
     H = hist.shape[0]
     return hist[(head - min(k, count - 1)) % H]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _measure(pp, xm, xi, sigma, noise, y):
     """Sensors, as :class:`vtol_impedance.sim.sensors.SensorSuite`: the body origin's position and velocity
     from the motion-capture state ``xm``, attitude and gyro from the IMU state ``xi``, with noise; Euler
@@ -57,7 +58,7 @@ def _measure(pp, xm, xi, sigma, noise, y):
         y[9 + i] = ed[i]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _log(row, pp, x, r, y, o, env, eta, f_l, t_l, p_o, v_o):
     """One :data:`~vtol_impedance.records.LOG_ROW`."""
     Q = _Q9(eta[0], eta[1])
@@ -94,7 +95,7 @@ def _log(row, pp, x, r, y, o, env, eta, f_l, t_l, p_o, v_o):
         row.f_rotor[i] = x.f_rotor[i]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _accumulate(a, t, win, p_o, v_o, r, o, f_l, t_l):
     """Running sums of the window metrics (:data:`~.layouts.ACCUMULATORS`), as ``analysis.metrics``."""
     e2 = ev2 = fe2 = te2 = 0.0
@@ -115,7 +116,7 @@ def _accumulate(a, t, win, p_o, v_o, r, o, f_l, t_l):
         a.e_tail += math.sqrt(e2)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _failure(pp, x):
     """Why the vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop._check_vehicles`."""
     s = 0.0
@@ -138,7 +139,7 @@ def _failure(pp, x):
     return 0
 
 
-@njit(cache=True, parallel=True)
+@kernel(parallel=True)
 def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp, dists,
               series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Advance every live vehicle from control tick ``k0`` to ``k1``.
@@ -155,7 +156,7 @@ def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sig
                  dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win)  # fmt: skip
 
 
-@njit(cache=True)
+@kernel()
 def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp, dists,
          series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
@@ -219,19 +220,19 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
             return
 
 
-@njit(cache=True)
+@kernel()
 def _scratch():
     """A zeroed output and six state records (the RK4 slopes and stage, the derivative)."""
     return np.zeros(1, dtype=OUTPUT), np.zeros(6, dtype=STATE)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _nominal_inertia(p):
     I = p.I_B  # noqa: E741
     return (I[0, 0], I[0, 1], I[0, 2], I[1, 0], I[1, 1], I[1, 2], I[2, 0], I[2, 1], I[2, 2])
 
 
-@njit(cache=True)
+@kernel()
 def advance(pp, X, f_cmd, t0, n_sub, dt, dists, series):
     """Every vehicle's plant ``X (B,)`` over ``n_sub`` RK4 steps from ``t0`` with the rotor commands
     ``f_cmd (B, n)`` held (open loop: a replay, another simulator's controller)."""

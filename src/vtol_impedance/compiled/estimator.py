@@ -15,11 +15,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from ..errors import InputError
 from ..estimator.momentum import EstimatorDesign
 from .algebra import _QMC, _beta_ang, _beta_lin, _mv9, _solve9, _t9
+from .jit import kernel
 from .layouts import CONTROLLER_STATE, DESIGN, HISTORY, MAX_ORDER, fill
 
 
@@ -43,7 +43,7 @@ def initial_state(d: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(batch, dtype=CONTROLLER_STATE), np.zeros((batch, int(d[0]["H"])), dtype=HISTORY)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _hist_at(h, col, d):
     """Column ``col`` of the command history ``d`` periods back, linearly interpolated, as
     :func:`vtol_impedance.estimator.momentum.history_at`."""
@@ -53,7 +53,7 @@ def _hist_at(h, col, d):
     return a + g * (h[i + 1].act[col] - a)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _angle_at(h, col, d):
     """The same for the attitude history, across the +-pi wrap."""
     i = int(math.floor(d + 1e-9))
@@ -63,7 +63,7 @@ def _angle_at(h, col, d):
     return a + g * ((diff + math.pi) % (2.0 * math.pi) - math.pi)
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # noqa: E741
     """One sample of eqs. (8)-(11) (see :mod:`vtol_impedance.estimator.momentum` for the discretisation).
 
@@ -131,7 +131,7 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
     return Q, M, C, (w[0], w[1], w[2], w[3], w[4], w[5])
 
 
-@njit(cache=True)
+@kernel()
 def estimator_sample(d, s, h, m, I, v_W, eta, eta_dot, thrust_prev, tau_B_prev, restart, out):  # noqa: E741, N803
     """One sample of the estimator with the command held over the period that just ended, for an online
     loop and for :func:`estimate_log`: ``out = [f_hat_ext_W; tau_hat_ext_eta; tau_hat_ext_B]`` (9).
@@ -155,13 +155,13 @@ def estimator_sample(d, s, h, m, I, v_W, eta, eta_dot, thrust_prev, tau_B_prev, 
     out[6], out[7], out[8] = _solve9(_t9(Q), w[3], w[4], w[5])
 
 
-@njit(cache=True)
+@kernel()
 def sample_one(d, s, h, m, I, v_W, eta, eta_dot, thrust_prev, tau_B_prev, restart, out):  # noqa: E741, N803
     """:func:`estimator_sample` called from Python: ``d``, ``s`` are ``(1,)`` arrays, ``h`` is ``(1, H)``."""
     estimator_sample(d[0], s[0], h[0], m, I, v_W, eta, eta_dot, thrust_prev, tau_B_prev, restart, out)
 
 
-@njit(cache=True)
+@kernel()
 def estimate_log(d, m, I_B, v_W, eta, eta_dot, thrust, tau_B, restart, out):  # noqa: N803
     """The estimator over a uniformly sampled log: ``out[k] = [f_hat_ext_W; tau_hat_ext_eta; tau_hat_ext_B]``.
 

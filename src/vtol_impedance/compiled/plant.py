@@ -14,17 +14,16 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from ..conventions import G
 from .algebra import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
+from .jit import kernel
 from .layouts import KIND, PUSH
 
 _CONSTANT, _STEP, _RAMP, _SINUSOID = KIND["constant"], KIND["step"], KIND["ramp"], KIND["sinusoid"]
 _SERIES, _WALL = KIND["series"], KIND["wall"]
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@kernel(inline="always")
 def _R_of(q):
     """Rotation body -> world of the unit quaternion ``q = [w, x, y, z]`` as a row-major 9-tuple."""
     w, x, y, z = q[0], q[1], q[2], q[3]
@@ -41,13 +40,13 @@ def _R_of(q):
     )
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@kernel(inline="always")
 def euler_of(R):
     """ZYX Euler angles ``(phi, theta, psi)`` of a row-major rotation 9-tuple."""
     return math.atan2(R[7], R[8]), -math.asin(min(max(R[6], -1.0), 1.0)), math.atan2(R[3], R[0])
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@kernel(inline="always")
 def _origin(pp, x, R):
     """Body-origin position and velocity (6-tuple, world) as :func:`vtol_impedance.sim.plant.origin_kinematics`."""
     c, w = pp.c_B, x.omega_B
@@ -63,7 +62,7 @@ def _origin(pp, x, R):
     )
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@kernel(inline="always")
 def _moment_B(R, r0, r1, r2, f0, f1, f2):
     """Body-frame moment ``r_B x (R^T f_W)`` of a world force ``f_W`` acting at the body point ``r_B``."""
     b0 = R[0] * f0 + R[3] * f1 + R[6] * f2
@@ -72,7 +71,7 @@ def _moment_B(R, r0, r1, r2, f0, f1, f2):
     return r1 * b2 - r2 * b1, r2 * b0 - r0 * b2, r0 * b1 - r1 * b0
 
 
-@njit(cache=True, error_model="numpy")
+@kernel()
 def add_disturbances(t, p0, p1, p2, v0, v1, v2, R, dists, series, env):
     """Write the sum of the disturbances into ``env = [f_W, tau_B]``, as
     :class:`vtol_impedance.sim.disturbances.DisturbanceSet`. ``R`` is the rotation as a row-major 9-tuple;
@@ -151,7 +150,7 @@ def add_disturbances(t, p0, p1, p2, v0, v1, v2, R, dists, series, env):
     env[0], env[1], env[2], env[3], env[4], env[5] = f0, f1, f2, t0, t1, t2
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@kernel(inline="always")
 def _ground(pp, pz, v0, v1, v2):
     """Ground force at a contact point at depth ``pz`` moving with ``v``, as ``sim.plant._ground_force``."""
     if pz > 0.0 and pp.ground > 0.0:  # the ground pushes, never pulls
@@ -159,7 +158,7 @@ def _ground(pp, pz, v0, v1, v2):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@kernel(inline="always")
 def _rotor_sums(pp, f, n):
     """``E f``, eq. (4) with the true geometry: thrust and the three body moments of the rotor forces."""
     E = pp.E
@@ -172,7 +171,7 @@ def _rotor_sums(pp, f, n):
     return u, tm0, tm1, tm2
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@kernel(inline="always")
 def _rotor_lag(pp, f, f_cmd, f_dot, n):
     """First-order rotor lag towards the clipped commands, faster up than down."""
     for i in range(n):
@@ -180,7 +179,7 @@ def _rotor_lag(pp, f, f_cmd, f_dot, n):
         f_dot[i] = (g - f[i]) * (pp.inv_tau_up if g > f[i] else pp.inv_tau_down)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@kernel(inline="always")
 def plant_derivative(pp, x, f_cmd, dist, xd, env):
     """``x_dot`` of the true plant into ``xd``, as :func:`vtol_impedance.sim.plant.plant_derivative`, and the
     external wrench into ``env = [f_ext_W (at the body origin), tau_ext_B]``, as
@@ -280,7 +279,7 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     env[0], env[1], env[2], env[3], env[4], env[5] = fe0, fe1, fe2, te0, te1, te2
 
 
-@njit(cache=True, error_model="numpy")
+@kernel()
 def lowest_contact_depth(pp, x):
     """Depth below ground of the lower contact point, as :func:`vtol_impedance.sim.plant.lowest_contact_depth`."""
     R = _R_of(x.q_WB)
@@ -289,7 +288,7 @@ def lowest_contact_depth(pp, x):
     return max(z_o, z + R[6] * (r[0] - c[0]) + R[7] * (r[1] - c[1]) + R[8] * (r[2] - c[2]))
 
 
-@njit(cache=True, error_model="numpy")
+@kernel()
 def disturbance_at(pp, x, t, dists, series, dist):
     """The explicit disturbances ``dist = [f_W, tau_B]`` at ``(t, x)``, as
     :func:`vtol_impedance.sim.plant.disturbance_at`."""
@@ -302,7 +301,7 @@ def disturbance_at(pp, x, t, dists, series, dist):
     add_disturbances(t, o[0], o[1], o[2], o[3], o[4], o[5], R, dists, series, dist)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@kernel(inline="always")
 def _stage(out, x, h, k, n):
     """``out = x + h k`` over every field of the state (``n`` rotors)."""
     for i in range(3):
@@ -317,7 +316,7 @@ def _stage(out, x, h, k, n):
         out.f_rotor[i] = x.f_rotor[i] + h * k.f_rotor[i]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@kernel(inline="always")
 def _rk4_sum(x, h, k1, k2, k3, k4, n):
     """``x += h/6 (k1 + 2 k2 + 2 k3 + k4)`` over every field."""
     for i in range(3):
@@ -332,7 +331,7 @@ def _rk4_sum(x, h, k1, k2, k3, k4, n):
         x.f_rotor[i] += h * (k1.f_rotor[i] + 2.0 * k2.f_rotor[i] + 2.0 * k3.f_rotor[i] + k4.f_rotor[i])
 
 
-@njit(cache=True, error_model="numpy")
+@kernel()
 def rk4_step(pp, x, f_cmd, dist, dt, work, env):
     """One RK4 step of ``x`` in place with the rotor command and the disturbances ``dist`` held over the step;
     ``work`` holds five state records (the four slopes and a stage), ``env`` (6) is scratch.
@@ -364,7 +363,7 @@ def rk4_step(pp, x, f_cmd, dist, dt, work, env):
         v[2] -= vr * n2
 
 
-@njit(cache=True, error_model="numpy")
+@kernel()
 def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, I_nom, f, tau_eta):
     """What the nominal model (mass ``m_nom``, inertia ``I_nom`` as a 9-tuple) misses, as
     :func:`vtol_impedance.sim.loop._lumped_wrench`: ``f`` (world) and ``tau_eta`` (Euler coordinates)."""

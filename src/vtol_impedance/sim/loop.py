@@ -47,6 +47,7 @@ from ..records import (
     MAX_TILT_RAD,
     REASONS,
     SIGNALS,
+    empty_log,
     rows_to_data,
 )
 from .disturbances import Disturbance, DisturbanceSet
@@ -503,7 +504,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     fail_time = np.zeros(B)
     fail_code = np.zeros(B, dtype=np.int64)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    logs = np.full((B, n_log), np.nan, dtype=LOG_ROW)
+    logs = empty_log(B, n_log)
     acc = np.zeros(B, dtype=ACCUMULATORS)
     win = np.array(s.window)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
@@ -529,7 +530,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     sens.push(plant.x)
     CS = initial_controller_state(CA)
     n_rotors = PA.spins.shape[-1]
-    logs = np.full((B, s.N), np.nan, dtype=LOG_ROW)
+    logs = empty_log(B, s.N)
     alive = np.ones(B, dtype=bool)
     fail_code = np.zeros(B, dtype=np.int64)
     fail_time = np.zeros(B)
