@@ -49,11 +49,14 @@ from ..errors import InputError, scalar
 from ..model.kinematics import euler_from_rotation, quat_from_euler, quat_to_rotation
 from ..scenarios.spec import ScenarioSpec, build, controller_params
 from ..sim.disturbances import DisturbanceSet, StepWrench
-from ..sim.plant import OMEGA, ROTOR, compile_plants, initial_state, origin_kinematics, rk4_step
+from ..sim.plant import OMEGA, ROTOR, apply_instant_rotors, compile_plants, initial_state, origin_kinematics, rk4_step
 from ..sim.sensors import NoiseSource, SensorParams, SensorSuite
 from .link import Address, LiveError, mavutil, parse_address
 from .streams import RPM, AutopilotProfile, profile
 
+#: The vehicle's clock at the start of the simulation, s (it booted this long before): vehicle time is
+#: simulated time plus this.
+BOOT_S = 1.0
 #: Descent speed of the landing mode, m/s.
 LAND_SPEED_M_S = 0.5
 #: Age of the newest set-point under which OFFBOARD may be entered (PX4 wants a set-point stream first).
@@ -201,7 +204,7 @@ class SimAutopilot:
         self.u_max = float(self.f_max.sum())
         self.hover = float((self.PA.mass + self.PA.pend_m) * G / self.u_max)
         self.t = 0.0
-        self.clock_offset_s = 1.0  # the vehicle booted a second before the simulation starts
+        self.clock_offset_s = BOOT_S
         self.mode = "POSCTL" if settings.autopilot == "px4" else "LOITER"
         self.armed = True
         self.setpoint: dict[str, Any] | None = None
@@ -414,7 +417,7 @@ class SimAutopilot:
         return out, np.asarray(f_cmd, dtype=float)
 
     def _advance(self, f_cmd: np.ndarray) -> None:
-        x = self.x
+        x = apply_instant_rotors(self.PA, self.x, f_cmd)  # a rotor without lag follows its command at once
         for j in range(self.n_sub):
             x = rk4_step(self.PA, x, f_cmd, self.t + j * self.dt, self.dt, self.dist)
             self.sensors.push(x)
