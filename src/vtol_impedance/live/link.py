@@ -180,6 +180,7 @@ class LinkStats:
     lost: int = 0  # sequence gaps of the target
     duplicates: int = 0  # repeated sequence numbers of the target
     by_type: dict[str, int] = field(default_factory=dict)
+    by_source: dict[tuple[int, int], int] = field(default_factory=dict)
     arrivals: dict[str, deque] = field(default_factory=dict)  # message -> recent arrival times (monotonic)
 
     def rate(self, message: str, now: float, window: float = 2.0) -> float:
@@ -279,6 +280,8 @@ class Link:
                 msg._tlog_us = self.recorder.write(bytes(buf))
         self.stats.received += 1
         src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if len(self.stats.by_source) < 64 or src in self.stats.by_source:  # bounded: a flood of ids is not kept
+            self.stats.by_source[src] = self.stats.by_source.get(src, 0) + 1
         if src == self.target:
             seq = msg.get_seq()
             if self._last_seq is not None:

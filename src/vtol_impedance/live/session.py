@@ -61,6 +61,8 @@ TIMESYNC_S = 0.5
 LINK_LOST_S = 3.0
 #: Send-back rate (NAMED_VALUE_FLOAT, DEBUG_VECT), Hz: enough for a ground station's plot, little bandwidth.
 SEND_BACK_HZ = 10.0
+#: After the first vehicle's heartbeat, listen this long for others (heartbeats come at 1 Hz).
+LISTEN_S = 1.1
 POLL_S = 0.005
 
 
@@ -333,21 +335,22 @@ class Session:
         self.link.recorder = self.tlog
 
     def find_vehicle(self) -> None:
+        """The vehicle to work with: ``system`` if given, else the only one heard. A heartbeat comes once a
+        second, so after the first one the link is listened to for :data:`LISTEN_S` more to hear the others:
+        with several, ``control`` is refused (which one?) and monitoring takes the one sending the most."""
         s = self.s
         link = self.link
         assert link is not None
         end = self.now() + s.connect_timeout_s
-        while self.now() < end:
+        listen_until = None
+        while self.now() < end and (listen_until is None or self.now() < listen_until):
             self._housekeeping()
             link.poll(POLL_S)
             found = [p for p in link.vehicles() if s.system is None or p.system == s.system]
-            if found:
-                peer = min(found, key=lambda p: (p.last_heartbeat, p.system))
-                self.target = (peer.system, peer.component)
-                link.target = self.target
-                self._last_vehicle_hb = peer.last_heartbeat
-                break
-        else:
+            if found and listen_until is None:
+                listen_until = self.now() + (0.0 if s.system is not None else LISTEN_S)
+        found = [p for p in link.vehicles() if s.system is None or p.system == s.system]
+        if not found:
             heard = ", ".join(
                 f"system {p.system} (autopilot {p.autopilot}, type {p.mav_type})" for p in link.peers.values()
             )
@@ -363,6 +366,17 @@ class Session:
                 f"no heartbeat from a vehicle on {self.address.text} within {s.connect_timeout_s:g} s (heard {what}); "
                 + hint
             )
+        systems = sorted({p.system for p in found})
+        if len(systems) > 1 and s.control is not None:
+            raise LiveError(
+                f"more than one vehicle on the link (systems {', '.join(map(str, systems))}): choose the one to "
+                "control with --system"
+            )
+        counts = link.stats.by_source
+        peer = max(found, key=lambda p: (counts.get((p.system, p.component), 0), -p.system))
+        self.target = (peer.system, peer.component)
+        link.target = self.target
+        self._last_vehicle_hb = peer.last_heartbeat
         peer = link.peers[self.target]
         if s.autopilot != "auto":
             self.profile = profile(s.autopilot)
