@@ -65,6 +65,12 @@ def _bar(value: float, scale: float) -> str:
     return left + "|" + right
 
 
+def _scale_line(scale: float, unit: str) -> str:
+    """The bars' scale, aligned with the bars below it (which start after a 20-character label)."""
+    left, right = f"-{scale:g} {unit}", f"+{scale:g} {unit}"
+    return " " * 20 + left + "0".rjust(BAR + 1 - len(left)) + right.rjust(BAR)
+
+
 def _num(v: float, fmt: str = "+7.3f") -> str:
     return format(v, fmt) if np.isfinite(v) else "    n/a"
 
@@ -78,19 +84,19 @@ def render(v: View, width: int = 100) -> list[str]:
         + (f"   estimate {v.tick_age_s * 1e3:5.0f} ms old" if v.tick_age_s is not None else "")
         + (f"   segment {v.segment}" if v.segment else ""),
         "",
-        f"external force f_hat_W (N, world NED)      -{FORCE_SCALE_N:g} N{' ' * (2 * BAR - 10)}+{FORCE_SCALE_N:g} N",
+        "external force f_hat_W (N, world NED)",
+        _scale_line(FORCE_SCALE_N, "N"),
     ]
     f = v.f_hat_W if v.f_hat_W is not None else np.full(3, np.nan)
     for name, val in zip(("north x", "east  y", "down  z"), f, strict=True):
-        lines.append(f"  {name} {_num(val)}   {_bar(val, FORCE_SCALE_N)}")
+        lines.append(f"  {name} {_num(val)}   {_bar(val, FORCE_SCALE_N)}".rstrip())
     fn = float(np.linalg.norm(f)) if np.all(np.isfinite(f)) else float("nan")
     lines.append(f"  |f|     {_num(fn, '7.3f')}")
-    lines.append(
-        f"moment tau_hat_B (N m, body FRD)   -{MOMENT_SCALE_NM:g} N m{' ' * (2 * BAR - 14)}+{MOMENT_SCALE_NM:g} N m"
-    )
+    lines.append("moment tau_hat_B (N m, body FRD)")
+    lines.append(_scale_line(MOMENT_SCALE_NM, "N m"))
     t = v.tau_hat_B if v.tau_hat_B is not None else np.full(3, np.nan)
     for name, val in zip(("roll  x", "pitch y", "yaw   z"), t, strict=True):
-        lines.append(f"  {name} {_num(val, '+7.4f')}   {_bar(val, MOMENT_SCALE_NM)}")
+        lines.append(f"  {name} {_num(val, '+7.4f')}   {_bar(val, MOMENT_SCALE_NM)}".rstrip())
     if not np.any(np.isfinite(t)):
         lines.append("  (no moment: the vehicle streams no per-rotor commands or speeds; see the stream table)")
     lines += ["", f"{'stream':<24}{'role':<10}{'requested':>10}{'measured':>10}  used"]
@@ -180,7 +186,7 @@ def to_png(lines: list[str], path: Any, title: str | None = None) -> Any:
     import matplotlib.pyplot as plt
 
     cols = max(len(ln) for ln in lines)
-    fig_w, fig_h = 0.085 * cols + 0.4, 0.19 * len(lines) + 0.4
+    fig_w, fig_h = 0.085 * cols + 0.4, 0.166 * len(lines) + 0.25
     fig = plt.figure(figsize=(fig_w, fig_h), dpi=110)
     fig.patch.set_facecolor("#1e1f22")
     ax = fig.add_axes((0, 0, 1, 1))

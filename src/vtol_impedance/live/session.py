@@ -464,7 +464,8 @@ class Session:
                 f"the vehicle does not send the streams the estimate needs (asked for at {s.estimator.rate_hz:g} Hz, "
                 f"waited {el:.1f} s):\n  " + "\n  ".join(lines) + f"\n  it sends: {have}"
             )
-        self.sources = sources
+        keep = command_role(sources)
+        self.sources = {r: m for r, m in sources.items() if r in GATING or r == keep}
         self.release_unused()
         for role in GATING:
             hz = rates.get(sources[role], 0.0)
