@@ -157,7 +157,7 @@ def estimated(tmp_path_factory):
     """One session against an autopilot that injects a known wrench at a known time."""
     F_W = np.array([0.8, -0.5, 0.0])
     tau_B = np.array([0.0, 0.0, 0.02])
-    t_on = 4.0  # simulated s
+    t_on = 5.0  # simulated s
     latency = 0.03  # s, each way
     out = tmp_path_factory.mktemp("live") / "run"
     port = free_port()
@@ -169,7 +169,7 @@ def estimated(tmp_path_factory):
         inject_on=t_on,
         impairments=Impairments(latency_s=latency),
     ) as sim:
-        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=7.5, out=str(out), display="none"))
+        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=8.5, out=str(out), display="none"))
         sim_summary = sim.summary()
     return {"res": res, "F_W": F_W, "tau_B": tau_B, "t_on": t_on + BOOT_S, "latency": latency, "out": res.folder,
             "sim": sim_summary}  # fmt: skip
@@ -262,7 +262,7 @@ def test_an_impaired_link_loses_nothing_but_samples(tmp_path):
     port = free_port()
     imp = Impairments(loss=0.05, duplicate=0.05, reorder=0.05, latency_s=0.02, seed=3)
     with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", inject_force_W=tuple(F_W), impairments=imp):
-        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=5.0, out=str(tmp_path / "r"), display="none"))
+        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=6.5, out=str(tmp_path / "r"), display="none"))
     s = res.summary
     c = s["estimator"]["counts"]
     assert res.exit_code == 0 and res.ticks > 80
@@ -400,7 +400,7 @@ def _simulator_steady_error(kp: float, dp: float, force: float, t_on: float) -> 
 
 def _control_run(tmp_path, variant: str, event: str, duration: float):
     port = free_port()
-    force, t_on = 1.0, 5.0
+    force, t_on = 1.0, 6.0
     c = ControlSettings(variant=variant, comply=(1.0, 1.0, 0.0) if variant == "comply" else (0.0, 0.0, 0.0))
     settings = LiveSettings(f"udpin:127.0.0.1:{port}", duration=duration, out=str(tmp_path / variant),
                             display="none", control=c, connect_timeout_s=30)  # fmt: skip
@@ -418,7 +418,7 @@ def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_
     """PD+C offboard: once the estimate has converged the position error under a 1 N push is far below what PD
     leaves (F / Kp) and close to the simulator's PD+C with the same gains. Then the velocity stream stops: the
     watchdog hands control back (hold, confirmed by the heartbeat) within its stated time."""
-    res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", "9.5,stop,LOCAL_POSITION_NED", 25.0)
+    res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", "10.5,stop,LOCAL_POSITION_NED", 25.0)
     ctl = res.summary["control"]
     active = d["state"] == "active"
     sel = active & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)
@@ -440,7 +440,7 @@ def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_
 def test_control_complies_when_asked_and_yields_to_the_pilot_at_once(tmp_path):
     """comply along x, y (M_d 2 kg, D_d 6 N s/m, K_d 5 N/m): a 1 N push moves the vehicle F / K_d = 0.2 m and
     holds it there. Then the pilot switches to POSCTL: no set-point is sent after the heartbeat that says so."""
-    res, d, force, t_on, c, err = _control_run(tmp_path, "comply", "9.5,mode,POSCTL", 25.0)
+    res, d, force, t_on, c, err = _control_run(tmp_path, "comply", "10.5,mode,POSCTL", 25.0)
     ctl = res.summary["control"]
     M, D, K = c.impedance
     sel = (d["state"] == "active") & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)

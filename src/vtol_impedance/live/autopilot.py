@@ -204,6 +204,7 @@ class SimAutopilot:
         self.u_max = float(self.f_max.sum())
         self.hover = float((self.PA.mass + self.PA.pend_m) * G / self.u_max)
         self.t = 0.0
+        self.ticks = 0  # simulated time is ticks * Ts: no drift of a running sum
         self.clock_offset_s = BOOT_S
         self.mode = "POSCTL" if settings.autopilot == "px4" else "LOITER"
         self.armed = True
@@ -303,7 +304,7 @@ class SimAutopilot:
 
     @property
     def boot_ms(self) -> int:
-        return int((self.t + self.clock_offset_s) * 1000.0)
+        return int(round((self.t + self.clock_offset_s) * 1000.0))
 
     def _ack(self, command: int, result: int, wall: float, target: tuple[int, int]) -> None:
         self._send(self.mavlink.MAVLink_command_ack_message(command, result, 0, 0, target[0], target[1]), wall)
@@ -422,7 +423,8 @@ class SimAutopilot:
             x = rk4_step(self.PA, x, f_cmd, self.t + j * self.dt, self.dt, self.dist)
             self.sensors.push(x)
         self.x = x
-        self.t += self.Ts
+        self.ticks += 1
+        self.t = self.ticks * self.Ts
 
     def _emit(self, out: Any, f_cmd: np.ndarray, wall: float) -> None:
         mav = self.mavlink
@@ -440,7 +442,7 @@ class SimAutopilot:
         p, v, eta = meas.p_W, meas.v_W, meas.eta
         omega = self.sensors._ago(self.sensors.k_imu)[OMEGA]
         ms = self.boot_ms % 2**32
-        us = int((self.t + self.clock_offset_s) * 1e6)
+        us = int(round((self.t + self.clock_offset_s) * 1e6))
         for name in due:
             if name == "HEARTBEAT":
                 base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
