@@ -255,6 +255,28 @@ def test_the_run_folder_is_complete_and_its_tlog_replays_to_the_live_estimate(es
     assert np.allclose(np.array([t.f_hat_W for t in ticks_np]), f, atol=1e-9)
 
 
+def test_ardupilot_messages_and_rotor_speeds(tmp_path):
+    """The ArduPilot profile (found from the heartbeat): its hover parameter, its ESC telemetry (no time field)
+    turned into rotor forces with the rotor constant, thrust and moment through the mixer; a constant force
+    and moment recovered from measured rotor speeds."""
+    from vtol_impedance.live.autopilot import ROTOR_CONSTANT
+
+    F_W, tau_B = np.array([-0.5, 0.0, 0.3]), np.array([0.01, 0.0, 0.0])
+    port = free_port()
+    with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
+                    inject_force_W=tuple(F_W), inject_torque_B=tuple(tau_B)):  # fmt: skip
+        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=6.0, out=str(tmp_path / "r"), display="none",
+                                    rotor_constant=ROTOR_CONSTANT))  # fmt: skip
+    s = res.summary
+    assert s["vehicle"]["autopilot"] == "ArduPilot" and s["estimator"]["sources"]["rpm"] == "ESC_TELEMETRY_1_TO_4"
+    e = read_csv(res.folder / "estimate.csv")
+    last = e["t_s"] > e["t_s"][-1] - 1.0
+    f = np.stack([e["fx_W_N"], e["fy_W_N"], e["fz_W_N"]], -1)[last].mean(0)
+    tau = np.stack([e["taux_B_Nm"], e["tauy_B_Nm"], e["tauz_B_Nm"]], -1)[last].mean(0)
+    # rotor speeds are whole rpm: f = k_f omega^2 is resolved to 2 k_f omega (2 pi / 60) per rpm, about 1 mN
+    assert np.allclose(f, F_W, atol=0.03) and np.allclose(tau, tau_B, atol=2e-3)
+
+
 def test_an_impaired_link_loses_nothing_but_samples(tmp_path):
     """5 % loss, 5 % repeats, 5 % reordering and 20 ms latency each way: the session runs, counts what happened,
     keeps its buffers bounded, and still recovers a constant force."""
@@ -432,7 +454,7 @@ def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_
     # the watchdog
     assert ctl["state"] == "handed_back" and "watchdog" in ctl["reason"] and res.exit_code == 3
     hb = ctl["handback"]
-    assert c.watchdog_s <= hb["since_last_tick_s"] <= c.watchdog_s + 0.06
+    assert c.watchdog_s <= hb["since_last_tick_s"] <= c.watchdog_s + 0.08
     assert hb["mode"] == "AUTO_LOITER" and hb["confirmed_s"] is not None and hb["confirmed_s"] < 1.0
     assert "final mode AUTO_LOITER" in err
 

@@ -185,6 +185,7 @@ class OffboardController:
         self._u_prev: float | None = None
         self._wanted_mode: str | None = None
         self.max_error_m = 0.0
+        self._segment: int | None = None
 
     def start(self, now: float) -> None:
         """Begin the handshake (the vehicle's heartbeat has been heard)."""
@@ -250,6 +251,13 @@ class OffboardController:
     def on_tick(self, tick: Tick, now: float, link: Link, target: tuple[int, int]) -> None:
         """One estimator tick: fence, the loop, limits, and the set-point (while sending)."""
         self.last_tick_wall = now
+        if self._segment is not None and tick.segment != self._segment:  # the estimator restarted
+            self._rp_prev = self._u_prev = None
+            self.loop.reset()
+            if self.state == "active":
+                self._segment = tick.segment
+                return self.hand_back("telemetry restarted (a gap or a jump of the vehicle's clock)", now, link, "hold")
+        self._segment = tick.segment
         if self.hold_W is None:
             self.hold_W = np.asarray(tick.p_W, dtype=float).copy()
             self.psi_d = float(tick.eta[2])
