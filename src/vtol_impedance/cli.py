@@ -690,6 +690,150 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _numbers(text: str | None, name: str, n: int) -> tuple[float, ...] | None:
+    """``"a,b,c"`` as ``n`` finite numbers, or a clear error naming the option."""
+    from .errors import InputError
+
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(x) for x in str(text).split(","))
+    except ValueError:
+        raise InputError(f"{name} must be {n} comma-separated numbers, got {text!r}") from None
+    if len(vals) != n or not all(v == v and abs(v) != float("inf") for v in vals):
+        raise InputError(f"{name} must be {n} comma-separated finite numbers, got {text!r}")
+    return vals
+
+
+def cmd_live(args: argparse.Namespace) -> int:
+    """The estimator (and with --control the outer loop) on a vehicle over MAVLink; see the README, "Live over
+    MAVLink"."""
+    import json as _json
+
+    from .estimator.momentum import EstimatorParams
+    from .live import ControlSettings, EstimatorSettings, LiveSettings, run_live
+
+    control = None
+    if args.control is not None:
+        fence = _numbers(args.fence, "--fence", 2)
+        comply = _numbers(args.comply, "--comply", 3)
+        if comply is None:
+            comply = (1.0, 1.0, 0.0) if args.control == "comply" else (0.0, 0.0, 0.0)
+        control = ControlSettings(
+            variant=args.control, comply=comply, impedance=_numbers(args.impedance, "--impedance", 3),
+            Kp=args.kp, Dp=args.dp, tilt_max_deg=args.tilt_max, tilt_rate_max_deg_s=args.tilt_rate,
+            fence_radius_m=fence[0], fence_height_m=fence[1], max_speed_m_s=args.max_speed,
+            watchdog_s=args.watchdog, on_loss=args.on_loss, handshake_timeout_s=args.handshake_timeout, arm=args.arm,
+        )  # fmt: skip
+    est = EstimatorSettings(
+        rate_hz=args.rate, max_gap_s=args.max_gap, backend=args.backend,
+        params=EstimatorParams(wn=args.wn, zeta=args.zeta, rotor_tau=args.rotor_tau),
+    )  # fmt: skip
+    inertia = None
+    if args.inertia is not None:
+        inertia = _numbers(args.inertia, "--inertia", 3)
+    settings = LiveSettings(
+        connect=args.connect, autopilot=args.autopilot, system=args.system, vehicle=args.vehicle, mass=args.mass,
+        inertia=inertia, hover_thrust=args.hover_thrust, max_thrust=args.max_thrust,
+        rotor_constant=args.rotor_constant, estimator=est, duration=args.duration, out=args.out,
+        send_back=args.send_back, display=args.display, connect_timeout_s=args.connect_timeout,
+        stream_timeout_s=args.stream_timeout, control=control,
+    )  # fmt: skip
+    res = run_live(settings, warn=lambda text: print(f"warning: {text}", file=sys.stderr))
+    s = res.summary
+    print(f"live session ended: {res.end}; {res.ticks} estimates", file=sys.stderr)
+    if s.get("control"):
+        c = s["control"]
+        hb = c.get("handback") or {}
+        extra = f", handed back to {hb['mode']}" if hb else ""
+        print(f"control: {c['state']} ({c['reason'] or 'ok'}){extra}", file=sys.stderr)
+    if res.folder is not None:
+        print(f"recorded to {res.folder} (flight.tlog, estimate.csv, live.json)", file=sys.stderr)
+    if args.json:
+        print(_json.dumps(s, indent=1, default=str))
+    return res.exit_code
+
+
+def _sim_event(text: str) -> tuple[float, str, str]:
+    from .errors import InputError
+
+    parts = str(text).split(",")
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        return float(parts[0]), parts[1].strip(), parts[2].strip()
+    except ValueError:
+        raise InputError(
+            f"--event is T,KIND,ARG (T simulated s; KIND mode, stop or clock), e.g. 8,mode,POSCTL; got {text!r}"
+        ) from None
+
+
+def cmd_sim_autopilot(args: argparse.Namespace) -> int:
+    """A simulated autopilot (the project's simulator) behind a MAVLink endpoint."""
+    import threading
+
+    from .live.autopilot import Impairments, SimAutopilot, SimSettings
+
+    spec = _load_spec(args.scenario, args.set, None, args.ideal)
+    inject_at = _numbers(args.inject_at, "--inject-at", len(str(args.inject_at).split(","))) if args.inject_at else None
+    if inject_at is not None and len(inject_at) not in (1, 2):
+        from .errors import InputError
+
+        raise InputError(f"--inject-at is T_ON or T_ON,T_OFF in simulated seconds, got {args.inject_at!r}")
+    on, off = (inject_at[0], inject_at[1] if len(inject_at) > 1 else float("inf")) if inject_at else (0.0, float("inf"))
+    settings = SimSettings(
+        connect=args.connect, autopilot=args.autopilot, speed=args.speed, duration=args.duration,
+        inject_force_W=_numbers(args.inject_force, "--inject-force", 3) or (0.0, 0.0, 0.0),
+        inject_torque_B=_numbers(args.inject_torque, "--inject-torque", 3) or (0.0, 0.0, 0.0),
+        inject_on=on, inject_off=off,
+        impairments=Impairments(args.loss, args.duplicate, args.reorder, args.latency, args.seed or 0),
+        no_streams=tuple(args.no_stream), events=tuple(_sim_event(e) for e in args.event), system=args.system,
+        control_rate=args.control_rate,
+        plant_rate=args.plant_rate,
+    )  # fmt: skip
+    sim = SimAutopilot(spec, settings)
+    if not args.quiet:
+        print(
+            f"simulated {sim.profile.name} autopilot flying {spec.name} (system {settings.system}) on "
+            f"{sim.address.text}, hovering at {sim.hold_W.tolist()} m NED in {sim.mode}; Ctrl-C to stop",
+            file=sys.stderr,
+        )
+    done = threading.Event()
+    out: dict[str, Any] = {}
+
+    def fly() -> None:
+        try:
+            out["summary"] = sim.run()
+        except BaseException as exc:  # reported by the main thread
+            out["error"] = exc
+        finally:
+            done.set()
+
+    th = threading.Thread(target=fly, name="sim-autopilot", daemon=True)
+    th.start()
+    try:
+        while not done.wait(2.0):
+            if not args.quiet:
+                p = sim.history[-1][1] if sim.history else sim.hold_W
+                print(f"  t {sim.t:7.1f} s  {sim.mode:<12} p_W [{p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f}] m  "
+                      f"set-points {sim.stats['setpoints']}", file=sys.stderr)  # fmt: skip
+    except KeyboardInterrupt:
+        sim.stop()
+        th.join(5.0)
+    if "error" in out:
+        raise out["error"]
+    s = out.get("summary") or sim.summary()
+    lat = s.get("setpoint_latency_ms")
+    print(f"simulated {s['simulated_s']:.1f} s; final mode {s['mode']}; set-points received {s['setpoints']}"
+          + (f", their age on arrival {lat['mean']:.1f} ms mean, {lat['max']:.1f} ms max" if lat else ""),
+          file=sys.stderr)  # fmt: skip
+    if s["behind_real_time_s"] > 0:
+        print(
+            f"warning: the computer fell {s['behind_real_time_s']:.1f} s behind --speed {args.speed:g}", file=sys.stderr
+        )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vtol-impedance",
@@ -911,6 +1055,98 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--quiet", action="store_true", help="only the table (no progress)")
     sp.set_defaults(func=cmd_bench)
+
+    sp = sub.add_parser(
+        "live",
+        help="the wrench estimate live from a vehicle over MAVLink (and with --control the outer impedance loop)",
+        description="Connects over MAVLink (pymavlink addresses), asks for the streams the estimator needs, shows the "
+        "estimated external force and moment on one steady screen, and records the flight (flight.tlog, "
+        "estimate.csv, live.json) in a run folder. With --control it flies the outer loop offboard "
+        "(SET_ATTITUDE_TARGET) with a handshake, fence, limits and a watchdog. See the README, 'Live over MAVLink'.",
+    )
+    sp.add_argument("--connect", required=True, metavar="ADDRESS",
+                    help="udpin:HOST:PORT (listen, e.g. udpin:127.0.0.1:14550), udpout:HOST:PORT, tcp:HOST:PORT, "
+                    "or a serial device /dev/ttyUSB0,57600")  # fmt: skip
+    sp.add_argument("--system", type=int, default=None, help="the vehicle's system id (default: the first heard)")
+    sp.add_argument("--autopilot", default="auto", choices=["auto", "px4", "ardupilot"],
+                    help="its message set (default: from its heartbeat)")  # fmt: skip
+    sp.add_argument("--vehicle", default="pelican", help="preset or vehicle .toml: nominal mass, inertia, rotors")
+    sp.add_argument("--mass", type=float, default=None, help="nominal mass, kg (overrides --vehicle)")
+    sp.add_argument("--inertia", default=None, metavar="IXX,IYY,IZZ", help="nominal inertia, kg m^2")
+    g = sp.add_argument_group("thrust in newtons")
+    g.add_argument("--hover-thrust", type=float, default=None,
+                   help="normalised hover thrust (default: the vehicle's MPC_THR_HOVER / MOT_THST_HOVER)")  # fmt: skip
+    g.add_argument("--max-thrust", type=float, default=None, help="total thrust at full throttle, N")
+    g.add_argument("--rotor-constant", type=float, default=None, metavar="KF",
+                   help="N s^2/rad^2: use the ESCs' rotor speeds (f = KF omega^2)")  # fmt: skip
+    g = sp.add_argument_group("estimator")
+    g.add_argument("--rate", type=float, default=50.0, help="estimator rate and requested stream rate, Hz (50)")
+    g.add_argument("--wn", type=float, default=10.0, help="bandwidth of eq. (10), rad/s (paper: 10)")
+    g.add_argument("--zeta", type=float, default=1.0, help="damping of eq. (10) (paper: 1)")
+    g.add_argument("--rotor-tau", type=float, default=0.0, help="rotor time constant the commands pass through, s")
+    g.add_argument("--max-gap", type=float, default=0.25, help="a longer gap in a stream restarts the estimator, s")
+    g.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
+    g = sp.add_argument_group("offboard control")
+    g.add_argument("--control", nargs="?", const="pdc", default=None, choices=["pdc", "comply"],
+                   help="fly the outer loop: pdc (reject: PD + estimate) or comply (yield on --comply)")  # fmt: skip
+    g.add_argument("--comply", default=None, metavar="X,Y,Z", help="comply fraction per world axis (comply: 1,1,0)")
+    g.add_argument("--impedance", default="2,6,5", metavar="M,D,K", help="comply's M_d kg, D_d N s/m, K_d N/m")
+    g.add_argument("--kp", type=float, default=4.0, help="position stiffness Kp, N/m (4; the paper's 16 is too fast "
+                   "for an autopilot's attitude interface, README)")  # fmt: skip
+    g.add_argument("--dp", type=float, default=5.0, help="position damping Dp, N s/m (5; paper: 12)")
+    g.add_argument("--fence", default="1.0,0.5", metavar="R,H", help="fence around the hold point: radius, height, m")
+    g.add_argument("--max-speed", type=float, default=1.5, help="speed fence, m/s")
+    g.add_argument("--tilt-max", type=float, default=20.0, help="largest roll/pitch set-point, deg")
+    g.add_argument("--tilt-rate", type=float, default=180.0, help="largest roll/pitch set-point rate, deg/s")
+    g.add_argument("--watchdog", type=float, default=0.25, help="no telemetry tick for this long hands back, s")
+    g.add_argument("--on-loss", default="hold", choices=["hold", "land"], help="what the watchdog hands back to")
+    g.add_argument("--handshake-timeout", type=float, default=3.0, help="each handshake step's time limit, s")
+    g.add_argument("--arm", action="store_true", help="arm a disarmed vehicle (else it must be armed and flying)")
+    sp.add_argument("--duration", type=float, default=None, help="end after this many seconds (default: Ctrl-C)")
+    sp.add_argument("--out", default=None, help=f"run folder (default: {DEFAULT_OUT}/live-<date>-<time>)")
+    sp.add_argument("--send-back", action="store_true",
+                    help="send the estimate as NAMED_VALUE_FLOAT fx..tz and DEBUG_VECT f_hat_W (10 Hz)")  # fmt: skip
+    sp.add_argument("--display", default="auto", choices=["auto", "tty", "plain", "none"],
+                    help="steady screen (tty), a line every 2 s (plain) or none; auto: tty on a terminal")  # fmt: skip
+    sp.add_argument("--connect-timeout", type=float, default=10.0, help="wait this long for a heartbeat, s")
+    sp.add_argument("--stream-timeout", type=float, default=3.0, help="wait this long for the streams, s")
+    sp.add_argument("--json", action="store_true", help="print the session summary (live.json) on stdout")
+    sp.set_defaults(func=cmd_live)
+
+    sp = sub.add_parser(
+        "sim-autopilot",
+        help="a simulated autopilot (this simulator, PX4 or ArduPilot messages) behind a MAVLink endpoint",
+        description="Flies a scenario's true vehicle and disturbances with its own position hold, streams what PX4 "
+        "(or ArduPilot) would, honours SET_ATTITUDE_TARGET in OFFBOARD (GUIDED_NOGPS) with its own attitude loop, "
+        "and can inject a known wrench, packet loss, repeats, reordering and latency. Try 'live' against it.",
+    )
+    sp.add_argument("scenario", help="registered name (see 'list') or a .toml scenario file, e.g. case-b-fan")
+    sp.add_argument("--connect", required=True, metavar="ADDRESS",
+                    help="where to send, e.g. udpout:127.0.0.1:14550 (where 'live' listens)")  # fmt: skip
+    sp.add_argument("--autopilot", default="px4", choices=["px4", "ardupilot"], help="whose messages and modes")
+    sp.add_argument("--speed", type=float, default=1.0, help="simulated seconds per second (faster than real time)")
+    sp.add_argument("--duration", type=float, default=None, help="simulated seconds (default: until Ctrl-C)")
+    sp.add_argument("--inject-force", default=None, metavar="FX,FY,FZ", help="a known force, N, world NED")
+    sp.add_argument("--inject-torque", default=None, metavar="TX,TY,TZ", help="a known moment, N m, body FRD")
+    sp.add_argument("--inject-at", default=None, metavar="T_ON[,T_OFF]", help="when the injection acts, simulated s")
+    sp.add_argument("--loss", type=float, default=0.0, help="probability a packet is lost (each way)")
+    sp.add_argument("--duplicate", type=float, default=0.0, help="probability a packet is sent twice")
+    sp.add_argument("--reorder", type=float, default=0.0, help="probability a packet swaps with the next")
+    sp.add_argument("--latency", type=float, default=0.0, help="delay of every packet, s (each way)")
+    sp.add_argument("--no-stream", action="append", default=[], metavar="MESSAGE",
+                    help="a message this autopilot never sends (repeatable), e.g. LOCAL_POSITION_NED")  # fmt: skip
+    sp.add_argument("--event", action="append", default=[], metavar="T,KIND,ARG",
+                    help="at simulated time T: mode (a pilot switches to mode ARG, e.g. 8,mode,POSCTL), stop "
+                    "(stream ARG stops, e.g. 6,stop,LOCAL_POSITION_NED) or clock (the clock jumps ARG s, "
+                    "e.g. 5,clock,-100)")  # fmt: skip
+    sp.add_argument("--system", type=int, default=1, help="its MAVLink system id")
+    sp.add_argument("--control-rate", type=float, default=50.0, help="its own controller's rate, Hz")
+    sp.add_argument("--plant-rate", type=float, default=100.0, help="the plant's RK4 rate, Hz")
+    sp.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario value")
+    sp.add_argument("--ideal", action="store_true", help="the ideal plant and sensors (no lag, no noise)")
+    sp.add_argument("--seed", type=int, default=None, help="seed of the link's impairments")
+    sp.add_argument("--quiet", action="store_true", help="no status lines")
+    sp.set_defaults(func=cmd_sim_autopilot)
 
     sp = sub.add_parser("list", help="registered scenarios and controllers")
     sp.set_defaults(func=cmd_list)

@@ -1,0 +1,537 @@
+"""Live over MAVLink: the estimator and the outer loop against the simulated autopilot over UDP loopback.
+
+Each test checks against an independent truth: the wrench the simulated autopilot injects, the step response
+of G(s) (eq. (10)), the impedance's static deflection F / K, the watchdog's stated time, the recorded file.
+The simulated autopilot runs in a thread (estimation tests) or as a ``vtol-impedance sim-autopilot``
+process (the control tests and the two-terminal walk-through, where the timing must not share a GIL).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import vtol_impedance
+from vtol_impedance.live import ControlSettings, LiveError, LiveSettings, parse_address, replay, run_live
+from vtol_impedance.live.autopilot import BOOT_S, Impairments, SimAutopilot, SimSettings
+from vtol_impedance.live.display import Screen, View, render
+from vtol_impedance.live.estimator import RING, LiveEstimator
+from vtol_impedance.live.link import mavutil
+from vtol_impedance.live.session import LINK_LOST_S
+from vtol_impedance.live.streams import ThrustMap
+from vtol_impedance.model.vehicle import load_preset
+from vtol_impedance.scenarios import apply_overrides, get, set_value
+
+SRC = str(Path(vtol_impedance.__file__).resolve().parents[1])
+ENV = dict(os.environ, PYTHONPATH=SRC + os.pathsep + os.environ.get("PYTHONPATH", ""))
+RATE = 50.0  # estimator and stream rate (the defaults)
+WN = 10.0  # estimator bandwidth (the default, the paper's)
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def quiet_spec(*sets: str):
+    """Case A without the payload and the drag (so the lumped wrench is only what is injected), ideal plant."""
+    spec = apply_overrides(get("case-a-payload"), ["payload.mass=0", "plant.rotor_drag=0", *sets])
+    return set_value(spec, "ideal", True)
+
+
+@contextlib.contextmanager
+def sim_thread(spec, **kw):
+    sim = SimAutopilot(spec, SimSettings(**kw))
+    ready = threading.Event()
+    th = threading.Thread(target=sim.run, kwargs={"ready": ready}, daemon=True)
+    th.start()
+    ready.wait(5)
+    try:
+        yield sim
+    finally:
+        sim.stop()
+        th.join(5)
+        assert not th.is_alive(), "the simulated autopilot did not stop"
+
+
+@contextlib.contextmanager
+def sim_process(scenario: str, port: int, *args: str):
+    cmd = [sys.executable, "-m", "vtol_impedance", "sim-autopilot", scenario, "--connect", f"udpout:127.0.0.1:{port}",
+           "--quiet", *args]  # fmt: skip
+    p = subprocess.Popen(cmd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        yield p
+    finally:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def warm():
+    """Load the compiled estimator and the controller design once (the first run may compile)."""
+    from vtol_impedance.live.session import Session
+
+    Session(LiveSettings("udpin:127.0.0.1:1", display="none", control=ControlSettings()))
+
+
+def step_response(t: np.ndarray, wn: float) -> np.ndarray:
+    """Unit step response of eq. (10) with zeta = 1: ``1 - (1 + wn t) exp(-wn t)`` (0 before the step)."""
+    tau = np.maximum(t, 0.0)
+    return np.where(t > 0, 1.0 - (1.0 + wn * tau) * np.exp(-wn * tau), 0.0)
+
+
+def read_csv(path: Path) -> dict[str, np.ndarray]:
+    d = np.genfromtxt(path, delimiter=",", names=True, dtype=None, encoding=None)
+    return {k: np.asarray(d[k]) for k in d.dtype.names}
+
+
+# --------------------------------------------------------------------------- bad input, fast
+
+
+@pytest.mark.parametrize(
+    "address, words",
+    [
+        ("", "needs an address"),
+        ("udpin:localhost", "HOST:PORT"),
+        ("udpin:127.0.0.1:70000", "not in 1..65535"),
+        ("bogus://x", "does not parse"),
+        ("/dev/ttyNOPE42", "does not exist"),
+        ("COM3,fast", "not a whole number"),
+    ],
+)
+def test_addresses_that_do_not_parse_are_named(address, words):
+    with pytest.raises(LiveError, match=words) as exc:
+        parse_address(address)
+    assert "udpin" in str(exc.value) or words in str(exc.value)
+    assert parse_address("udp:127.0.0.1:14550").kind == "udpin"  # pymavlink's legacy spelling listens
+
+
+def test_an_address_that_does_not_answer_times_out_with_a_message(tmp_path):
+    out = tmp_path / "run"
+    t0 = time.monotonic()
+    with pytest.raises(LiveError, match="no heartbeat from a vehicle .* within 0.5 s"):
+        run_live(LiveSettings(f"udpin:127.0.0.1:{free_port()}", connect_timeout_s=0.5, out=str(out), display="none"))
+    assert time.monotonic() - t0 < 3.0
+    assert not out.exists(), "a failed connection must not leave a run folder"
+    from vtol_impedance.cli import main
+
+    port = free_port()
+    code = main(["live", "--connect", f"udpin:127.0.0.1:{port}", "--connect-timeout", "0.3", "--out", str(out)])
+    assert code == 2
+
+
+def test_cli_bad_input_is_a_message_not_a_traceback(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "vtol_impedance", "live", "--connect", "udpin:nohost"], env=ENV,
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 2 and "error:" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "vtol_impedance", "sim-autopilot", "case-b-fan", "--connect",
+                        "udpout:127.0.0.1:9", "--event", "3,explode,now"], env=ENV, capture_output=True, text=True,
+                       timeout=60)  # fmt: skip
+    assert r.returncode == 2 and "mode|stop|clock" in r.stderr and "Traceback" not in r.stderr
+
+
+# --------------------------------------------------------------------------- the estimate
+
+
+@pytest.fixture(scope="module")
+def estimated(tmp_path_factory):
+    """One session against an autopilot that injects a known wrench at a known time."""
+    F_W = np.array([0.8, -0.5, 0.0])
+    tau_B = np.array([0.0, 0.0, 0.02])
+    t_on = 5.0  # simulated s
+    latency = 0.03  # s, each way
+    out = tmp_path_factory.mktemp("live") / "run"
+    port = free_port()
+    with sim_thread(
+        quiet_spec(),
+        connect=f"udpout:127.0.0.1:{port}",
+        inject_force_W=tuple(F_W),
+        inject_torque_B=tuple(tau_B),
+        inject_on=t_on,
+        impairments=Impairments(latency_s=latency),
+    ) as sim:
+        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=8.5, out=str(out), display="none"))
+        sim_summary = sim.summary()
+    return {"res": res, "F_W": F_W, "tau_B": tau_B, "t_on": t_on + BOOT_S, "latency": latency, "out": res.folder,
+            "sim": sim_summary}  # fmt: skip
+
+
+def test_injected_wrench_is_recovered_within_the_bound_of_G_and_the_sampling(estimated):
+    """Bound: the estimate of a step F injected at t_on lies between F s(t - t_on - d) and F s(t - t_on), s the
+    step response of eq. (10) (zeta = 1, wn = 10 rad/s), d the longest sampling delay: one period of the
+    telemetry, one of the estimator tick and one of the autopilot's control (its held commands and its
+    disturbance step), plus an allowance of 5 % of F (the held commands within a period) and the noise floor.
+    The link's latency delays when the estimate is shown, not what it is on the vehicle's clock."""
+    e = read_csv(estimated["out"] / "estimate.csv")
+    t = e["t_s"]
+    t_on = estimated["t_on"]
+    assert t[0] < t_on - 1.0, "the estimate must be running before the wrench is injected"
+    d = 1.0 / RATE + 1.0 / RATE + 1.0 / 50.0
+    # the outputs arrive as whole microseconds of PWM over 1000 us: each rotor force is rounded by up to
+    # f_max / 2000, so the thrust by n f_max / 2000 and the moment by the mixer's rows times that
+    veh = load_preset("pelican")
+    half_step = veh.geometry.f_max / 2000.0
+    q_force = np.full(3, half_step.sum())
+    q_moment = np.abs(veh.geometry.E[1:4]) @ half_step
+    for cols, truth, q in ((("fx_W_N", "fy_W_N", "fz_W_N"), estimated["F_W"], q_force),
+                           (("taux_B_Nm", "tauy_B_Nm", "tauz_B_Nm"), estimated["tau_B"], q_moment)):  # fmt: skip
+        est = np.stack([e[c] for c in cols], -1)
+        pre = (t > t_on - 1.0) & (t < t_on)
+        noise = est[pre].std(0)
+        assert np.all(np.abs(est[pre].mean(0)) < q + 3 * noise + 1e-4)
+        win = (t >= t_on) & (t <= t_on + 2.5)
+        hi = step_response(t[win] - t_on, WN)[:, None] * truth
+        lo = step_response(t[win] - t_on - d, WN)[:, None] * truth
+        delta = 0.05 * np.abs(truth) + q + 4 * noise + 1e-4
+        upper, lower = np.maximum(hi, lo) + delta, np.minimum(hi, lo) - delta
+        bad = (est[win] > upper) | (est[win] < lower)
+        assert not bad.any(), f"{cols}: {bad.sum()} samples outside the bound, first at t = {t[win][bad.any(1)][0]:.2f}"
+        steady = (t > t_on + 1.5) & (t < t_on + 3.0)
+        assert np.all(np.abs(est[steady].mean(0) - truth) < 0.03 * np.abs(truth) + q + 1e-4)
+
+
+def test_latency_delays_the_estimate_on_the_screen_by_what_the_link_measures(estimated):
+    """The sim delays every packet by ``latency`` each way: TIMESYNC must see about that one-way latency, and the
+    telemetry's age on arrival must lie between the latency and the latency plus a stream period plus the
+    computers' scheduling (50 ms on a loaded machine)."""
+    link = estimated["res"].summary["link"]
+    lat = estimated["latency"]
+    assert lat * 0.8 < link["latency_ms"] * 1e-3 < lat + 0.05
+    age = link["telemetry_age_ms"]["median"] * 1e-3
+    assert lat * 0.8 < age < lat + 1.0 / RATE + 0.05
+
+
+def test_the_run_folder_is_complete_and_its_tlog_replays_to_the_live_estimate(estimated):
+    out = estimated["out"]
+    assert {p.name for p in out.iterdir()} >= {"flight.tlog", "estimate.csv", "live.json", "manifest.json"}
+    cfg = json.loads((out / "live.json").read_text())
+    streams = {s["message"]: s for s in cfg["streams"]}
+    assert streams["ATTITUDE"]["requested_hz"] == RATE and streams["ATTITUDE"]["measured_probe_hz"] > 0.8 * RATE
+    assert cfg["estimator"]["sources"]["outputs"] == "SERVO_OUTPUT_RAW"
+    # a standard tlog: 8-byte big-endian microseconds, increasing, then MAVLink packets pymavlink reads
+    raw = (out / "flight.tlog").read_bytes()
+    t_first = struct.unpack(">Q", raw[:8])[0]
+    assert abs(t_first * 1e-6 - time.time()) < 3600
+    mu = mavutil()
+    log = mu.mavlink_connection(str(out / "flight.tlog"))
+    types, stamps = set(), []
+    while (m := log.recv_msg()) is not None:
+        types.add(m.get_type())
+        stamps.append(m._timestamp)
+    log.close()
+    assert np.all(np.diff(stamps) > 0)
+    assert {"ATTITUDE", "LOCAL_POSITION_NED", "SERVO_OUTPUT_RAW", "PARAM_VALUE", "HEARTBEAT"} <= types
+    assert "BAD_DATA" not in types
+    # the same LiveEstimator fed the file in order reproduces every live estimate
+    live = read_csv(out / "estimate.csv")
+    ticks, _ = replay(out)
+    assert len(ticks) == len(live["t_s"])
+    f = np.array([t.f_hat_W for t in ticks])
+    tau = np.array([t.tau_hat_B for t in ticks])
+    assert np.array_equal(np.array([t.t_us for t in ticks]), np.round(live["t_s"] * 1e6).astype(int))
+    assert np.allclose(f, np.stack([live["fx_W_N"], live["fy_W_N"], live["fz_W_N"]], -1), rtol=0, atol=1e-8)
+    assert np.allclose(tau, np.stack([live["taux_B_Nm"], live["tauy_B_Nm"], live["tauz_B_Nm"]], -1), atol=1e-9)
+    # and the NumPy reference gives the same numbers as the compiled kernels
+    ticks_np, _ = replay(out, backend="numpy")
+    assert np.allclose(np.array([t.f_hat_W for t in ticks_np]), f, atol=1e-9)
+
+
+def test_ardupilot_messages_and_rotor_speeds(tmp_path):
+    """The ArduPilot profile (found from the heartbeat): its hover parameter, its ESC telemetry (no time field)
+    turned into rotor forces with the rotor constant, thrust and moment through the mixer; a constant force
+    and moment recovered from measured rotor speeds."""
+    from vtol_impedance.live.autopilot import ROTOR_CONSTANT
+
+    F_W, tau_B = np.array([-0.5, 0.0, 0.3]), np.array([0.01, 0.0, 0.0])
+    port = free_port()
+    with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot",
+                    inject_force_W=tuple(F_W), inject_torque_B=tuple(tau_B)):  # fmt: skip
+        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=6.0, out=str(tmp_path / "r"), display="none",
+                                    rotor_constant=ROTOR_CONSTANT))  # fmt: skip
+    s = res.summary
+    assert s["vehicle"]["autopilot"] == "ArduPilot" and s["estimator"]["sources"]["rpm"] == "ESC_TELEMETRY_1_TO_4"
+    e = read_csv(res.folder / "estimate.csv")
+    last = e["t_s"] > e["t_s"][-1] - 1.0
+    f = np.stack([e["fx_W_N"], e["fy_W_N"], e["fz_W_N"]], -1)[last].mean(0)
+    tau = np.stack([e["taux_B_Nm"], e["tauy_B_Nm"], e["tauz_B_Nm"]], -1)[last].mean(0)
+    # rotor speeds are whole rpm: f = k_f omega^2 is resolved to 2 k_f omega (2 pi / 60) per rpm, about 1 mN
+    assert np.allclose(f, F_W, atol=0.03) and np.allclose(tau, tau_B, atol=2e-3)
+
+
+def test_an_impaired_link_loses_nothing_but_samples(tmp_path):
+    """5 % loss, 5 % repeats, 5 % reordering and 20 ms latency each way: the session runs, counts what happened,
+    keeps its buffers bounded, and still recovers a constant force."""
+    F_W = np.array([0.0, 0.6, 0.0])
+    port = free_port()
+    imp = Impairments(loss=0.05, duplicate=0.05, reorder=0.05, latency_s=0.02, seed=3)
+    with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", inject_force_W=tuple(F_W), impairments=imp):
+        res = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=6.5, out=str(tmp_path / "r"), display="none"))
+    s = res.summary
+    c = s["estimator"]["counts"]
+    assert res.exit_code == 0 and res.ticks > 80
+    assert c["late"] + c["repeated"] > 0 and s["link"]["lost"] > 0 and s["link"]["duplicates"] > 0
+    e = read_csv(res.folder / "estimate.csv")
+    last = e["t_s"] > e["t_s"][-1] - 1.0
+    est = np.stack([e["fx_W_N"], e["fy_W_N"], e["fz_W_N"]], -1)[last].mean(0)
+    assert np.allclose(est, F_W, atol=0.05)
+
+
+def test_memory_stays_bounded_over_many_messages():
+    """Twenty thousand messages through the estimator: its rings hold at most RING samples per stream and the
+    memory it keeps does not grow with the number of messages."""
+    mu = mavutil()
+    veh = load_preset("pelican")
+    sources = {"attitude": "ATTITUDE", "velocity": "LOCAL_POSITION_NED", "thrust": "ATTITUDE_TARGET"}
+    est = LiveEstimator(veh.mass, veh.inertia, ThrustMap.for_vehicle(veh, veh.mass, hover=0.42), sources, 4)
+
+    def feed(k0: int, n: int) -> None:
+        for k in range(k0, k0 + n):
+            ms = 20 * k
+            for m in (mu.mavlink.MAVLink_attitude_message(ms, 0.01, -0.02, 0.1, 0, 0, 0),
+                      mu.mavlink.MAVLink_local_position_ned_message(ms, 0, 0, -1, 0, 0, 0),
+                      mu.mavlink.MAVLink_attitude_target_message(ms, 0, [1, 0, 0, 0], 0, 0, 0, 0.42)):  # fmt: skip
+                est.feed(m)
+
+    feed(0, 2000)
+    tracemalloc.start()
+    before = tracemalloc.take_snapshot()
+    feed(2000, 3000)
+    grown = sum(s.size_diff for s in tracemalloc.take_snapshot().compare_to(before, "filename"))
+    tracemalloc.stop()
+    assert est.counts["ticks"] >= 4900
+    assert all(len(b) <= RING for b in est.buffers.values())
+    assert grown < 200_000, f"memory grew by {grown} bytes over 9000 messages"
+
+
+# --------------------------------------------------------------------------- streams, systems, clocks
+
+
+def test_a_vehicle_without_the_needed_streams_is_refused_with_the_list(tmp_path):
+    port = free_port()
+    with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", no_streams=("LOCAL_POSITION_NED",)):
+        with pytest.raises(LiveError) as exc:
+            run_live(LiveSettings(f"udpin:127.0.0.1:{port}", stream_timeout_s=1.5, out=str(tmp_path / "r"),
+                                  display="none"))  # fmt: skip
+    text = str(exc.value)
+    assert "velocity: needs LOCAL_POSITION_NED or ODOMETRY" in text and "ATTITUDE" in text
+    assert not (tmp_path / "r").exists()
+
+
+def _heartbeats(port: int, system: int, stop: threading.Event) -> None:
+    mu = mavutil()
+    conn = mu.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=system, source_component=1)
+    while not stop.is_set():
+        conn.mav.heartbeat_send(mu.mavlink.MAV_TYPE_QUADROTOR, mu.mavlink.MAV_AUTOPILOT_PX4, 0, 0, 0)
+        stop.wait(0.2)
+    conn.close()
+
+
+def test_second_system_clock_jump_disconnect_and_reconnect(tmp_path):
+    """Another vehicle's heartbeats are listed and ignored; a jump of the vehicle's clock restarts the estimator;
+    the vehicle goes silent (it rebooted) and comes back with a new clock: the session waits, asks for the
+    streams again and goes on estimating. Nothing crashes, the session ends when asked."""
+    port = free_port()
+    stop_hb = threading.Event()
+    spec = quiet_spec()
+    result: dict = {}
+    done = threading.Event()
+
+    def live() -> None:
+        try:
+            result["res"] = run_live(LiveSettings(f"udpin:127.0.0.1:{port}", duration=11.5, out=str(tmp_path / "r"),
+                                                  display="none"))  # fmt: skip
+        finally:
+            done.set()
+
+    th_live = threading.Thread(target=live)
+    th_hb = threading.Thread(target=_heartbeats, args=(port, 2, stop_hb))
+    with sim_thread(spec, connect=f"udpout:127.0.0.1:{port}", events=((4.0, "clock", "60"),)):
+        th_live.start()
+        time.sleep(0.5)
+        th_hb.start()
+        time.sleep(4.5)
+    stop_hb.set()
+    time.sleep(LINK_LOST_S + 0.5)
+    with sim_thread(spec, connect=f"udpout:127.0.0.1:{port}") as sim_b:
+        done.wait(15)
+        requested = [name for name, hz in sim_b.stats["requests"]]
+    th_live.join(5)
+    th_hb.join(5)
+    res = result["res"]
+    s = res.summary
+    assert res.exit_code == 0 and res.end == "duration reached"
+    assert any("system 2" in o for o in s["others"])
+    assert s["estimator"]["counts"]["clock_jumps"] >= 2  # the jump ahead, then the reboot's jump back
+    assert s["reconnects"] == 1 and "ATTITUDE" in requested
+    e = read_csv(res.folder / "estimate.csv")
+    assert e["segment"].max() >= 2
+    assert (e["t_s"][-1] < 8.0) and np.any(np.diff(e["t_s"]) < 0), "the estimate goes on after the reboot"
+
+
+def test_control_is_refused_with_two_vehicles_on_the_link(tmp_path):
+    port = free_port()
+    stop_hb = threading.Event()
+    th = threading.Thread(target=_heartbeats, args=(port, 7, stop_hb))
+    with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}"):
+        th.start()
+        try:
+            with pytest.raises(LiveError, match="more than one vehicle .* --system"):
+                run_live(LiveSettings(f"udpin:127.0.0.1:{port}", control=ControlSettings(), out=str(tmp_path / "r"),
+                                      display="none"))  # fmt: skip
+        finally:
+            stop_hb.set()
+            th.join(5)
+
+
+# --------------------------------------------------------------------------- control
+
+
+def _simulator_steady_error(kp: float, dp: float, force: float, t_on: float) -> float:
+    """The simulator's own PD+C (the full controller, 50 Hz, the same position gains) against the same step."""
+    from vtol_impedance.scenarios import simulate
+
+    spec = apply_overrides(get("case-a-payload"), [
+        "payload.mass=0", "trajectory.start_on_ground=false", "trajectory.hover_duration=8", "control.rate=50",
+        f"control.Kp={kp}", f"control.Dp={dp}",
+    ])  # fmt: skip
+    spec = set_value(spec, "disturbances", [{"kind": "step", "force_W": [force, 0.0, 0.0], "t_on": t_on}])
+    r = simulate(spec, ["pdc"])
+    t = r.t
+    sel = (t > t_on + 2.5) & (t < t_on + 4.0)
+    return float(np.mean(r.data["p_W"][0][sel, 0] - r.data["p_ref_W"][0][sel, 0]))
+
+
+def _control_run(tmp_path, variant: str, event: str, duration: float):
+    port = free_port()
+    force, t_on = 1.0, 6.0
+    c = ControlSettings(variant=variant, comply=(1.0, 1.0, 0.0) if variant == "comply" else (0.0, 0.0, 0.0))
+    settings = LiveSettings(f"udpin:127.0.0.1:{port}", duration=duration, out=str(tmp_path / variant),
+                            display="none", control=c, connect_timeout_s=30)  # fmt: skip
+    with sim_process("case-a-payload", port, "--set", "payload.mass=0", "--inject-force", f"{force},0,0",
+                     "--inject-at", f"{t_on}", "--duration", "40", "--event", event) as sim:  # fmt: skip
+        res = run_live(settings)
+        sim.send_signal(signal.SIGINT)
+        _, err = sim.communicate(timeout=20)
+    assert "Traceback" not in err
+    d = read_csv(res.folder / "control.csv")
+    return res, d, force, t_on + BOOT_S, c, err
+
+
+def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_hands_back(tmp_path):
+    """PD+C offboard: once the estimate has converged the position error under a 1 N push is far below what PD
+    leaves (F / Kp) and close to the simulator's PD+C with the same gains. Then the velocity stream stops: the
+    watchdog hands control back (hold, confirmed by the heartbeat) within its stated time."""
+    res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", "10.5,stop,LOCAL_POSITION_NED", 25.0)
+    ctl = res.summary["control"]
+    active = d["state"] == "active"
+    sel = active & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)
+    assert sel.sum() > 40, "control must be active through the push"
+    e_live = float(np.mean(d["x_W_m"][sel] - d["x_ref_W_m"][sel]))
+    e_pd = force / c.Kp  # what PD alone leaves
+    e_sim = _simulator_steady_error(c.Kp, c.Dp, force, 3.0)
+    assert abs(e_live) < 0.15 * e_pd and abs(e_sim) < 0.15 * e_pd
+    assert abs(e_live - e_sim) < 0.02
+    assert np.allclose(d["fx_hat_W_N"][sel].mean(), force, atol=0.1)
+    # the watchdog
+    assert ctl["state"] == "handed_back" and "watchdog" in ctl["reason"] and res.exit_code == 3
+    hb = ctl["handback"]
+    assert c.watchdog_s <= hb["since_last_tick_s"] <= c.watchdog_s + 0.08
+    assert hb["mode"] == "AUTO_LOITER" and hb["confirmed_s"] is not None and hb["confirmed_s"] < 1.0
+    assert "final mode AUTO_LOITER" in err
+
+
+def test_control_complies_when_asked_and_yields_to_the_pilot_at_once(tmp_path):
+    """comply along x, y (M_d 2 kg, D_d 6 N s/m, K_d 5 N/m): a 1 N push moves the vehicle F / K_d = 0.2 m and
+    holds it there. Then the pilot switches to POSCTL: no set-point is sent after the heartbeat that says so."""
+    res, d, force, t_on, c, err = _control_run(tmp_path, "comply", "10.5,mode,POSCTL", 25.0)
+    ctl = res.summary["control"]
+    M, D, K = c.impedance
+    sel = (d["state"] == "active") & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)
+    assert sel.sum() > 40
+    x = float(np.mean(d["x_W_m"][sel] - d["x_ref_W_m"][sel]))
+    assert 0.75 * force / K < x < 1.25 * force / K
+    assert ctl["state"] == "yielded" and "POSCTL" in ctl["reason"] and res.exit_code == 0
+    # in the recording: the first heartbeat in POSCTL after OFFBOARD, and our last SET_ATTITUDE_TARGET
+    mu = mavutil()
+    log = mu.mavlink_connection(str(res.folder / "flight.tlog"))
+    offboard, t_yield, t_last_sp = False, None, None
+    posctl = 3 << 16
+    while (m := log.recv_msg()) is not None:
+        if m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1:
+            offboard = offboard or m.custom_mode == 6 << 16
+            if offboard and t_yield is None and m.custom_mode == posctl:
+                t_yield = m._timestamp
+        elif m.get_type() == "SET_ATTITUDE_TARGET":
+            t_last_sp = m._timestamp
+    log.close()
+    assert t_yield is not None and t_last_sp is not None and t_last_sp < t_yield
+
+
+# --------------------------------------------------------------------------- the two terminals, the display
+
+
+def test_two_terminals_show_the_fans_force_and_ctrl_c_ends_cleanly(tmp_path):
+    """The README's walk-through: sim-autopilot case-b-fan sends to the port where live listens; live shows and
+    records the fan's push (+x, about 0.5 N where the position hold leaves the vehicle); Ctrl-C ends it with the
+    run folder written and exit code 0."""
+    port = free_port()
+    out = tmp_path / "fan"
+    with sim_process("case-b-fan", port, "--duration", "30"):
+        live = subprocess.Popen([sys.executable, "-m", "vtol_impedance", "live", "--connect", f"udpin:127.0.0.1:{port}",
+                                 "--out", str(out), "--display", "plain", "--send-back", "--connect-timeout", "30"],
+                                env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (out.parent / f".{out.name}.lock").exists():
+            time.sleep(0.2)
+        time.sleep(8.0)
+        live.send_signal(signal.SIGINT)
+        stdout, stderr = live.communicate(timeout=20)
+    assert live.returncode == 0, stderr
+    assert "Traceback" not in stderr and "stopped by Ctrl-C" in stderr
+    assert "f_hat_W N:" in stdout  # the plain display's lines
+    e = read_csv(out / "estimate.csv")
+    last = e["t_s"] > e["t_s"][-1] - 2.0
+    fx = e["fx_W_N"][last].mean()
+    assert 0.3 < fx < 0.9 and abs(e["fy_W_N"][last].mean()) < 0.1
+    cfg = json.loads((out / "live.json").read_text())
+    assert cfg["end"] == "stopped by Ctrl-C" and cfg["link"]["sent"] > 50  # heartbeats, TIMESYNC, the send-back
+
+
+def test_the_display_is_one_steady_screen():
+    v = View("udpin:127.0.0.1:14550", vehicle="PX4 system 1", mode="POSCTL armed", f_hat_W=np.array([0.7, 0, 0.01]),
+             tau_hat_B=np.array([0, -0.02, 0]))  # fmt: skip
+    lines = render(v)
+    assert len(lines) == len(render(View("x"))) or len(lines) >= 15
+    assert all(len(ln) <= 100 for ln in lines)
+    assert any("+0.700" in ln and "#" in ln for ln in lines)
+    import io
+
+    buf = io.StringIO()
+    scr = Screen("tty", buf)
+    scr.draw(v, 0.0)
+    scr.draw(v, 1.0)
+    text = buf.getvalue()
+    assert text.count("\x1b[2J") == 1 and text.count("\x1b[H") == 2  # cleared once, then redrawn in place
+    assert "\x1b[K\n" in text
+    buf = io.StringIO()
+    Screen("plain", buf).draw(v, 0.0)
+    assert buf.getvalue().count("\n") == 1 and "\x1b" not in buf.getvalue()
