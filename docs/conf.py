@@ -60,7 +60,7 @@ numpydoc_attributes_as_param_list = False
 # parameters that exist (PR02): checked while the reference is built.
 numpydoc_validation_checks = {"GL06", "GL07", "GL08", "PR02"}
 # Overrides of a documented base method (the disturbances' hooks) inherit its docstring.
-numpydoc_validation_exclude = {r"\.__init__$", r"\.__call__$", r"\.__new__$", r"\.(encode|profile)$"}
+numpydoc_validation_exclude = {r"\.__init__$", r"\.__call__$", r"\.__new__$", r"\.(encode|profile|starts_at)$"}
 
 # Gallery: examples/*.py and docs/gallery/*.py, executed with short flights (sphinxext.GALLERY_ARGV).
 sphinx_gallery_conf = {

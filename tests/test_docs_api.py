@@ -31,6 +31,7 @@ PACKAGES = (
     "scenarios",
     "analysis",
     "logs",
+    "live",
     "sweeps",
     "io",
     "errors",

@@ -54,7 +54,11 @@ NOT_RUN = {
     r"python -m mujoco\.viewer --mjcf (?P<file>\S+)": "opens a window (the test checks that the model file exists)",
 }
 #: Commands run elsewhere (not again here), and where.
-RUN_ELSEWHERE = {"bench": "tests/test_bench.py runs `bench --quick`"}
+RUN_ELSEWHERE = {
+    "bench": "tests/test_bench.py runs `bench --quick`",
+    "live": "tests/test_live.py runs `live` against `sim-autopilot` over UDP loopback (they run until stopped)",
+    "sim-autopilot": "tests/test_live.py runs it with `live` over UDP loopback",
+}
 #: Documented commands that fail today, by the start of their argv: (the error they give, why). The test
 #: fails when one starts to pass, so that it is taken off this list.
 KNOWN_FAILURES: dict[tuple[str, ...], tuple[str, str]] = {}

@@ -535,3 +535,26 @@ def test_the_display_is_one_steady_screen():
     buf = io.StringIO()
     Screen("plain", buf).draw(v, 0.0)
     assert buf.getvalue().count("\n") == 1 and "\x1b" not in buf.getvalue()
+
+
+def test_estimate_rereads_the_recorded_tlog_and_finds_the_live_wrench(estimated, tmp_path):
+    """``vtol-impedance estimate flight.tlog`` (the flight-log reader, its own resampling at 100 Hz and the
+    same estimator) on the recording: the same wrench as live, after the step and before it."""
+    from vtol_impedance.cli import main
+
+    out = tmp_path / "est"
+    rc = main(["estimate", str(estimated["out"] / "flight.tlog"), "--vehicle", "pelican", "--wn", str(WN),
+               "--out", str(out), "--no-plots", "--quiet"])  # fmt: skip
+    assert rc == 0
+    off = read_csv(out / "wrench.csv")
+    live = read_csv(estimated["out"] / "estimate.csv")
+    # the two clocks: live ticks on the vehicle's boot clock, the file on its own; align on the step
+    cols = ("fx_W_N", "fy_W_N", "fz_W_N")
+    for t_a, data in ((off["t_s"], off), (live["t_s"], live)):
+        f = np.stack([data[c] for c in cols], -1)
+        rise = t_a[np.argmax(np.abs(f[:, 0]) > 0.5 * abs(estimated["F_W"][0]))]
+        steady = (t_a > rise + 1.5) & (t_a < rise + 2.5)
+        before = t_a < rise - 0.5
+        assert steady.sum() > 10 and before.sum() > 10
+        np.testing.assert_allclose(f[steady].mean(0), estimated["F_W"], atol=0.04)
+        np.testing.assert_allclose(f[before].mean(0), 0.0, atol=0.04)

@@ -1,4 +1,5 @@
-"""Command-line interface: ``vtol-impedance {paper,run,compare,margins,estimate,sweep,sweep-report,tune,bench,list}``.
+"""Command-line interface: ``vtol-impedance {paper,run,compare,margins,estimate,live,sim-autopilot,sweep,sweep-report,
+tune,bench,list}``.
 
 Heavy modules are imported inside the commands so that ``--help`` answers at once.
 """

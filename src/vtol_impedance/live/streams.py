@@ -103,6 +103,7 @@ _LOST_THRUST = "the force: without a thrust the estimate has no input (another t
 _LOST_OUT = "the moment (no torque without per-rotor commands); the thrust falls back to ATTITUDE_TARGET"
 _LOST_RPM = "nothing if the outputs stream: the rotor speeds only replace commands by measured thrust"
 
+#: What PX4 (v1.14 and later) streams, at which default rates, and what the estimate loses without each.
 PX4 = AutopilotProfile(
     name="PX4",
     mav_autopilot=12,
@@ -183,6 +184,7 @@ PX4 = AutopilotProfile(
     setpoint_timeout_s=1.0,  # COM_OF_LOSS_T default
 )
 
+#: What ArduCopter (4.x) streams, through its SRn_* stream groups, and what the estimate loses without each.
 ARDUPILOT = AutopilotProfile(
     name="ArduPilot",
     mav_autopilot=3,
@@ -247,6 +249,7 @@ ARDUPILOT = AutopilotProfile(
     setpoint_timeout_s=3.0,  # GUID_TIMEOUT default
 )
 
+#: The autopilot profiles by name (``--autopilot``; found from the heartbeat otherwise).
 PROFILES: dict[str, AutopilotProfile] = {"px4": PX4, "ardupilot": ARDUPILOT}
 BY_MAV_AUTOPILOT = {p.mav_autopilot: p for p in PROFILES.values()}
 #: Role -> messages that can give it, best first (the choice is made on the measured rates).

@@ -92,15 +92,15 @@ class RawLog:
     hover_source: str = ""
     notes: list[str] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
-    #: per-sample normalised hover thrust logged over the flight (an estimate that follows the battery)
+    # per-sample normalised hover thrust logged over the flight (an estimate that follows the battery)
     hover: Signal | None = None
-    #: measured rotor speeds, rad/s, one column per rotor (ESC telemetry, a simulator's rotor states)
+    # measured rotor speeds, rad/s, one column per rotor (ESC telemetry, a simulator's rotor states)
     rotor_speed: Signal | None = None
-    #: rotor geometry from the log: ``(positions_B (n, 3) FRD m, yaw moment per newton (n,), with sign)``
+    # rotor geometry from the log: ``(positions_B (n, 3) FRD m, yaw moment per newton (n,), with sign)``
     rotor_geometry: tuple[np.ndarray, np.ndarray] | None = None
     #: the log's parameters (PX4 and ArduPilot), by name
     params: dict[str, float] = field(default_factory=dict)
-    #: nominal mass and inertia found in the log's parameters, with where they came from
+    # nominal mass and inertia found in the log's parameters, with where they came from
     mass: float | None = None
     inertia: np.ndarray | None = None
     vehicle_source: str = ""
@@ -129,7 +129,7 @@ class FlightLog:
     rate_hz: float
     notes: list[str]
     raw: RawLog
-    #: grid points inside a bridged dropout of any signal
+    # grid points inside a bridged dropout of any signal
     bridged: np.ndarray | None = None
     #: every dropout: ``{"signal", "t0_s", "t1_s", "length_s", "action": "bridged" | "restart"}``
     gaps: list[dict[str, Any]] = field(default_factory=list)
