@@ -92,17 +92,20 @@ def _rotorpy(duration: float) -> dict[str, Any] | str:
         return f"failed: {str(exc)[-300:]}"
 
 
-def _single(backend: str, duration: float) -> dict[str, float]:
+def _single(backend: str, duration: float | None, repeats: int | None = None) -> dict[str, float]:
+    """Case C (realistic plant, PD+C) through ``simulate``, all of it timed (building, the flight, the result);
+    ``duration=None``: the scenario's own (46 s), as the yardstick's comparison flies it."""
     from .scenarios import get, set_value, simulate
 
-    spec = set_value(get("case-c-circle"), "duration", duration)
+    spec = get("case-c-circle") if duration is None else set_value(get("case-c-circle"), "duration", duration)
     simulate(set_value(spec, "duration", 0.05), ["pdc"], backend=backend)  # warm-up / compile
     wall = float("inf")
-    for _ in range(3 if backend == "compiled" else 1):  # best of three where it is cheap
+    for _ in range(repeats or (3 if backend == "compiled" else 1)):  # best of three where it is cheap
         t = time.perf_counter()
-        simulate(spec, ["pdc"], backend=backend)
+        r = simulate(spec, ["pdc"], backend=backend)
         wall = min(wall, time.perf_counter() - t)
-    return {"sim_seconds": duration, "wall": wall, "real_time_factor": duration / wall}
+    sim_s = float(r.t[-1] + (r.t[1] - r.t[0]))
+    return {"sim_seconds": sim_s, "wall": wall, "real_time_factor": sim_s / wall}
 
 
 def _mujoco(duration: float) -> dict[str, float] | str:
@@ -117,8 +120,8 @@ def _mujoco(duration: float) -> dict[str, float] | str:
 def _latency(calls: int) -> dict[str, float]:
     import warnings
 
-    from .control import Controller, ControllerParams, Measurement, Reference
-    from .runtime import ControllerWarning
+    from .control import ControllerParams, Measurement, Reference
+    from .runtime import Controller, ControllerWarning
 
     ctrl = Controller(ControllerParams.paper("pdc"))
     rng = np.random.default_rng(0)
@@ -200,10 +203,80 @@ def _sweep(workers: int | None, quick: bool) -> dict[str, float] | str:
     return {"flights": sweep.n_flights, "wall_including_startup": wall, "flights_per_s": sweep.n_flights / wall}
 
 
-def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -> dict[str, Any]:
+def _load_yardstick(path: Path) -> Any:
+    """The hand-compiled loop of ``../shared/yardstick/numba_loop.py`` (or any file with its API)."""
+    import importlib.util
+
+    from .errors import InputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"--yardstick: no file {path} (the yardstick is numba_loop.py of the shared yardstick folder)")
+    spec = importlib.util.spec_from_file_location("vtol_impedance_yardstick", path)
+    mod = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(mod)  # type: ignore[union-attr]
+        mod.K, mod.MODE_PDC, mod.initial_state, mod.new_ctrl_state  # noqa: B018
+    except Exception as exc:  # a foreign file: say so, do not show its traceback
+        raise InputError(
+            f"--yardstick {path}: not the yardstick's numba_loop.py ({type(exc).__name__}: {exc})"
+        ) from None
+    return mod
+
+
+def _versus(path: Path, n: int, T: float, rounds: int, log=print) -> dict[str, Any]:
+    """This project against the yardstick, in alternating rounds, best of each (the machine's speed drifts
+    between minutes, so only ratios taken this way mean anything): one vehicle of case C (PD+C, this
+    project's realistic plant against the yardstick's ideal one), a batch of ``n`` vehicles for ``T`` s
+    (metrics only), and the controller + estimator step called from Python."""
+    ys = _load_yardstick(path)
+    K, mode = ys.K, ys.MODE_PDC
+    K.sim_single(0.05, 0.11, True, mode, 0.0, 1e300)  # compile
+    dms, res_b = np.full(n, 0.11), np.zeros((n, 13))
+    K.sim_batch(dms[:16], 0.05, True, mode, 0.0, 1e300, res_b[:16])
+    ys_single = ys_batch = our_single = our_batch = 0.0
+    ours_b: dict[str, Any] = {}
+    for r in range(rounds):
+        log(f"yardstick round {r + 1}/{rounds} ...")
+        for _ in range(3):
+            t = time.perf_counter()
+            K.sim_single(40.0, 0.11, True, mode, 0.0, 1e300)
+            ys_single = max(ys_single, 40.0 / (time.perf_counter() - t))
+        our_single = max(our_single, _single("compiled", None, repeats=3)["real_time_factor"])
+        t = time.perf_counter()
+        K.sim_batch(dms, T, True, mode, 0.0, 1e300, res_b)
+        ys_batch = max(ys_batch, n * T / (time.perf_counter() - t))
+        b = _child(_BATCH.format(n=n, duration=T))
+        if b["veh_s_per_s"] > our_batch:
+            our_batch, ours_b = b["veh_s_per_s"], b
+    # the controller step from Python: the yardstick's kernel on its arrays, ours through step_arrays
+    x, cs = ys.initial_state(), ys.new_ctrl_state()
+    ctrl = ys.K.ctrl_step
+    for _ in range(200):
+        ctrl(x, cs, 0.0, mode, True)
+    ns = np.empty(20000)
+    clock = time.perf_counter_ns
+    for i in range(len(ns)):
+        t0 = clock()
+        ctrl(x, cs, 0.01 * i, mode, True)
+        ns[i] = clock() - t0
+    return {
+        "yardstick": str(path), "n": n, "T": T, "rounds": rounds,
+        "single_rtf": {"project": our_single, "yardstick": ys_single, "ratio": our_single / ys_single},
+        "batch_veh_s_per_s": {"project": our_batch, "yardstick": ys_batch, "ratio": our_batch / ys_batch},
+        "batch_memory_kb_per_vehicle": ours_b.get("peak_rss_mb", 0.0) * 1024 / n,
+        "ctrl_step_from_python_us": {"yardstick_median": float(np.median(ns) / 1e3)},
+    }  # fmt: skip
+
+
+def run(
+    out: Path, quick: bool = False, log=print, compile_times: bool = True, yardstick: Path | None = None
+) -> dict[str, Any]:
     """Measure everything, print a table, write JSON to ``out``; returns the numbers.
 
-    ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes up to a minute).
+    ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes up to a minute);
+    ``yardstick``: the path of the shared yardstick's ``numba_loop.py``, timed against this project in the same
+    run (:func:`_versus`).
     """
     res: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "processor": platform.processor()},
@@ -238,6 +311,11 @@ def run(out: Path, quick: bool = False, log=print, compile_times: bool = True) -
     res["sweep_local_cluster_2"] = _sweep(2, quick)
     log("RotorPy single-vehicle hover (if installed) ...")
     res["rotorpy"] = _rotorpy(2.0 if quick else 10.0)
+    if yardstick is not None:
+        res["versus"] = _versus(yardstick, 1000 if quick else 10000, 2.0 if quick else 20.0, 1 if quick else 3, log)
+        res["versus"]["ctrl_step_from_python_us"]["project_step_arrays_median"] = res["latency"][
+            "step_arrays_median_us"
+        ]
     write_text(out, json.dumps(res, indent=1))
     return res
 
@@ -285,6 +363,18 @@ def table(res: dict[str, Any]) -> str:
             f"batched N = {b['n']:<6d} ({b['duration']:g} s each)           {b['veh_s_per_s']:10.0f} veh-s/s, "
             f"peak {b['peak_rss_mb']:.0f} MB"
         )
+    vs = res.get("versus")
+    if vs:
+        a, b = vs["single_rtf"], vs["batch_veh_s_per_s"]
+        lines += [
+            f"vs yardstick: one vehicle, real-time factor      {a['project']:8.0f} / {a['yardstick']:.0f}  "
+            f"ratio {a['ratio']:.2f}",
+            f"vs yardstick: batch {vs['n']} x {vs['T']:g} s, veh-s/s   {b['project']:8.0f} / {b['yardstick']:.0f}  "
+            f"ratio {b['ratio']:.2f}",
+            f"vs yardstick: batch memory per vehicle           {vs['batch_memory_kb_per_vehicle']:8.1f} kB",
+            f"vs yardstick: controller step from Python        {lat['step_arrays_median_us']:8.2f} / "
+            f"{vs['ctrl_step_from_python_us']['yardstick_median']:.2f} us",
+        ]
     rp = res["rotorpy"]
     if isinstance(rp, dict):
         lines.append(f"RotorPy single vehicle, hover, 100 Hz steps       {rp['real_time_factor']:10.2f} x real time")

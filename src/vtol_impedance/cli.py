@@ -686,7 +686,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run, table
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
-    res = run(Path(args.out), quick=args.quick, log=log, compile_times=not args.quick)
+    res = run(Path(args.out), quick=args.quick, log=log, compile_times=not args.quick, yardstick=args.yardstick)
     print(table(res))  # the table always, on stdout; --quiet silences the progress only
     return 0
 
@@ -1055,6 +1055,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--quick", action="store_true", help="small sizes and short runs, no cold-compile measurement (a smoke test)"
     )
     sp.add_argument("--quiet", action="store_true", help="only the table (no progress)")
+    sp.add_argument(
+        "--yardstick", type=Path, default=None, metavar="NUMBA_LOOP_PY",
+        help="also time the shared yardstick (its numba_loop.py) against this project, alternating rounds: "
+        "one vehicle, a 10,000-vehicle batch, the controller step, and their ratios",
+    )  # fmt: skip
     sp.set_defaults(func=cmd_bench)
 
     sp = sub.add_parser(

@@ -50,6 +50,9 @@ class Disturbance:
     """Base class: constant-in-state, deterministic disturbances need no preparation."""
 
     kind: ClassVar[str] = ""
+    #: Whether the wrench depends on the vehicle's state (position, velocity, attitude) and not on time
+    #: alone: a plant that steps several times in one call must then evaluate it at every step.
+    state_dependent: ClassVar[bool] = False
 
     def prepare(self, t_end: float, dt: float, rng: np.random.Generator) -> Disturbance:
         return self
@@ -264,6 +267,7 @@ class FanJet(Disturbance):
     """
 
     kind: ClassVar[str] = "fan"
+    state_dependent: ClassVar[bool] = True
     position_W: Vec3 = (-0.15, 0.0, -1.0)
     direction_W: Vec3 = (1.0, 0.0, 0.0)
     mean_force: float = 0.7
@@ -378,6 +382,7 @@ class Wall(Disturbance):
     """
 
     kind: ClassVar[str] = "wall"
+    state_dependent: ClassVar[bool] = True
     position_W: Vec3 = (1.0, 0.0, 0.0)
     normal_W: Vec3 = (-1.0, 0.0, 0.0)
     stiffness: float = 2000.0
@@ -610,6 +615,11 @@ class DisturbanceSet:
 
     def __init__(self, items: list[Disturbance]) -> None:
         self.items = items
+
+    @property
+    def state_dependent(self) -> bool:
+        """Whether any member depends on the vehicle's state (see :attr:`Disturbance.state_dependent`)."""
+        return any(d.state_dependent for d in self.items)
 
     def __call__(self, t: float, p_W: np.ndarray, v_W: np.ndarray, R_WB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         f = np.zeros(np.shape(p_W))

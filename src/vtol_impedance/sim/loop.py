@@ -526,6 +526,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     B = s.x0.shape[0]
     sens = SensorSuite(s.sensors, PA, s.dt)
     plant = _BuiltinPlant(PA, s.dist, s.x0) if plant is None else plant
+    plant.sensor_ages = (sens.k_mocap, sens.k_imu)  # the states the sensors read
     x_park = s.x0.copy()
     sens.push(plant.x)
     CS = initial_controller_state(CA)

@@ -36,6 +36,7 @@ twice.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -243,6 +244,14 @@ class MujocoPlant:
         self.frozen = np.zeros(len(self.datas), dtype=bool)
         for b in range(len(self.datas)):
             self.set_state(b, self.x[b])
+        #: Ages (plant steps) of the states the sensors read (set by the closed loop): a period is then
+        #: stepped in one call and only those states are converted; ``None``: every step's state.
+        self.sensor_ages: tuple[int, ...] | None = None
+        sizes = {(m.nq, m.nv, m.nu, m.na, m.nbody) for m in self.models}
+        self._batched = len(sizes) == 1 and not self.forces.state_dependent
+        self._threads = [mj.MjData(m0) for _ in range(min(len(self.models), os.cpu_count() or 1))]
+        self._full = mj.mjtState.mjSTATE_FULLPHYSICS
+        self._inputs = mj.mjtState.mjSTATE_CTRL | mj.mjtState.mjSTATE_XFRC_APPLIED
 
     # -- state conversion -------------------------------------------------------------------------------
     def set_state(self, b: int, x: np.ndarray) -> None:
@@ -383,7 +392,14 @@ class MujocoPlant:
 
     def advance(self, t: float, f_cmd: np.ndarray, n_sub: int, dt: float, push: Any) -> None:
         """``n_sub`` MuJoCo steps with the rotor commands held; the explicit forces are evaluated at the
-        start of each step (as the built-in plant does); ``push(x)`` after each."""
+        start of each step (as the built-in plant does); ``push(x)`` after each.
+
+        When the explicit forces depend on time alone (no fan) and the vehicles' models have one size, the
+        period is one call of ``mujoco.rollout`` over every vehicle (threads across vehicles), with the
+        forces of each step given in advance, and only the states the sensors will read are converted."""
+        if self._batched and n_sub > 1:
+            self._advance_rollout(t, f_cmd, n_sub, dt, push)
+            return
         mj = self.mj
         for j in range(n_sub):
             self._apply(t + j * dt, f_cmd)
@@ -395,6 +411,48 @@ class MujocoPlant:
             self.x = self._read()
             self.x[self.failed] = np.nan
             push(self.x)
+
+    def _advance_rollout(self, t: float, f_cmd: np.ndarray, n_sub: int, dt: float, push: Any) -> None:
+        from mujoco import rollout
+
+        mj = self.mj
+        active = [b for b in range(len(self.datas)) if not (self.failed[b] or self.frozen[b])]
+        # the rotor commands, lags and the first step's forces; then each step's forces (time alone)
+        f_W, tau_B, _ = self._apply(t, f_cmd)
+        R = quat_to_rotation(self.x[:, QUAT])
+        p_o, v_o = origin_kinematics(self.PA, self.x, R)
+        m0 = self.models[0]
+        inputs = np.empty((len(active), n_sub, mj.mj_stateSize(m0, self._inputs)))
+        state0 = np.empty((len(active), mj.mj_stateSize(m0, self._full)))
+        for j in range(n_sub):
+            if j:
+                f_W, tau_B = self.forces(t + j * dt, p_o, v_o, R)
+                tau_B = np.broadcast_to(tau_B, f_W.shape)
+            for i, b in enumerate(active):
+                m, d = self.models[b], self.datas[b]
+                d.ctrl[self.n :] = _flu(tau_B[b])
+                d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
+                mj.mj_getState(m, d, inputs[i, j], self._inputs)
+        for i, b in enumerate(active):
+            mj.mj_getState(self.models[b], self.datas[b], state0[i], self._full)
+        if active:
+            states, _ = rollout.rollout([self.models[b] for b in active], self._threads, state0, inputs,
+                                        control_spec=self._inputs, nstep=n_sub)  # fmt: skip
+        ages = self.sensor_ages
+        wanted = set(range(n_sub)) if ages is None else {n_sub - 1 - k % n_sub for k in ages} | {n_sub - 1}
+        converted = {}
+        for j in sorted(wanted):  # the last one last: the vehicles' data end at the period's final state
+            for i, b in enumerate(active):
+                mj.mj_setState(self.models[b], self.datas[b], states[i, j], self._full)
+                if not np.all(np.isfinite(states[i, j])):
+                    self.failed[b] = True
+            x = self._read()
+            x[self.failed] = np.nan
+            converted[j] = x
+        self.x = converted[n_sub - 1]
+        # every step is pushed, in order; a state no sensor reads stands in as the period's last
+        for j in range(n_sub):
+            push(converted.get(j, self.x))
 
     def park(self, alive: np.ndarray, x_park: np.ndarray) -> None:
         """Failed vehicles go back to ``x_park`` and stay there (no more steps, no solver warnings)."""
