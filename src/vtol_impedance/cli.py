@@ -740,6 +740,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         send_back=args.send_back, display=args.display, connect_timeout_s=args.connect_timeout,
         stream_timeout_s=args.stream_timeout, control=control,
     )  # fmt: skip
+    if args.backend == "compiled":  # compile (first use) or load the kernels now, not while the link runs
+        _warm_live_kernels(quiet=args.display == "none")
     res = run_live(settings, warn=lambda text: print(f"warning: {text}", file=sys.stderr))
     s = res.summary
     print(f"live session ended: {res.end}; {res.ticks} estimates", file=sys.stderr)
@@ -753,6 +755,20 @@ def cmd_live(args: argparse.Namespace) -> int:
     if args.json:
         print(_json.dumps(s, indent=1, default=str))
     return res.exit_code
+
+
+def _warm_live_kernels(quiet: bool) -> None:
+    """One estimator sample on the compiled kernels: the first use after an install or an upgrade compiles
+    them (tens of seconds), which must happen before the session's clocks (connect timeout, duration) run."""
+    import numpy as np
+
+    from .compiled import kernels_cached
+    from .runtime import Estimator
+
+    if not quiet and not kernels_cached():
+        print("compiling the estimator's kernels (first use only, cached on disk) ...", file=sys.stderr)
+    z = np.zeros(3)
+    Estimator(1.0, [0.01, 0.01, 0.02], 0.02).step(z, z, 9.81, z, omega_B=z)
 
 
 def _sim_event(text: str) -> tuple[float, str, str]:
