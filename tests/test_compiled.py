@@ -34,6 +34,34 @@ def test_compiled_matches_numpy_over_5s_of_closed_loop(name):
         assert _rel_diff(rn[k], rc[k]) <= 1e-9, k
 
 
+@pytest.mark.parametrize("delays", [(0.013, 0.007), (0.005, 0.013), (0.027, 0.0)])
+def test_sensor_delays_off_the_control_grid_read_the_same_states(delays):
+    """Latencies that are not whole control periods: the compiled engine keeps only the past states a
+    sensor will read, the NumPy reference keeps them all; both must read the same ones."""
+    spec = set_value(get("case-a-payload"), "duration", 2.0)
+    for name in ("pos_noise", "vel_noise", "att_noise", "gyro_noise"):
+        spec = set_value(spec, f"sensors.{name}", 0.0)
+    spec = set_value(spec, "sensors.mocap_delay", delays[0])
+    spec = set_value(spec, "sensors.imu_delay", delays[1])
+    rn = simulate(spec, ["pdc"], backend="numpy")
+    rc = simulate(spec, ["pdc"], backend="compiled")
+    for k in ("p_meas_W", "v_meas_W", "eta_meas", "p_W", "f_hat_W"):
+        assert _rel_diff(rn[k], rc[k]) <= 1e-9, k
+    # the measurement is the truth ``mocap_delay`` ago: between two ticks, so close to their interpolation
+    # (within the curvature over a period), farther from either tick when the vehicle moves
+    d = delays[0]
+    lag = int(np.ceil(d / 0.01 - 1e-9))
+    if 0 < d < lag * 0.01:
+        p, pm = rc["p_W"][0], rc["p_meas_W"][0]
+        k = np.arange(lag + 1, p.shape[0])
+        w = (lag * 0.01 - d) / 0.01  # of the way from tick k - lag to k - lag + 1
+        interp = (1 - w) * p[k - lag] + w * p[k - lag + 1]
+        err = np.abs(pm[k] - interp).max()
+        assert err < 5e-5
+        assert np.abs(pm[k] - p[k - lag]).max() > 20 * err
+        assert np.abs(pm[k] - p[k - lag + 1]).max() > 20 * err
+
+
 def _population(n):
     veh = load_preset()
     plants = [

@@ -5,7 +5,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from vtol_impedance.conventions import G
-from vtol_impedance.model import load_preset
+from vtol_impedance.model import VehicleParams, load_preset
 from vtol_impedance.model.kinematics import quat_to_rotation
 from vtol_impedance.sim import PlantParams, compile_plants, rk4_step
 from vtol_impedance.sim.plant import OMEGA, P_COM, QUAT, ROTOR, V_COM, initial_state, plant_derivative
@@ -194,6 +194,36 @@ def test_batched_plant_equals_single(rng):
         for k in range(50):
             x1 = rk4_step(P1, x1, cmd[i], k * 1e-3, 1e-3)
         np.testing.assert_allclose(xb[i], x1, rtol=1e-13, atol=1e-14)
+
+
+def test_a_batch_of_different_vehicles_is_composed_by_the_parallel_axis_theorem():
+    """Each row of a batch of different vehicles and payloads, against the composition written out here."""
+    heavy_x = VehicleParams(2.0, [0.02, 0.03, 0.04], layout="x", arm_length=0.3, drag_factor=0.02)
+    plants = [
+        PlantParams(VEH, payload_mass=0.1, payload_offset_B=(0.01, 0.0, 0.05)),
+        PlantParams(heavy_x, inertia_scale=(1.1, 0.9, 1.0), arm_length_scale=1.2, drag_factor_scale=1.5),
+        PlantParams(VEH, payload_mass=0.3, payload_offset_B=(0.0, 0.02, 0.1), inertia_scale=1.2),
+        PlantParams(heavy_x, payload_mass=0.5, payload_offset_B=(-0.03, 0.01, 0.08)),
+    ]
+    PA = compile_plants(plants)
+    for i, P in enumerate(plants):
+        v, mp, rp = P.vehicle, P.payload_mass, np.array(P.payload_offset_B)
+        m = v.mass + mp
+        c = mp * rp / m
+        d = rp - c
+        I = np.diag(np.diag(v.inertia) * np.array(P.inertia_scale))  # noqa: E741
+        I = I + v.mass * (c @ c * np.eye(3) - np.outer(c, c)) + mp * (d @ d * np.eye(3) - np.outer(d, d))  # noqa: E741
+        np.testing.assert_allclose(PA.mass[i], m, rtol=1e-15)
+        np.testing.assert_allclose(PA.c_B[i], c, rtol=1e-14, atol=1e-16)
+        np.testing.assert_allclose(PA.I_com[i], I, rtol=1e-13, atol=1e-16)
+        np.testing.assert_allclose(PA.I_com_inv[i] @ I, np.eye(3), atol=1e-12)
+        pos = v.geometry.positions_B * P.arm_length_scale
+        cq = v.drag_factor * P.drag_factor_scale
+        for j, (r, s) in enumerate(zip(pos, v.geometry.spins, strict=True)):
+            # thrust along -z_B at r: moment r x (0, 0, -1) = (-r_y, r_x, 0), plus the drag moment s c
+            np.testing.assert_allclose(PA.E[i][:, j], [1.0, -r[1], r[0], s * cq], rtol=1e-15)
+        np.testing.assert_array_equal(PA.r_contact_B[i], rp if mp > 0 else np.zeros(3))
+    assert PA.E.shape == (4, 4, 4) and abs(PA.E[1][1, 0]) != abs(PA.E[0][1, 0])  # premise: the layouts differ
 
 
 @pytest.mark.parametrize("backend", ["numpy", "compiled", "mujoco"])

@@ -172,6 +172,9 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     t_l = np.empty(3)
     tau_prev = np.empty(3)
     up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0  # directions without lag
+    has_dists = dists.shape[0] > 0
+    for i in range(6):
+        dist[i] = 0.0
     H = hist.shape[1]
     for k in range(k0, k1):
         t = k * Ts
@@ -186,7 +189,8 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
         f_cmd = o.f_rotor
 
         # true and lumped wrenches at t_k
-        disturbance_at(pp_b, x, t, dists, series, dist)
+        if has_dists:
+            disturbance_at(pp_b, x, t, dists, series, dist)
         plant_derivative(pp_b, x, f_cmd, dist, xd, env)
         R = _R_of(x.q_WB)
         eta = euler_of(R)
@@ -205,11 +209,15 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
                 if (up_now and g > x.f_rotor[i]) or (down_now and g < x.f_rotor[i]):
                     x.f_rotor[i] = g
         for js in range(n_sub):
-            disturbance_at(pp_b, x, t + js * dt, dists, series, dist)
+            if has_dists:
+                disturbance_at(pp_b, x, t + js * dt, dists, series, dist)
             rk4_step(pp_b, x, f_cmd, dist, dt, work, env_w)
             hhead[b] = (hhead[b] + 1) % H
-            hist[b, hhead[b]] = x
             hcount[b] = min(hcount[b] + 1, H)
+            # keep only the states a sensor will read: those k_mocap or k_imu plant steps before a tick
+            ahead = n_sub - 1 - js
+            if (k_mocap - ahead) % n_sub == 0 or (k_imu - ahead) % n_sub == 0:
+                hist[b, hhead[b]] = x
 
         code = _failure(pp_b, x)
         if code != 0:

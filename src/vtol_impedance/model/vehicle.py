@@ -112,14 +112,15 @@ def layout_positions(layout: str, arm_length: float) -> tuple[np.ndarray, np.nda
     return pos, spins
 
 
-def effectiveness(positions_B: np.ndarray, spins: np.ndarray, drag_factor: float) -> np.ndarray:
-    """Effectiveness matrix ``E (4, n)``: ``[u, tau_B] = E f`` for rotor forces ``f (n,)`` along ``-z_B``.
+def effectiveness(positions_B: np.ndarray, spins: np.ndarray, drag_factor: float | np.ndarray) -> np.ndarray:
+    """Effectiveness matrix ``E (..., 4, n)``: ``[u, tau_B] = E f`` for rotor forces ``f (n,)`` along ``-z_B``.
 
-    Column ``i`` is ``[1, r_i x (-e3) + s_i c e3]`` = ``[1, -r_iy, r_ix, s_i c]``.
+    Column ``i`` is ``[1, r_i x (-e3) + s_i c e3]`` = ``[1, -r_iy, r_ix, s_i c]``. Batched over leading
+    axes of ``positions_B (..., n, 3)``, ``spins (..., n)`` and ``drag_factor (...)``.
     """
     r = np.asarray(positions_B, dtype=float)
-    s = np.asarray(spins, dtype=float)
-    return np.stack([np.ones(len(r)), -r[:, 1], r[:, 0], s * drag_factor])
+    s = np.asarray(spins, dtype=float) * np.asarray(drag_factor, dtype=float)[..., None]
+    return np.stack([np.ones(r.shape[:-1]), -r[..., 1], r[..., 0], s], axis=-2)
 
 
 @dataclass(frozen=True, eq=False)
@@ -244,9 +245,11 @@ class VehicleParams:
             "mass": self.mass,
             "inertia": self.inertia.tolist(),
             "drag_factor": self.drag_factor,
-            "rotors": [
-                {"position_B": p.tolist(), "spin": int(s), "f_min": float(lo), "f_max": float(hi)}
-                for p, s, lo, hi in zip(g.positions_B, g.spins, g.f_min, g.f_max, strict=True)
+            "rotors": [  # one tolist() per array: a batch's config lists thousands of vehicles
+                {"position_B": p, "spin": int(s), "f_min": float(lo), "f_max": float(hi)}
+                for p, s, lo, hi in zip(
+                    g.positions_B.tolist(), g.spins.tolist(), g.f_min.tolist(), g.f_max.tolist(), strict=True
+                )
             ],
         }
 

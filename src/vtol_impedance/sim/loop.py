@@ -12,7 +12,9 @@ batch at once. They compute the same thing (parity tests), from the same random 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import gc
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -387,7 +389,8 @@ def run_closed_loop(
         raise InputError(f"start_W must be one point of shape (3,), got shape {start.shape}")
     for d in disturbances:
         d.check_start(start)
-    lowest = float(np.max(trajectory.sample_many(np.linspace(0.0, duration, 2001))[:, 2]))  # NED: largest z
+    refs = trajectory.sample_many(np.append(t_grid, duration))  # the control ticks and the end
+    lowest = float(np.max(refs[:, 2]))  # NED: largest z
     for p in [plant] if isinstance(plant, PlantParams) else plant:
         if p.pendulum_mass > 0 and lowest + p.pendulum_length >= 0.0:
             raise InputError(
@@ -404,7 +407,7 @@ def run_closed_loop(
         dist,
         sensors,
         NoiseSource(seeds),
-        trajectory.sample_many(t_grid),
+        refs[:-1],
         x0,
         Ts,
         dt,
@@ -432,12 +435,10 @@ def run_closed_loop(
             "plant_rate": plant_rate,
             "control_period": Ts,
             "labels": labels,
-            "controllers": [c.to_dict() for c in controllers],
-            "plants": [p.to_dict() for p in plants],
-            "sensors": {k: getattr(sensors, k) for k in sensors.__dataclass_fields__},
-            "disturbances": [d.to_dict() for d in disturbances],
         }
     )
+    with _collector_paused():
+        cfg.update(_run_config(controllers, plants, disturbances, sensors))
     cfg.setdefault("window", list(setup.window[:2]))
     if np.any(lift > 0):
         cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
@@ -446,6 +447,30 @@ def run_closed_loop(
     for i, m in enumerate(metrics):
         m["controller"] = labels[i]
     return Result(t_log, labels, data, cfg, failures, metrics if dec == 0 else None)
+
+
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector (and restore it): a batch's configuration is tens of thousands
+    of small acyclic dicts, and the collections their allocation triggers took three quarters of the time
+    to build them (10,000 vehicles: 0.8 s -> 0.2 s)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def _run_config(controllers, plants, disturbances, sensors) -> dict[str, Any]:
+    """The flown objects, as plain data for the result's ``config``."""
+    return {
+        "controllers": [c.to_dict() for c in controllers],
+        "plants": [p.to_dict() for p in plants],
+        "sensors": {k: getattr(sensors, k) for k in sensors.__dataclass_fields__},
+        "disturbances": [d.to_dict() for d in disturbances],
+    }
 
 
 def _failures(fail_code: np.ndarray, fail_time: np.ndarray) -> list[dict[str, Any] | None]:

@@ -173,48 +173,20 @@ class PlantArrays(NamedTuple):
         return self.mass.shape
 
 
-def _point_inertia(m: float, r: np.ndarray) -> np.ndarray:
-    return m * (np.dot(r, r) * np.eye(3) - np.outer(r, r))
-
-
-def compile_plant_one(P: PlantParams) -> dict[str, np.ndarray]:
-    v = P.vehicle
-    m_b, m_p = v.mass, float(P.payload_mass)
-    m = m_b + m_p
-    r_p = np.asarray(P.payload_offset_B, dtype=float)
-    c = m_p * r_p / m
-    scale = np.broadcast_to(np.asarray(P.inertia_scale, dtype=float), (3,))
-    I_bare = v.inertia * np.sqrt(np.outer(scale, scale))  # scales the diagonal by `scale`
-    I_com = I_bare + _point_inertia(m_b, -c) + _point_inertia(m_p, r_p - c)
-    g = v.geometry
-    pos = g.positions_B * P.arm_length_scale
-    cq = v.drag_factor * P.drag_factor_scale
-    return {
-        "mass": m,
-        "I_com": I_com,
-        "I_com_inv": np.linalg.inv(I_com),
-        "c_B": c,
-        "r_contact_B": r_p if m_p > 0 else np.zeros(3),
-        "rotor_pos_B": pos,
-        "spins": g.spins,
-        "drag_factor": cq,
-        "E": effectiveness(pos, g.spins, cq),
-        "f_max": g.f_max,
-        "f_min": g.f_min,
-        "tau_up": P.rotor_tau_up,
-        "tau_down": P.rotor_tau_down,
-        "rotor_drag": P.rotor_drag,
-        "ground": 1.0 if P.ground else 0.0,
-        "k_ground": P.ground_stiffness,
-        "c_ground": P.ground_damping,
-        "b_ground": P.ground_friction,
-        "pend_m": P.pendulum_mass,
-        "pend_L": P.pendulum_length,
-    }
+def _point_inertia(m: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Inertia ``m (|r|^2 1 - r r^T)`` of point masses ``m (B,)`` at ``r (B, 3)``: ``(B, 3, 3)``."""
+    rr = r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1] + r[:, 2] * r[:, 2]
+    return m[:, None, None] * (rr[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :])
 
 
 def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
-    """Arrays for one plant (batch shape ``()``) or a list of plants (batch shape ``(B,)``)."""
+    """Arrays for one plant (batch shape ``()``) or a list of plants (batch shape ``(B,)``).
+
+    The true rigid body: mass ``m = m_b + m_p``, CoM ``c = m_p r_p / m`` from the body origin, inertia
+    about ``c`` by the parallel-axis theorem, rotors scaled by ``arm_length_scale``. Computed for the whole
+    list at once (a 10,000-vehicle population compiles in milliseconds); vehicles shared by several plants
+    are read once.
+    """
     single = isinstance(params, PlantParams)
     plist = [params] if single else list(params)
     if not plist or not all(isinstance(p, PlantParams) for p in plist):
@@ -222,8 +194,51 @@ def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
     nr = {p.vehicle.n_rotors for p in plist}
     if len(nr) > 1:
         raise InputError(f"plants in one batch must have the same number of rotors, got {sorted(nr)}")
-    dicts = [compile_plant_one(p) for p in plist]
-    out = {k: np.array([d[k] for d in dicts], dtype=float) for k in PlantArrays._fields}
+    first: dict[int, int] = {}  # id(vehicle) -> its row among the distinct vehicles
+    vehicles = []
+    for p in plist:
+        if id(p.vehicle) not in first:
+            first[id(p.vehicle)] = len(vehicles)
+            vehicles.append(p.vehicle)
+    iv = np.array([first[id(p.vehicle)] for p in plist])
+    geo = [v.geometry for v in vehicles]
+
+    def col(name: str) -> np.ndarray:
+        return np.array([getattr(p, name) for p in plist], dtype=float)
+
+    m_b = np.array([v.mass for v in vehicles])[iv]
+    m_p = col("payload_mass")
+    m = m_b + m_p
+    r_p = col("payload_offset_B")
+    c = m_p[:, None] * r_p / m[:, None]
+    scale = col("inertia_scale")
+    I_bare = np.array([v.inertia for v in vehicles])[iv] * np.sqrt(scale[:, :, None] * scale[:, None, :])
+    I_com = I_bare + _point_inertia(m_b, -c) + _point_inertia(m_p, r_p - c)
+    pos = np.array([g.positions_B for g in geo])[iv] * col("arm_length_scale")[:, None, None]
+    spins = np.array([g.spins for g in geo], dtype=float)[iv]
+    cq = np.array([v.drag_factor for v in vehicles])[iv] * col("drag_factor_scale")
+    out = {
+        "mass": m,
+        "I_com": I_com,
+        "I_com_inv": np.linalg.inv(I_com),
+        "c_B": c,
+        "r_contact_B": np.where((m_p > 0)[:, None], r_p, 0.0),
+        "rotor_pos_B": pos,
+        "spins": spins,
+        "drag_factor": cq,
+        "E": effectiveness(pos, spins, cq),
+        "f_max": np.array([g.f_max for g in geo], dtype=float)[iv],
+        "f_min": np.array([g.f_min for g in geo], dtype=float)[iv],
+        "tau_up": col("rotor_tau_up"),
+        "tau_down": col("rotor_tau_down"),
+        "rotor_drag": col("rotor_drag"),
+        "ground": col("ground"),
+        "k_ground": col("ground_stiffness"),
+        "c_ground": col("ground_damping"),
+        "b_ground": col("ground_friction"),
+        "pend_m": col("pendulum_mass"),
+        "pend_L": col("pendulum_length"),
+    }
     if single:
         out = {k: v[0] for k, v in out.items()}
     return PlantArrays(**out)
