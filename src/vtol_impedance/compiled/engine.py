@@ -162,11 +162,10 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
     x, pp_b, p_b, s_b, h_b, des = X[b], pp[b], p[b], S[b], EH[b], d[0]
     nr = pp_b.n_rotors
-    o_, work = _scratch()
-    o, xd = o_[0], work[5]
+    o_, xd_ = _scratch()
+    o, xd = o_[0], xd_[0]
     y = np.empty(12)
     env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
-    env_w = np.empty(6)  # scratch for the RK4 stages
     dist = np.empty(6)  # explicit disturbances, held over each plant step
     f_l = np.empty(3)
     t_l = np.empty(3)
@@ -211,7 +210,7 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
         for js in range(n_sub):
             if has_dists:
                 disturbance_at(pp_b, x, t + js * dt, dists, series, dist)
-            rk4_step(pp_b, x, f_cmd, dist, dt, work, env_w)
+            rk4_step(pp_b, x, f_cmd, dist, dt)
             hhead[b] = (hhead[b] + 1) % H
             hcount[b] = min(hcount[b] + 1, H)
             # keep only the states a sensor will read: those k_mocap or k_imu plant steps before a tick
@@ -230,8 +229,8 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
 
 @kernel()
 def _scratch():
-    """A zeroed output and six state records (the RK4 slopes and stage, the derivative)."""
-    return np.zeros(1, dtype=OUTPUT), np.zeros(6, dtype=STATE)
+    """A zeroed output record and a state record (for the derivative)."""
+    return np.zeros(1, dtype=OUTPUT), np.zeros(1, dtype=STATE)
 
 
 @kernel(inline="always")
@@ -244,10 +243,8 @@ def _nominal_inertia(p):
 def advance(pp, X, f_cmd, t0, n_sub, dt, dists, series):
     """Every vehicle's plant ``X (B,)`` over ``n_sub`` RK4 steps from ``t0`` with the rotor commands
     ``f_cmd (B, n)`` held (open loop: a replay, another simulator's controller)."""
-    o_, work = _scratch()
     dist = np.empty(6)
-    env = np.empty(6)
     for b in range(X.shape[0]):
         for j in range(n_sub):
             disturbance_at(pp[b], X[b], t0 + j * dt, dists, series, dist)
-            rk4_step(pp[b], X[b], f_cmd[b], dist, dt, work, env)
+            rk4_step(pp[b], X[b], f_cmd[b], dist, dt)

@@ -172,33 +172,60 @@ def _rotor_sums(pp, f, n):
 
 
 @kernel(inline="always")
-def _rotor_lag(pp, f, f_cmd, f_dot, n):
-    """First-order rotor lag towards the clipped commands, faster up than down."""
-    for i in range(n):
-        g = min(max(f_cmd[i], pp.f_min[i]), pp.f_max[i])
-        f_dot[i] = (g - f[i]) * (pp.inv_tau_up if g > f[i] else pp.inv_tau_down)
+def _lag(pp, g, f):
+    """``f_dot`` of one rotor: first-order lag towards its clipped command ``g``, faster up than down."""
+    return (g - f) * (pp.inv_tau_up if g > f else pp.inv_tau_down)
 
 
 @kernel(inline="always")
-def plant_derivative(pp, x, f_cmd, dist, xd, env):
-    """``x_dot`` of the true plant into ``xd``, as :func:`vtol_impedance.sim.plant.plant_derivative`, and the
-    external wrench into ``env = [f_ext_W (at the body origin), tau_ext_B]``, as
+def _clipped(pp, f_cmd, i):
+    return min(max(f_cmd[i], pp.f_min[i]), pp.f_max[i])
+
+
+@kernel(inline="always")
+def _body_of(x):
+    """The 19 states other than the rotors as a tuple (held in registers by the RK4 step):
+    ``p_com_W, v_com_W, q_WB, omega_B, r_pend_W, v_pend_W``."""
+    p, v, q, w, r, s = x.p_com_W, x.v_com_W, x.q_WB, x.omega_B, x.r_pend_W, x.v_pend_W
+    return (p[0], p[1], p[2], v[0], v[1], v[2], q[0], q[1], q[2], q[3], w[0], w[1], w[2],
+            r[0], r[1], r[2], s[0], s[1], s[2])  # fmt: skip
+
+
+@kernel(inline="always")
+def _set_body(x, s):
+    """Write the tuple of :func:`_body_of` back into the record ``x``."""
+    for i in range(3):
+        x.p_com_W[i] = s[i]
+        x.v_com_W[i] = s[3 + i]
+        x.omega_B[i] = s[10 + i]
+        x.r_pend_W[i] = s[13 + i]
+        x.v_pend_W[i] = s[16 + i]
+    for i in range(4):
+        x.q_WB[i] = s[6 + i]
+
+
+@kernel(inline="always")
+def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
+    """``x_dot`` of the true plant's body and pendulum (the tuple of :func:`_body_of`), as
+    :func:`vtol_impedance.sim.plant.plant_derivative`, with the rotors' thrust ``u`` and body moments ``tm``
+    (eq. (4), the true ``E``); and the external wrench ``[f_ext_W (at the body origin), tau_ext_B]``, as
     :func:`vtol_impedance.sim.plant.environment_wrench` (disturbances, rotor drag, ground at two points).
 
     ``dist = [f_W, tau_B]`` are the explicit disturbances, evaluated by the caller (once per plant step,
     :func:`disturbance_at`). Newton-Euler about the CoM: ``m a = m g - u R e3 + f_env``,
-    ``I w_dot = tau - c x F_B - w x I w``. Allocation free.
+    ``I w_dot = tau - c x F_B - w x I w``; the quaternion ``q_dot = q (0, w) / 2``. Pure: no memory written.
     """
-    R = _R_of(x.q_WB)
-    c, w = pp.c_B, x.omega_B
-    w0, w1, w2 = w[0], w[1], w[2]
-    v0, v1, v2 = x.v_com_W[0], x.v_com_W[1], x.v_com_W[2]
+    p2, v0, v1, v2 = s[2], s[3], s[4], s[5]
+    qw, qx, qy, qz = s[6], s[7], s[8], s[9]
+    w0, w1, w2 = s[10], s[11], s[12]
+    R = _R_of((qw, qx, qy, qz))
+    c = pp.c_B
     # body-origin depth and velocity, as sim.plant.origin_kinematics
     a0, a1, a2 = w1 * c[2] - w2 * c[1], w2 * c[0] - w0 * c[2], w0 * c[1] - w1 * c[0]
     vo0 = v0 - (R[0] * a0 + R[1] * a1 + R[2] * a2)
     vo1 = v1 - (R[3] * a0 + R[4] * a1 + R[5] * a2)
     vo2 = v2 - (R[6] * a0 + R[7] * a1 + R[8] * a2)
-    zo = x.p_com_W[2] - (R[6] * c[0] + R[7] * c[1] + R[8] * c[2])
+    zo = p2 - (R[6] * c[0] + R[7] * c[1] + R[8] * c[2])
     # environment: disturbances, rotor drag, ground under the origin
     kd = pp.rotor_drag
     g0, g1, g2 = _ground(pp, zo, vo0, vo1, vo2)
@@ -209,7 +236,7 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     # second contact point (the payload) r_p: from the CoM d = r_p - c
     r = pp.r_contact_B
     d0, d1, d2 = r[0] - c[0], r[1] - c[1], r[2] - c[2]
-    zc = x.p_com_W[2] + R[6] * d0 + R[7] * d1 + R[8] * d2
+    zc = p2 + R[6] * d0 + R[7] * d1 + R[8] * d2
     if zc > 0.0 and pp.ground > 0.0:
         e0, e1, e2 = w1 * d2 - w2 * d1, w2 * d0 - w0 * d2, w0 * d1 - w1 * d0
         h0, h1, h2 = _ground(
@@ -223,11 +250,6 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
         te0 += m0
         te1 += m1
         te2 += m2
-    n = pp.n_rotors
-    if n == 4:  # a literal count lets the compiler unroll the quadrotor's sums
-        u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, 4)
-    else:
-        u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, n)
     im = pp.inv_mass
     F0 = -u * R[2] + fe0
     F1 = -u * R[5] + fe1
@@ -236,10 +258,10 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     ml = pp.pend_m
     lk0 = lk1 = lk2 = rdd0 = rdd1 = rdd2 = 0.0
     if ml > 0.0:
-        q, s = x.r_pend_W, x.v_pend_W
-        L = max(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]), 1e-9)
-        n0, n1, n2 = q[0] / L, q[1] / L, q[2] / L
-        T = ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / L - (n0 * F0 + n1 * F1 + n2 * F2) * im) / (1.0 / ml + im)
+        q0, q1, q2, s0, s1, s2 = s[13], s[14], s[15], s[16], s[17], s[18]
+        L = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2), 1e-9)
+        n0, n1, n2 = q0 / L, q1 / L, q2 / L
+        T = ((s0 * s0 + s1 * s1 + s2 * s2) / L - (n0 * F0 + n1 * F1 + n2 * F2) * im) / (1.0 / ml + im)
         lk0, lk1, lk2 = T * n0, T * n1, T * n2
         rdd0 = -T / ml * n0 - (F0 + lk0) * im
         rdd1 = -T / ml * n1 - (F1 + lk1) * im
@@ -254,29 +276,37 @@ def plant_derivative(pp, x, f_cmd, dist, xd, env):
     h0 = I[0, 0] * w0 + I[0, 1] * w1 + I[0, 2] * w2
     h1 = I[1, 0] * w0 + I[1, 1] * w1 + I[1, 2] * w2
     h2 = I[2, 0] * w0 + I[2, 1] * w1 + I[2, 2] * w2
-    s0 = tm0 + te0 - (c[1] * B2 - c[2] * B1) - (w1 * h2 - w2 * h1)
-    s1 = tm1 + te1 - (c[2] * B0 - c[0] * B2) - (w2 * h0 - w0 * h2)
-    s2 = tm2 + te2 - (c[0] * B1 - c[1] * B0) - (w0 * h1 - w1 * h0)
-    qw, qx, qy, qz = x.q_WB[0], x.q_WB[1], x.q_WB[2], x.q_WB[3]
-    xd.p_com_W[0], xd.p_com_W[1], xd.p_com_W[2] = v0, v1, v2
-    xd.v_com_W[0] = (F0 + lk0) * im
-    xd.v_com_W[1] = (F1 + lk1) * im
-    xd.v_com_W[2] = G + (F2 + lk2) * im
-    xd.q_WB[0] = 0.5 * (-qx * w0 - qy * w1 - qz * w2)
-    xd.q_WB[1] = 0.5 * (qw * w0 + qy * w2 - qz * w1)
-    xd.q_WB[2] = 0.5 * (qw * w1 - qx * w2 + qz * w0)
-    xd.q_WB[3] = 0.5 * (qw * w2 + qx * w1 - qy * w0)
-    xd.omega_B[0] = Ii[0, 0] * s0 + Ii[0, 1] * s1 + Ii[0, 2] * s2
-    xd.omega_B[1] = Ii[1, 0] * s0 + Ii[1, 1] * s1 + Ii[1, 2] * s2
-    xd.omega_B[2] = Ii[2, 0] * s0 + Ii[2, 1] * s1 + Ii[2, 2] * s2
-    if n == 4:
-        _rotor_lag(pp, x.f_rotor, f_cmd, xd.f_rotor, 4)
+    m0 = tm0 + te0 - (c[1] * B2 - c[2] * B1) - (w1 * h2 - w2 * h1)
+    m1 = tm1 + te1 - (c[2] * B0 - c[0] * B2) - (w2 * h0 - w0 * h2)
+    m2 = tm2 + te2 - (c[0] * B1 - c[1] * B0) - (w0 * h1 - w1 * h0)
+    x_dot = (
+        v0, v1, v2,
+        (F0 + lk0) * im, (F1 + lk1) * im, G + (F2 + lk2) * im,
+        0.5 * (-qx * w0 - qy * w1 - qz * w2), 0.5 * (qw * w0 + qy * w2 - qz * w1),
+        0.5 * (qw * w1 - qx * w2 + qz * w0), 0.5 * (qw * w2 + qx * w1 - qy * w0),
+        Ii[0, 0] * m0 + Ii[0, 1] * m1 + Ii[0, 2] * m2,
+        Ii[1, 0] * m0 + Ii[1, 1] * m1 + Ii[1, 2] * m2,
+        Ii[2, 0] * m0 + Ii[2, 1] * m1 + Ii[2, 2] * m2,
+        s[16], s[17], s[18], rdd0, rdd1, rdd2,
+    )  # fmt: skip
+    return x_dot, (fe0, fe1, fe2, te0, te1, te2)
+
+
+@kernel(inline="always")
+def plant_derivative(pp, x, f_cmd, dist, xd, env):
+    """``x_dot`` of the true plant into the record ``xd`` (:func:`body_derivative` and the rotor lag) and
+    the external wrench into ``env``, for a state record ``x``."""
+    n = pp.n_rotors
+    if n == 4:  # a literal count lets the compiler unroll the quadrotor's sums
+        u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, 4)
     else:
-        _rotor_lag(pp, x.f_rotor, f_cmd, xd.f_rotor, n)
-    for i in range(3):
-        xd.r_pend_W[i] = x.v_pend_W[i]
-    xd.v_pend_W[0], xd.v_pend_W[1], xd.v_pend_W[2] = rdd0, rdd1, rdd2
-    env[0], env[1], env[2], env[3], env[4], env[5] = fe0, fe1, fe2, te0, te1, te2
+        u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, n)
+    s_dot, e = body_derivative(pp, _body_of(x), u, tm0, tm1, tm2, dist)
+    _set_body(xd, s_dot)
+    for i in range(n):
+        xd.f_rotor[i] = _lag(pp, _clipped(pp, f_cmd, i), x.f_rotor[i])
+    for i in range(6):
+        env[i] = e[i]
 
 
 @kernel()
@@ -302,52 +332,78 @@ def disturbance_at(pp, x, t, dists, series, dist):
 
 
 @kernel(inline="always")
-def _stage(out, x, h, k, n):
-    """``out = x + h k`` over every field of the state (``n`` rotors)."""
-    for i in range(3):
-        out.p_com_W[i] = x.p_com_W[i] + h * k.p_com_W[i]
-        out.v_com_W[i] = x.v_com_W[i] + h * k.v_com_W[i]
-        out.omega_B[i] = x.omega_B[i] + h * k.omega_B[i]
-        out.r_pend_W[i] = x.r_pend_W[i] + h * k.r_pend_W[i]
-        out.v_pend_W[i] = x.v_pend_W[i] + h * k.v_pend_W[i]
-    for i in range(4):
-        out.q_WB[i] = x.q_WB[i] + h * k.q_WB[i]
-    for i in range(n):
-        out.f_rotor[i] = x.f_rotor[i] + h * k.f_rotor[i]
+def _axpy(s, h, k):
+    """``s + h k`` over the 19 body states."""
+    return (s[0] + h * k[0], s[1] + h * k[1], s[2] + h * k[2], s[3] + h * k[3], s[4] + h * k[4],
+            s[5] + h * k[5], s[6] + h * k[6], s[7] + h * k[7], s[8] + h * k[8], s[9] + h * k[9],
+            s[10] + h * k[10], s[11] + h * k[11], s[12] + h * k[12], s[13] + h * k[13], s[14] + h * k[14],
+            s[15] + h * k[15], s[16] + h * k[16], s[17] + h * k[17], s[18] + h * k[18])  # fmt: skip
 
 
 @kernel(inline="always")
-def _rk4_sum(x, h, k1, k2, k3, k4, n):
-    """``x += h/6 (k1 + 2 k2 + 2 k3 + k4)`` over every field."""
-    for i in range(3):
-        x.p_com_W[i] += h * (k1.p_com_W[i] + 2.0 * k2.p_com_W[i] + 2.0 * k3.p_com_W[i] + k4.p_com_W[i])
-        x.v_com_W[i] += h * (k1.v_com_W[i] + 2.0 * k2.v_com_W[i] + 2.0 * k3.v_com_W[i] + k4.v_com_W[i])
-        x.omega_B[i] += h * (k1.omega_B[i] + 2.0 * k2.omega_B[i] + 2.0 * k3.omega_B[i] + k4.omega_B[i])
-        x.r_pend_W[i] += h * (k1.r_pend_W[i] + 2.0 * k2.r_pend_W[i] + 2.0 * k3.r_pend_W[i] + k4.r_pend_W[i])
-        x.v_pend_W[i] += h * (k1.v_pend_W[i] + 2.0 * k2.v_pend_W[i] + 2.0 * k3.v_pend_W[i] + k4.v_pend_W[i])
-    for i in range(4):
-        x.q_WB[i] += h * (k1.q_WB[i] + 2.0 * k2.q_WB[i] + 2.0 * k3.q_WB[i] + k4.q_WB[i])
+def _rk4_sum(s, h, k1, k2, k3, k4):
+    """``s + h (k1 + 2 k2 + 2 k3 + k4)`` over the 19 body states."""
+    return _axpy(s, h, _axpy(_axpy(_axpy(k1, 2.0, k2), 2.0, k3), 1.0, k4))
+
+
+@kernel(inline="always")
+def _rotor_stages(pp, f, f_cmd, dt, n):
+    """The rotors' RK4 step in place on ``f``, returning ``E f`` (thrust, body moments) at the four stages.
+
+    The rotor lag does not depend on the body's state, so its four stages are computed first, exactly as
+    the joint RK4 would, and only their sums enter the body's stages."""
+    E = pp.E
+    h2 = 0.5 * dt
+    u1 = x1 = y1 = z1 = u2 = x2 = y2 = z2 = u3 = x3 = y3 = z3 = u4 = x4 = y4 = z4 = 0.0
     for i in range(n):
-        x.f_rotor[i] += h * (k1.f_rotor[i] + 2.0 * k2.f_rotor[i] + 2.0 * k3.f_rotor[i] + k4.f_rotor[i])
+        g = _clipped(pp, f_cmd, i)
+        f1 = f[i]
+        k1 = _lag(pp, g, f1)
+        f2 = f1 + h2 * k1
+        k2 = _lag(pp, g, f2)
+        f3 = f1 + h2 * k2
+        k3 = _lag(pp, g, f3)
+        f4 = f1 + dt * k3
+        k4 = _lag(pp, g, f4)
+        f[i] = f1 + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        e0, e1, e2, e3 = E[0, i], E[1, i], E[2, i], E[3, i]
+        u1 += e0 * f1
+        x1 += e1 * f1
+        y1 += e2 * f1
+        z1 += e3 * f1
+        u2 += e0 * f2
+        x2 += e1 * f2
+        y2 += e2 * f2
+        z2 += e3 * f2
+        u3 += e0 * f3
+        x3 += e1 * f3
+        y3 += e2 * f3
+        z3 += e3 * f3
+        u4 += e0 * f4
+        x4 += e1 * f4
+        y4 += e2 * f4
+        z4 += e3 * f4
+    return (u1, x1, y1, z1), (u2, x2, y2, z2), (u3, x3, y3, z3), (u4, x4, y4, z4)
 
 
 @kernel()
-def rk4_step(pp, x, f_cmd, dist, dt, work, env):
-    """One RK4 step of ``x`` in place with the rotor command and the disturbances ``dist`` held over the step;
-    ``work`` holds five state records (the four slopes and a stage), ``env`` (6) is scratch.
+def rk4_step(pp, x, f_cmd, dist, dt):
+    """One RK4 step of ``x`` in place with the rotor command and the disturbances ``dist`` held over the step.
 
-    The quaternion is renormalised after the step (RK4 keeps its norm to the method's order only) and the
-    pendulum put back on its sphere, as :func:`vtol_impedance.sim.plant.rk4_step`."""
-    k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]
-    n = pp.n_rotors
-    plant_derivative(pp, x, f_cmd, dist, k1, env)
-    _stage(xt, x, 0.5 * dt, k1, n)
-    plant_derivative(pp, xt, f_cmd, dist, k2, env)
-    _stage(xt, x, 0.5 * dt, k2, n)
-    plant_derivative(pp, xt, f_cmd, dist, k3, env)
-    _stage(xt, x, dt, k3, n)
-    plant_derivative(pp, xt, f_cmd, dist, k4, env)
-    _rk4_sum(x, dt / 6.0, k1, k2, k3, k4, n)
+    The body's 19 states stay in registers through the four stages (tuples, no memory written between
+    them). The quaternion is renormalised after the step (RK4 keeps its norm to the method's order only)
+    and the pendulum put back on its sphere, as :func:`vtol_impedance.sim.plant.rk4_step`."""
+    if pp.n_rotors == 4:  # a literal count lets the compiler unroll the quadrotor's rotors
+        a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, 4)
+    else:
+        a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, pp.n_rotors)
+    s = _body_of(x)
+    h2 = 0.5 * dt
+    k1, _ = body_derivative(pp, s, a[0], a[1], a[2], a[3], dist)
+    k2, _ = body_derivative(pp, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist)
+    k3, _ = body_derivative(pp, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist)
+    k4, _ = body_derivative(pp, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist)
+    _set_body(x, _rk4_sum(s, dt / 6.0, k1, k2, k3, k4))
     q = x.q_WB
     inq = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     for i in range(4):
