@@ -251,6 +251,11 @@ def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
     CB = np.zeros(6)
     lag = np.real(np.sum(1.0 / -poles, axis=1))
     for i in range(6):
+        same = [j for j in range(i) if np.array_equal(poles[j], poles[i])]
+        if same:  # channels of one bandwidth share their matrices (expm is most of a design's time)
+            j = same[0]
+            Ad[i], Bd[i], C[i], CA[i], CB[i] = Ad[j], Bd[j], C[j], CA[j], CB[j]
+            continue
         coeffs = np.real(np.poly(poles[i]))  # s^n + a1 s^(n-1) + ... + an
         A = np.zeros((n, n))
         A[:-1, 1:] = np.eye(n - 1)
