@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -43,7 +44,7 @@ def as_finite(name: str, value: Any, shape_tail: tuple[int, ...] | None = None) 
         n = len(shape_tail)
         if arr.ndim < n or tuple(arr.shape[arr.ndim - n :]) != tuple(shape_tail):
             raise InputError(f"{name} must have trailing shape {shape_tail}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         bad = arr[~np.isfinite(arr)].ravel()[:3]
         raise InputError(f"{name} contains non-finite values ({', '.join(map(str, bad))})")
     return arr
@@ -84,12 +85,15 @@ def scalar(
     Refuses booleans, strings, arrays of more than one value and NaN/inf with an :class:`InputError`
     that names the value and the allowed range.
     """
-    if isinstance(value, bool | np.bool_) or isinstance(value, str | bytes) or value is None:
-        raise InputError(f"{name} must be a number, got {value!r}")
-    arr = as_finite(name, value)
-    if arr.size != 1:
-        raise InputError(f"{name} must be a single number, got shape {arr.shape}")
-    v = float(arr.reshape(()))
+    if type(value) is float and math.isfinite(value):  # the common case, without an array
+        v = value
+    else:
+        if isinstance(value, bool | np.bool_) or isinstance(value, str | bytes) or value is None:
+            raise InputError(f"{name} must be a number, got {value!r}")
+        arr = as_finite(name, value)
+        if arr.size != 1:
+            raise InputError(f"{name} must be a single number, got shape {arr.shape}")
+        v = float(arr.reshape(()))
     if integer:
         if not v.is_integer():
             raise InputError(f"{name} must be a whole number, got {value!r}")
