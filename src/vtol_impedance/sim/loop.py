@@ -463,7 +463,12 @@ def _collector_paused() -> Iterator[None]:
             gc.enable()
 
 
-def _run_config(controllers, plants, disturbances, sensors) -> dict[str, Any]:
+def _run_config(
+    controllers: Sequence[ControllerParams],
+    plants: Sequence[PlantParams],
+    disturbances: Sequence[Disturbance],
+    sensors: SensorParams,
+) -> dict[str, Any]:
     """The flown objects, as plain data for the result's ``config``."""
     return {
         "controllers": [c.to_dict() for c in controllers],
