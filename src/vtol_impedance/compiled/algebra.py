@@ -65,27 +65,52 @@ def _solve9(A, b0, b1, b2):
 
 
 @kernel(inline="always")
+def _AQ(A, cf, sf, ct, st):
+    """``A Q(eta)`` for a 3x3 ``A``, using the zeros of ``Q`` (its first column is ``e1``)."""
+    return (
+        A[0], A[1] * cf - A[2] * sf, -A[0] * st + A[1] * sf * ct + A[2] * cf * ct,
+        A[3], A[4] * cf - A[5] * sf, -A[3] * st + A[4] * sf * ct + A[5] * cf * ct,
+        A[6], A[7] * cf - A[8] * sf, -A[6] * st + A[7] * sf * ct + A[8] * cf * ct,
+    )  # fmt: skip
+
+
+@kernel(inline="always")
+def _QtA(A, cf, sf, ct, st):
+    """``Q(eta)^T A`` for a 3x3 ``A``, using the zeros of ``Q``."""
+    return (
+        A[0], A[1], A[2],
+        cf * A[3] - sf * A[6], cf * A[4] - sf * A[7], cf * A[5] - sf * A[8],
+        -st * A[0] + sf * ct * A[3] + cf * ct * A[6],
+        -st * A[1] + sf * ct * A[4] + cf * ct * A[7],
+        -st * A[2] + sf * ct * A[5] + cf * ct * A[8],
+    )  # fmt: skip
+
+
+@kernel(inline="always")
 def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
-    """``Q``, ``M = Q^T I Q``, ``C = Q^T S(I Q eta_dot)^T Q + Q^T I Q_dot`` as 9-tuples (eq. (3b), (7))."""
+    """``Q``, ``M = Q^T I Q``, ``C = Q^T (S(I Q eta_dot)^T Q + I Q_dot)`` as 9-tuples (eq. (3b), (7)).
+
+    The products use the zeros of ``Q`` and ``Q_dot`` (:func:`_Q9`, :func:`_Qd9`): about half the
+    arithmetic of dense 3x3 products."""
+    cf, sf, ct, st = math.cos(e0), math.sin(e0), math.cos(e1), math.sin(e1)
     Q = _Q9(e0, e1)
-    Qt = _t9(Q)
-    M = _mm9(Qt, _mm9(I, Q))
-    w0, w1, w2 = _mv9(Q, d0, d1, d2)
+    M = _QtA(_AQ(I, cf, sf, ct, st), cf, sf, ct, st)
+    w0, w1, w2 = d0 - st * d2, cf * d1 + sf * ct * d2, -sf * d1 + cf * ct * d2  # Q eta_dot
     h0, h1, h2 = _mv9(I, w0, w1, w2)
-    ST = (0.0, h2, -h1, -h2, 0.0, h0, h1, -h0, 0.0)
-    C1 = _mm9(Qt, _mm9(ST, Q))
-    C2 = _mm9(Qt, _mm9(I, _Qd9(e0, e1, d0, d1)))
-    C = (
-        C1[0] + C2[0],
-        C1[1] + C2[1],
-        C1[2] + C2[2],
-        C1[3] + C2[3],
-        C1[4] + C2[4],
-        C1[5] + C2[5],
-        C1[6] + C2[6],
-        C1[7] + C2[7],
-        C1[8] + C2[8],
-    )
+    S = _AQ((0.0, h2, -h1, -h2, 0.0, h0, h1, -h0, 0.0), cf, sf, ct, st)  # S(h)^T Q
+    # I Q_dot: Q_dot's first column is zero
+    q4, q7 = -sf * d0, -cf * d0
+    q2, q5, q8 = -ct * d1, cf * ct * d0 - sf * st * d1, -sf * ct * d0 - cf * st * d1
+    IQd = (
+        0.0, I[1] * q4 + I[2] * q7, I[0] * q2 + I[1] * q5 + I[2] * q8,
+        0.0, I[4] * q4 + I[5] * q7, I[3] * q2 + I[4] * q5 + I[5] * q8,
+        0.0, I[7] * q4 + I[8] * q7, I[6] * q2 + I[7] * q5 + I[8] * q8,
+    )  # fmt: skip
+    C = _QtA(
+        (S[0] + IQd[0], S[1] + IQd[1], S[2] + IQd[2], S[3] + IQd[3], S[4] + IQd[4], S[5] + IQd[5], S[6] + IQd[6],
+         S[7] + IQd[7], S[8] + IQd[8]),
+        cf, sf, ct, st,
+    )  # fmt: skip
     return Q, M, C
 
 

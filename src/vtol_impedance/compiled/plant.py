@@ -179,6 +179,7 @@ def _lag(pp, g, f):
 
 @kernel(inline="always")
 def _clipped(pp, f_cmd, i):
+    """Rotor ``i``'s command within its limits."""
     return min(max(f_cmd[i], pp.f_min[i]), pp.f_max[i])
 
 
