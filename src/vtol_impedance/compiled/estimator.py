@@ -59,8 +59,15 @@ def _angle_at(h, col, d):
     i = int(math.floor(d + 1e-9))
     g = d - i
     a = h[i].eta[col]
-    diff = h[i + 1].eta[col] - a
-    return a + g * ((diff + math.pi) % (2.0 * math.pi) - math.pi)
+    w = h[i + 1].eta[col] - a + math.pi
+    # w % 2 pi into [0, 2 pi), and the same bits (fmod is exact, and so is w - 2 pi there), without an
+    # fmod call in the usual case of one turn at most
+    two_pi = 2.0 * math.pi
+    if w >= two_pi:
+        w = w - two_pi if w < 2.0 * two_pi else w % two_pi
+    elif w < 0.0:
+        w = w + two_pi if w >= -two_pi else w % two_pi
+    return a + g * (w - math.pi)
 
 
 @kernel(inline="always")
@@ -94,9 +101,8 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
         da = d.d_att
         la = _beta_lin(_angle_at(h, 0, da + 1.0), _angle_at(h, 1, da + 1.0), _angle_at(h, 2, da + 1.0), u_w, m)
         lb = _beta_lin(_angle_at(h, 0, da), _angle_at(h, 1, da), _angle_at(h, 2, da), u_w, m)
-        ep, dp = s.eta_prev, s.eta_dot_prev
-        Qp, Mp, Cp = _QMC(ep[0], ep[1], dp[0], dp[1], dp[2], I)
-        aa = _beta_ang(Qp, Cp, t0, t1, t2, dp[0], dp[1], dp[2])
+        dp = s.eta_dot_prev
+        aa = _beta_ang(s.Q_prev, s.C_prev, t0, t1, t2, dp[0], dp[1], dp[2])
         ab = _beta_ang(Q, C, t0, t1, t2, de0, de1, de2)
         beta = (la[0] + lb[0], la[1] + lb[1], la[2] + lb[2], aa[0] + ab[0], aa[1] + ab[1], aa[2] + ab[2])
         for ch in range(6):  # eq. (11), discretised: the filter G driven by the momentum residual
@@ -125,7 +131,9 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
     s.started = True
     for ch in range(6):
         s.q_prev[ch] = q[ch]
-    s.eta_prev[0], s.eta_prev[1], s.eta_prev[2] = e0, e1, e2
+    for i in range(9):  # kept for the next sample's eq. (8), which needs them at this one
+        s.Q_prev[i] = Q[i]
+        s.C_prev[i] = C[i]
     s.eta_dot_prev[0], s.eta_dot_prev[1], s.eta_dot_prev[2] = de0, de1, de2
     w = s.w_hat
     return Q, M, C, (w[0], w[1], w[2], w[3], w[4], w[5])

@@ -93,7 +93,8 @@ CONTROLLER_STATE = np.dtype(
         ("x", _F, (6, MAX_ORDER)),  # estimator filter state per channel
         ("x_new", _F, MAX_ORDER),  # scratch of the filter update
         ("q_prev", _F, 6),  # generalised momentum at the previous sample, eq. (6)
-        ("eta_prev", _F, 3),
+        ("Q_prev", _F, 9),  # Q(eta) and C(eta, eta_dot) at the previous sample, row-major (eq. (8) there)
+        ("C_prev", _F, 9),
         ("eta_dot_prev", _F, 3),
         ("started", np.bool_),
         ("w_hat", _F, 6),  # [f_hat_W; tau_hat_eta]
