@@ -66,6 +66,7 @@ def test_dataflash_written_here_reads_back_through_pymavlink(fl, tmp_path):
     att = df.recv_match(type="ATT")
     assert att.TimeUS == 2_000_000 and att.Roll == pytest.approx(math.degrees(fl.eta[0, 0]), abs=0.006)
     assert df.param("MOT_THST_HOVER") == pytest.approx(HOVER)
+    df.close()
     raw, _ = read_any(path)
     assert raw.meta["format"] == "dataflash" and "CTUN.ThH" in raw.hover.source
     f = resample(raw, 100.0)

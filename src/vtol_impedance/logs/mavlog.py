@@ -87,6 +87,14 @@ def _connect(path: Path, out: io.StringIO, err: io.StringIO):
         return mavutil.mavlink_connection(str(path))
 
 
+def _close(reader: Any) -> None:
+    """Close a pymavlink reader (its file, and a DataFlash log's memory map); what it raises is moot."""
+    try:
+        reader.close()
+    except Exception:  # noqa: BLE001 - an already-closed or half-made reader
+        pass
+
+
 class _Table:
     """Messages of one type as arrays by field."""
 
@@ -255,10 +263,11 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
             elif "TimeMS" in row:
                 row["_t"] = row["TimeMS"] * 1e-3
             tabs[typ].rows.append(row)
+    cut = _truncation_dataflash(path, reader) if n_msgs else None
+    _close(reader)
     if n_msgs == 0:
         raise InputError(f"{path} holds no DataFlash messages (not an ArduPilot .bin log, or empty)")
     notes: list[str] = []
-    cut = _truncation_dataflash(path, reader)
     if cut:
         notes.append(cut)
     skipped = err.getvalue().count("bad header") + err.getvalue().count("Skipped")
@@ -396,30 +405,33 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
     bad = 0
     autopilot = None
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        while True:
-            try:
-                m = conn.recv_match()
-            except Exception as exc:
-                err.write(f"pymavlink stopped: {type(exc).__name__}: {exc}\n")
-                break
-            if m is None:
-                break
-            typ = m.get_type()
-            if typ == "BAD_DATA":
-                bad += 1
-                continue
-            if typ not in TLOG_TYPES:
-                continue
-            src = (m.get_srcSystem(), m.get_srcComponent())
-            if typ == "PARAM_VALUE":
-                pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
-                params[pid.rstrip("\x00")] = float(m.param_value)
-                continue
-            if typ == "HEARTBEAT":
-                if autopilot is None and getattr(m, "autopilot", 8) != 8:  # 8: MAV_AUTOPILOT_INVALID (a GCS)
-                    autopilot = int(m.autopilot)
-                continue
-            raw_rows[src][typ].append(m)
+        try:
+            while True:
+                try:
+                    m = conn.recv_match()
+                except Exception as exc:
+                    err.write(f"pymavlink stopped: {type(exc).__name__}: {exc}\n")
+                    break
+                if m is None:
+                    break
+                typ = m.get_type()
+                if typ == "BAD_DATA":
+                    bad += 1
+                    continue
+                if typ not in TLOG_TYPES:
+                    continue
+                src = (m.get_srcSystem(), m.get_srcComponent())
+                if typ == "PARAM_VALUE":
+                    pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
+                    params[pid.rstrip("\x00")] = float(m.param_value)
+                    continue
+                if typ == "HEARTBEAT":
+                    if autopilot is None and getattr(m, "autopilot", 8) != 8:  # 8: MAV_AUTOPILOT_INVALID (a GCS)
+                        autopilot = int(m.autopilot)
+                    continue
+                raw_rows[src][typ].append(m)
+        finally:
+            _close(conn)
     if not raw_rows:
         raise InputError(f"{path}: no vehicle messages of interest (it has {n_frames} MAVLink frames)")
     # the autopilot: the source sending the most attitude messages

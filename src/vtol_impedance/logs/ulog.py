@@ -214,7 +214,8 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
         raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
     ULog = _pyulog()
     try:
-        ulog = ULog(str(path), list(TOPICS))
+        with open(path, "rb") as fh:  # ours to close: pyulog leaves a file it opened open when it raises
+            ulog = ULog(fh, list(TOPICS))
     except Exception as exc:  # pyulog raises several types on a corrupt or foreign file
         raise InputError(f"{path} is not a readable ULog file ({type(exc).__name__}: {exc})") from None
     notes: list[str] = []
