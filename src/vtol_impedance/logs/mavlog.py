@@ -55,7 +55,7 @@ import numpy as np
 from ..errors import InputError
 from .frames import ROTOR_SPEED_UNITS, eta_ned_frd, euler_rotation, quaternion_rotation
 from .timeseries import RawLog, Signal, typical_period
-from .ulog import RATE_TIE, rotor_geometry, torque_per_unit, vehicle_from_params
+from .ulog import RATE_TIE, fastest, rotor_geometry, torque_per_unit, vehicle_from_params
 
 #: What to request from the vehicle when a tlog lacks a stream: role -> (messages, advice).
 STREAM_ADVICE = {
@@ -138,13 +138,7 @@ def _pick(
         found.append((f"{msg}.{','.join(fields)}", t[order], vals[order], 1.0 / typical_period(t)))
     if not found:
         return None
-    best = max(f[3] for f in found)
-    pick = next(f for f in found if f[3] * RATE_TIE >= best)
-    others = [f"{f[0]} {f[3]:.3g} Hz" for f in found if f is not pick]
-    choices.append(
-        f"{role}: {pick[0]} at {pick[3]:.3g} Hz" + (f" (also in the log: {'; '.join(others)})" if others else "")
-    )
-    return pick[0], pick[1], pick[2]
+    return fastest(role, found, choices)
 
 
 def _attitude_signal(src: str, t: np.ndarray, vals: np.ndarray, kind: str) -> Signal:

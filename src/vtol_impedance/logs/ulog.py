@@ -198,6 +198,14 @@ def pick_fastest(
         raise InputError(
             f"{where}: no {role}: needs {wanted}; the log has: {', '.join(all_found) or 'no topics of interest'}"
         )
+    return fastest(role, found, choices)
+
+
+def fastest(
+    role: str, found: list[tuple[str, np.ndarray, np.ndarray, float]], choices: list[str]
+) -> tuple[str, np.ndarray, np.ndarray]:
+    """The first of ``found = [(source, t, values, rate_hz)]`` within :data:`RATE_TIE` of the highest rate
+    (the order of preference breaks near-ties), recorded in ``choices`` with the others the log has."""
     best_rate = max(f[3] for f in found)
     pick = next(f for f in found if f[3] * RATE_TIE >= best_rate)
     others = [f"{f[0]} {f[3]:.3g} Hz" for f in found if f is not pick]
