@@ -17,9 +17,11 @@ def test_quick_bench_writes_a_complete_report(tmp_path, capsys):
     assert saved["compile_first_s"] is None
     assert [b["n"] for b in saved["batched"]] == [1, 10]
     assert all(b["failed"] == 0 and b["veh_s_per_s"] > 0 and b["peak_rss_mb"] > 0 for b in saved["batched"])
-    for key in ("single_compiled", "single_numpy", "single_mujoco"):
+    for key in ("single_compiled", "single_numpy", "single_mujoco", "batch_mujoco"):
         assert saved[key]["real_time_factor"] > 0
+    assert saved["batch_mujoco"]["vehicles"] == 2
     lat = saved["latency"]
     assert 0 < lat["step_arrays_median_us"] <= lat["step_arrays_p99_us"]
     text = table(saved)
     assert "NumPy ref." in text and "batched N = 10" in text and "RotorPy" in text and "MuJoCo plant" in text
+    assert "2 vehicles on MuJoCo (threads), per vehicle" in text

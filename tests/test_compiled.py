@@ -182,3 +182,24 @@ def test_a_crash_into_the_ground_is_flagged(backend):
     assert r.failures[0] is None
     assert r.failures[1] is not None and "crashed into the ground" in r.failures[1]["reason"]
     assert 0.5 < r.failures[1]["time"] < 0.9  # free fall from 2 m takes 0.64 s
+
+
+def test_sensor_noise_drawn_in_the_kernel_is_the_stated_gaussian():
+    """The compiled engine draws each vehicle's noise inside the kernel from the vehicle's own generator:
+    the measurement minus the truth must be white, zero-mean and of the stated deviation on every channel,
+    the same for the same seed and unrelated across seeds (independent of the NumPy backend)."""
+    veh = load_preset()
+    sens = SensorParams(pos_noise=2e-3, vel_noise=1e-2, mocap_delay=0.0, att_noise=5e-3, gyro_noise=1e-2, imu_delay=0.0)
+    traj = Trajectory((Hold((0, 0, -1.0), 20.0),))
+    plants = [PlantParams(veh, ground=False)] * 3
+    ctrls = [ControllerParams.paper("pdc")] * 3
+    r = run_closed_loop(plants, ctrls, traj, 20.0, sensors=sens, seed=[11, 12, 11])
+    for meas, true, sigma in (("p_meas_W", "p_W", 2e-3), ("v_meas_W", "v_W", 1e-2), ("eta_meas", "eta", 5e-3)):
+        n = (r[meas] - r[true]) / sigma  # (3 vehicles, N, 3 axes): standard normals if all is right
+        N = n.shape[1]
+        assert np.all(np.abs(n.std(axis=1) - 1.0) < 4.0 / np.sqrt(2 * N)), meas
+        assert np.all(np.abs(n.mean(axis=1)) < 4.0 / np.sqrt(N)), meas
+        lag1 = np.mean(n[:, 1:] * n[:, :-1], axis=1)
+        assert np.all(np.abs(lag1) < 4.0 / np.sqrt(N)), meas
+        np.testing.assert_array_equal(n[0], n[2], err_msg=meas)  # same seed, same numbers
+        assert abs(np.mean(n[0] * n[1])) < 4.0 / np.sqrt(3 * N), meas  # other seed, other numbers

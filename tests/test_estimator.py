@@ -227,3 +227,39 @@ def test_online_estimator_refuses_bad_samples(kw):
         Estimator(-1.0, [0.01, 0.01, 0.02], 0.01)
     with pytest.raises(InputError):
         Estimator(1.0, [0.01, -0.01, 0.02], 0.01)
+
+
+def test_designs_are_kept_per_period_and_cannot_be_changed_by_a_caller():
+    """A design is kept for reuse (expm is most of its cost): the same filter at another period must be a
+    new design (checked against scipy's own zero-order-hold discretisation), and what a caller does to
+    the design it got must not change what the next run gets."""
+    p = EstimatorParams(wn=9.0, order=2)
+    poles = p.channel_poles()[0]
+    for Ts in (0.01, 0.004, 0.01):
+        des = design(p, Ts)
+        A, B, C, _, _ = signal.cont2discrete(signal.tf2ss([np.real(np.prod(-poles))], np.real(np.poly(poles))), Ts)
+        # same transfer function from w to r: compare impulse responses (state coordinates differ)
+        h_ref = [float((C @ np.linalg.matrix_power(A, k) @ B)[0, 0]) for k in range(30)]
+        h = [float(des.C[0] @ np.linalg.matrix_power(des.Ad[0], k) @ des.Bd[0]) for k in range(30)]
+        np.testing.assert_allclose(h, h_ref, rtol=1e-9, atol=1e-12)
+        kept = des.Ad[0][0, 0]
+        des.Ad[0][0, 0] += 1.0
+        des.Bd[:] = 0.0
+        again = design(p, Ts)
+        assert again.Ad[0][0, 0] == kept and np.all(again.Bd != 0.0)
+    a1, a2 = design(p, 0.01), design(p, 0.004)
+    assert not np.allclose(a1.Ad, a2.Ad)
+    assert a1.Ts == 0.01 and a2.Ts == 0.004
+
+
+def test_the_attitude_filter_design_is_the_exact_discretisation():
+    from vtol_impedance.control.attitude_filter import design_filter
+
+    for wn, zeta, Ts in ((20.0, 1.0, 0.01), (30.0, 0.7, 0.01), (20.0, 1.0, 0.002)):
+        f = design_filter(wn, zeta, Ts)
+        A = np.array([[0.0, 1.0], [-wn * wn, -2 * zeta * wn]])
+        Ad, Bd, *_ = signal.cont2discrete((A, np.array([[0.0], [wn * wn]]), np.eye(2), np.zeros((2, 1))), Ts)
+        np.testing.assert_allclose(f.Ad, Ad, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(f.Bd, Bd[:, 0], rtol=1e-12, atol=1e-14)
+        with pytest.raises(ValueError):
+            f.Bd[0] = 0.0

@@ -253,3 +253,49 @@ def test_closed_loop_on_mujoco_logs_the_same_truth_in_free_flight():
     np.testing.assert_allclose(b["f_ext_W"], a["f_ext_W"], atol=1e-4)
     np.testing.assert_allclose(b["f_lumped_W"], a["f_lumped_W"], atol=1e-4)
     np.testing.assert_allclose(b["tau_lumped_eta"], a["tau_lumped_eta"], atol=1e-5)
+
+
+def _rel(a, b):
+    """Largest difference relative to the signal's size (at least 1e-3 of its unit: a signal that is
+    rounding noise about zero, as a nominal vehicle's lumped wrench, has no relative precision)."""
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    scale = max(float(np.nanmax(np.abs(a))), 1e-3)
+    return float(np.nanmax(np.abs(a - b))) / scale
+
+
+@pytest.mark.parametrize("name", ["operator-push", "case-b-fan", "pendulum"])
+def test_the_compiled_controller_on_mujoco_flies_as_the_numpy_one(name):
+    """``backend="mujoco"`` (the compiled engine's tick between MuJoCo's periods) against
+    ``"mujoco-numpy"`` (the NumPy controller, sensors and lumped wrench): the same plant, the same noise,
+    so the same flight; with a push (forces known in advance: one rollout per period), a fan (a force of
+    the state: step by step) and a swinging pendulum."""
+    spec = set_value(get(name), "duration", 3.0)
+    if name == "operator-push":
+        spec = set_value(spec, "disturbances.0.t_on", 1.0)
+    a = simulate(spec, ["pd", "pdc"], backend="mujoco-numpy")
+    b = simulate(spec, ["pd", "pdc"], backend="mujoco")
+    assert a.failures == b.failures == [None, None]
+    for k in a.data:
+        assert _rel(a[k], b[k]) <= 1e-9, k
+    assert np.abs(b["f_ext_W"]).max() > 0.05  # something pushed
+
+
+def test_a_vehicle_failing_on_mujoco_is_parked_the_same_way_by_both_controllers():
+    from dataclasses import replace
+
+    from vtol_impedance.control import ControllerParams
+    from vtol_impedance.control.reference import Hold, Trajectory
+    from vtol_impedance.sim import SensorParams
+    from vtol_impedance.sim.loop import run_closed_loop
+
+    veh = load_preset()
+    good = _plant()
+    bad = PlantParams(replace(veh, f_max=1e3), inertia_scale=(0.02, 0.02, 0.02), ground=False)
+    traj = Trajectory((Hold((0, 0, -1.0), 2.0),))
+    kw = dict(sensors=SensorParams(), seed=1, labels=["good", "bad"], log="decimate:2")
+    runs = [run_closed_loop([good, bad], [ControllerParams.paper()] * 2, traj, 2.0, backend=b, **kw)
+            for b in ("mujoco-numpy", "mujoco")]  # fmt: skip
+    assert runs[0].failures == runs[1].failures
+    assert runs[1].failures[0] is None and runs[1].failures[1] is not None
+    for k in runs[0].data:
+        assert _rel(runs[0][k][0], runs[1][k][0]) <= 1e-9, k  # the other vehicle flies on, untouched

@@ -92,29 +92,33 @@ def _rotorpy(duration: float) -> dict[str, Any] | str:
         return f"failed: {str(exc)[-300:]}"
 
 
-def _single(backend: str, duration: float | None, repeats: int | None = None) -> dict[str, float]:
+def _single(backend: str, duration: float | None, repeats: int | None = None, vehicles: int = 1) -> dict[str, float]:
     """Case C (realistic plant, PD+C) through ``simulate``, all of it timed (building, the flight, the result);
-    ``duration=None``: the scenario's own (46 s), as the yardstick's comparison flies it."""
+    ``duration=None``: the scenario's own (46 s), as the yardstick's comparison flies it. ``vehicles > 1``:
+    that many copies in one batch; the real-time factor is then per vehicle (simulated vehicle-seconds per
+    second)."""
     from .scenarios import get, set_value, simulate
 
     spec = get("case-c-circle") if duration is None else set_value(get("case-c-circle"), "duration", duration)
-    simulate(set_value(spec, "duration", 0.05), ["pdc"], backend=backend)  # warm-up / compile
+    variants = ["pdc"] * vehicles
+    simulate(set_value(spec, "duration", 0.05), variants, backend=backend)  # warm-up / compile
     wall = float("inf")
     for _ in range(repeats or (3 if backend == "compiled" else 1)):  # best of three where it is cheap
         t = time.perf_counter()
-        r = simulate(spec, ["pdc"], backend=backend)
+        r = simulate(spec, variants, backend=backend)
         wall = min(wall, time.perf_counter() - t)
     sim_s = float(r.t[-1] + (r.t[1] - r.t[0]))
-    return {"sim_seconds": sim_s, "wall": wall, "real_time_factor": sim_s / wall}
+    return {"sim_seconds": sim_s, "wall": wall, "real_time_factor": vehicles * sim_s / wall, "vehicles": vehicles}
 
 
-def _mujoco(duration: float) -> dict[str, float] | str:
-    """The same flight on MuJoCo's physics (the NumPy controller), if the extra is installed."""
+def _mujoco(duration: float, vehicles: int = 1) -> dict[str, float] | str:
+    """The same flight on MuJoCo's physics (the compiled controller), if the extra is installed; with more
+    vehicles, MuJoCo steps them in threads (one rollout per control period)."""
     try:
         import mujoco  # noqa: F401
     except ImportError:
         return "not installed (pip install 'vtol-impedance[mujoco]')"
-    return _single("mujoco", duration)
+    return _single("mujoco", duration, repeats=2, vehicles=vehicles)
 
 
 def _latency(calls: int) -> dict[str, float]:
@@ -306,6 +310,7 @@ def run(
     res["single_compiled"] = _single("compiled", 5.0 if quick else 46.0)
     res["single_numpy"] = _single("numpy", 1.0 if quick else 5.0)
     res["single_mujoco"] = _mujoco(1.0 if quick else 5.0)
+    res["batch_mujoco"] = _mujoco(1.0 if quick else 5.0, vehicles=2 if quick else 8)
     log("controller + estimator step latency ...")
     res["latency"] = _latency(2000 if quick else 50000)
     log("wrench estimation on a flight log ...")
@@ -333,11 +338,14 @@ def table(res: dict[str, Any]) -> str:
         f"single vehicle, case C realistic, compiled       {sc['real_time_factor']:10.0f} x real time",
         f"single vehicle, case C realistic, NumPy ref.     {sn['real_time_factor']:10.2f} x real time",
     ]
-    smj = res.get("single_mujoco")
+    smj, bmj = res.get("single_mujoco"), res.get("batch_mujoco")
     if isinstance(smj, dict):
         lines.append(f"single vehicle, case C realistic, MuJoCo plant   {smj['real_time_factor']:10.2f} x real time")
     elif smj:
         lines.append(f"MuJoCo plant                                     {smj}")
+    if isinstance(bmj, dict):
+        what = f"{bmj['vehicles']:d} vehicles on MuJoCo (threads), per vehicle"
+        lines.append(f"{what:<49}{bmj['real_time_factor']:10.2f} x real time")
     lines += [
         f"step_arrays latency, median / p99                {lat['step_arrays_median_us']:6.2f} / "
         f"{lat['step_arrays_p99_us']:.2f} us",

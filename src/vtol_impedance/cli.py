@@ -88,12 +88,12 @@ def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()
 
 
 def _backend(args: argparse.Namespace) -> str:
-    """``--plant mujoco`` puts MuJoCo's physics under the NumPy controller, whatever ``--backend`` says."""
+    """``--plant mujoco`` puts MuJoCo's physics under the controller of ``--backend`` (compiled or NumPy)."""
     if args.plant == "mujoco":
         from .sim.mjplant import require_mujoco
 
         require_mujoco()
-        return "mujoco"
+        return "mujoco" if args.backend == "compiled" else "mujoco-numpy"
     return args.backend
 
 
@@ -195,7 +195,7 @@ def _finish(
         "rotor lag, drag, disturbances), computed from the true motion. 'limited' is the share of the time in "
         "which the rotor allocation or the tilt limit gave something up.",
     ]
-    if any(r.config.get("backend") == "mujoco" for r in results.values()):
+    if any(str(r.config.get("backend")).startswith("mujoco") for r in results.values()):
         from .io import _versions
 
         notes.append(
@@ -349,7 +349,7 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
             print("drawing the animation ...", file=sys.stderr)
         figs = _write_case(result, folder, spec.name, not args.no_plots, args.animate)
         mfiles, mtables = _write_margins(margins[spec.name], folder, spec.name, not args.no_plots)
-        if backend == "mujoco":
+        if backend.startswith("mujoco"):
             figs.append(_write_mjcf(spec, folder))
         _finish(
             folder,
@@ -397,7 +397,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
             figs = _write_case(res, folder, spec.name, not args.no_plots)
             mfiles, tabs = _write_margins(margins[spec.name], folder, spec.name, not args.no_plots)
             mtables += tabs
-            if backend == "mujoco":
+            if backend.startswith("mujoco"):
                 _write_mjcf(spec, folder)
             figures[spec.name] = [p for p in figs + mfiles if p.suffix == ".png"]
         title = "Ruggiero et al. (ICRA 2014) case studies, simulated" + (
@@ -894,8 +894,8 @@ def build_parser() -> argparse.ArgumentParser:
             "--plant",
             choices=["builtin", "mujoco"],
             default="builtin",
-            help="the physics: this package's plant, or MuJoCo's (an independent engine, flown by the NumPy "
-            "controller; needs: pip install 'vtol-impedance[mujoco]')",
+            help="the physics: this package's plant, or MuJoCo's (an independent engine, flown by the controller "
+            "of --backend; needs: pip install 'vtol-impedance[mujoco]')",
         )
 
     sp = sub.add_parser("paper", help="all three case studies with PD, PID and PD+C: figures, table, report")

@@ -11,6 +11,18 @@ from .jit import kernel
 
 
 @kernel(inline="always")
+def mod_2pi(w):
+    """``w % (2 pi)`` in ``[0, 2 pi)`` with the same bits as the ``%`` operator, without its ``fmod`` call
+    in the usual case of one turn at most (there ``fmod`` is exact and so is ``w -+ 2 pi``)."""
+    two_pi = 2.0 * math.pi
+    if w >= two_pi:
+        return w - two_pi if w < 2.0 * two_pi else w % two_pi
+    if w < 0.0:
+        return w + two_pi if w >= -two_pi else w % two_pi
+    return w
+
+
+@kernel(inline="always")
 def _Q9(f, t):
     cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
     return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)

@@ -22,7 +22,7 @@ from numba import from_dtype, types
 
 from ..control.impedance import ControllerArrays
 from ..conventions import SINGULARITY_COS_EPS, G
-from .algebra import _mm9, _mv9, _solve9, _t9
+from .algebra import _mm9, _mv9, _solve9, _t9, mod_2pi
 from .estimator import estimator_update, pack_design
 from .estimator import initial_state as estimator_initial_state
 from .jit import kernel
@@ -65,9 +65,10 @@ def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):
     return m * a, phi, theta, (vert < min_lift) or (scale < 1.0)
 
 
-@kernel()
+@kernel(inline="always")
 def _wrap(a):
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    """``a`` into ``[-pi, pi)``, as :func:`vtol_impedance.model.kinematics.wrap_angle`."""
+    return mod_2pi(a + math.pi) - math.pi
 
 
 @kernel()

@@ -3,16 +3,22 @@
 Per control period it does exactly what :func:`vtol_impedance.sim.loop.run_closed_loop` does with the
 NumPy backend (read delayed noisy sensors, controller step, log, hold the rotor command for ``n_sub``
 RK4 plant steps, check for divergence), using the kernels of :mod:`.controller` and :mod:`.plant`.
-Randomness is drawn outside, in NumPy, and passed in per block, so both backends consume the same
-numbers. Data layouts are those of :mod:`.layouts`; the log rows are :data:`vtol_impedance.records.LOG_ROW`.
+Sensor noise comes from each vehicle's own NumPy generator (:class:`vtol_impedance.sim.sensors.NoiseSource`),
+drawn inside the kernel, twelve standard normals per tick, in the order the NumPy backend draws them:
+numba's ``Generator.standard_normal`` advances the same generator state with the same algorithm, so
+both backends see the same numbers (``tests/test_compiled.py`` checks it) and the draws run in the
+vehicles' threads. Data layouts are those of :mod:`.layouts`; the log rows are :data:`vtol_impedance.records.LOG_ROW`.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 from numba import prange
+from numba.core.errors import NumbaPendingDeprecationWarning
+from numba.typed import List
 
 from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, MAX_DISTANCE_M, MAX_TILT_RAD
 from .algebra import _Q9, _solve9
@@ -26,6 +32,7 @@ from .plant import (
     euler_of,
     lowest_contact_depth,
     lumped_wrench,
+    origin_acceleration,
     plant_derivative,
     rk4_step,
 )
@@ -139,25 +146,52 @@ def _failure(pp, x):
     return 0
 
 
+@kernel(inline="always")
+def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, r, logs_b, dec, acc_b, win,
+                  o, y, noise, f_l, t_l, tau_prev):  # fmt: skip
+    """Control tick ``k`` (time ``t``) of one vehicle, whichever plant flies it: its sensors (the states
+    ``xm``, ``xi`` they read, and twelve normals from ``gen`` in the order of ``NoiseSource.block``), the
+    controller step (the rotor command in ``o``), the lumped wrench from the truth at ``t`` (the state ``x``,
+    the body origin's acceleration ``a_o`` (world), ``w_dot`` (body) and ``env = [f_ext_W, tau_ext_B]``),
+    the window metrics and the log row. ``y``, ``noise``, ``f_l``, ``t_l``, ``tau_prev`` are scratch."""
+    for i in range(12):  # [position, velocity, attitude, gyro]
+        noise[i] = gen.standard_normal()
+    _measure(pp_b, xm, xi, sigma, noise, y)
+    u_prev = s_b.thrust_prev
+    for i in range(3):
+        tau_prev[i] = s_b.tau_B_prev[i]
+    controller_step(p_b, des, s_b, h_b, y, r, o)
+    R = _R_of(x.q_WB)
+    eta = euler_of(R)
+    lumped_wrench(a_o, x.omega_B, w_dot, R, eta, u_prev, tau_prev, p_b.mass, _nominal_inertia(p_b), f_l, t_l)
+    po = _origin(pp_b, x, R)
+    p_o, v_o = (po[0], po[1], po[2]), (po[3], po[4], po[5])
+    if win[0] <= t <= win[1]:
+        _accumulate(acc_b, t, win, p_o, v_o, r, o, f_l, t_l)
+    if dec > 0 and k % dec == 0:
+        _log(logs_b[k // dec], pp_b, x, r, y, o, env, eta, f_l, t_l, p_o, v_o)
+
+
 @kernel(parallel=True)
-def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp, dists,
+def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
               series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Advance every live vehicle from control tick ``k0`` to ``k1``.
 
     ``X (B,)``: plant states; ``hist (B, H)``, ``hcount``, ``hhead``: each vehicle's ring of past states for
     the sensor delays; ``S (B,)``, ``EH (B, H_est)``: controller states and timing histories; ``p (B,)``,
     ``d (1,)``, ``pp (B,)``: controllers, shared design, plants; ``dists (D,)``, ``series``: disturbances;
-    ``refs (N, 18)``: reference samples. ``logs (B, n_log)`` gets row ``k // dec`` when ``dec > 0`` and
+    ``refs (N, 18)``: reference samples; ``gens``: each vehicle's noise generator (a typed list,
+    :func:`noise_generators`). ``logs (B, n_log)`` gets row ``k // dec`` when ``dec > 0`` and
     ``k % dec == 0``; ``acc (B,)`` collects the window metrics (``win = [t0, t1, tail_start]``).
     """
     for b in prange(X.shape[0]):
         if alive[b]:  # records are handled in a function of their own: numba's parallel body mishandles them
-            _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp,
+            _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp,
                  dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win)  # fmt: skip
 
 
 @kernel()
-def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, noise, S, EH, p, d, pp, dists,
+def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
          series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
     x, pp_b, p_b, s_b, h_b, des = X[b], pp[b], p[b], S[b], EH[b], d[0]
@@ -165,6 +199,8 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     o_, xd_ = _scratch()
     o, xd = o_[0], xd_[0]
     y = np.empty(12)
+    noise = np.empty(12)
+    gen = gens[np.int64(b)]  # prange gives an unsigned index; the typed list takes a signed one
     env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
     dist = np.empty(6)  # explicit disturbances, held over each plant step
     f_l = np.empty(3)
@@ -177,29 +213,16 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     H = hist.shape[1]
     for k in range(k0, k1):
         t = k * Ts
-        j = k - k0
-        _measure(pp_b, _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu),
-                 sigma, noise[b, j], y)  # fmt: skip
-        u_prev = s_b.thrust_prev
-        for i in range(3):
-            tau_prev[i] = s_b.tau_B_prev[i]
-        r = refs[k]
-        controller_step(p_b, des, s_b, h_b, y, r, o)
-        f_cmd = o.f_rotor
-
-        # true and lumped wrenches at t_k
+        # the truth at t_k (the rotor-lag rate the derivative also gives is not used here)
         if has_dists:
             disturbance_at(pp_b, x, t, dists, series, dist)
-        plant_derivative(pp_b, x, f_cmd, dist, xd, env)
-        R = _R_of(x.q_WB)
-        eta = euler_of(R)
-        lumped_wrench(pp_b, x, xd, R, eta, u_prev, tau_prev, p_b.mass, _nominal_inertia(p_b), f_l, t_l)
-        po = _origin(pp_b, x, R)
-        p_o, v_o = (po[0], po[1], po[2]), (po[3], po[4], po[5])
-        if win[0] <= t <= win[1]:
-            _accumulate(acc[b], t, win, p_o, v_o, r, o, f_l, t_l)
-        if dec > 0 and k % dec == 0:
-            _log(logs[b, k // dec], pp_b, x, r, y, o, env, eta, f_l, t_l, p_o, v_o)
+        plant_derivative(pp_b, x, x.f_rotor, dist, xd, env)
+        a_o = origin_acceleration(pp_b, x, xd, _R_of(x.q_WB))
+        w_dot = (xd.omega_B[0], xd.omega_B[1], xd.omega_B[2])
+        xm, xi = _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu)
+        _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, refs[k], logs[b], dec,
+                      acc[b], win, o, y, noise, f_l, t_l, tau_prev)  # fmt: skip
+        f_cmd = o.f_rotor
 
         # hold the command over the period
         if up_now or down_now:  # a rotor follows its command at once in a direction without lag
@@ -225,6 +248,52 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
             fail_time[b] = t + Ts
             X[b] = x_park[b]
             return
+
+
+@kernel()
+def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, gens, S, EH, p, d, pp, refs, alive, logs, dec, acc, win, F):
+    """Control tick ``k`` of every live vehicle flown by another plant (MuJoCo, :mod:`vtol_impedance.sim.mjplant`),
+    which gives the states ``X (B,)``, those the sensors read ``XM``, ``XI`` and the truth at the tick:
+    ``A_O (B, 3)`` the body origin's acceleration (world), ``W_DOT (B, 3)`` (body), ``ENV (B, 6)`` the external
+    wrench ``[f_ext_W, tau_ext_B]``. Writes the rotor commands to ``F (B, n)``; logs and metrics as
+    :func:`run_block`."""
+    o_, _ = _scratch()
+    o = o_[0]
+    y, noise, f_l, t_l, tau_prev = np.empty(12), np.empty(12), np.empty(3), np.empty(3), np.empty(3)
+    for b in range(X.shape[0]):
+        if alive[b]:
+            w_dot = (W_DOT[b, 0], W_DOT[b, 1], W_DOT[b, 2])
+            _control_tick(k, k * Ts, pp[b], p[b], d[0], S[b], EH[b], XM[b], XI[b], X[b], A_O[b], w_dot, ENV[b],
+                          sigma, gens[b], refs[k], logs[b], dec, acc[b], win,
+                          o, y, noise, f_l, t_l, tau_prev)  # fmt: skip
+            for i in range(F.shape[1]):
+                F[b, i] = o.f_rotor[i]
+
+
+@kernel()
+def failure_codes(pp, X, alive, code):
+    """Why each live vehicle of ``X (B,)`` must stop (0: it flies on), into ``code (B,)``: the check the
+    engine makes after every period, for a plant stepped elsewhere (MuJoCo)."""
+    for b in range(X.shape[0]):
+        code[b] = _failure(pp[b], X[b]) if alive[b] else 0
+
+
+def noise_generators(gens: list) -> object:
+    """The vehicles' NumPy generators as the typed list :func:`run_block` takes (the same objects: what
+    the kernel draws advances them)."""
+    if not gens:
+        raise ValueError("noise_generators needs at least one generator")
+    with warnings.catch_warnings():  # one call converts the whole list (numba's reflected list)
+        warnings.simplefilter("ignore", NumbaPendingDeprecationWarning)
+        return _typed_list(gens)
+
+
+@kernel()
+def _typed_list(gens):
+    out = List()
+    for g in gens:
+        out.append(g)
+    return out
 
 
 @kernel()

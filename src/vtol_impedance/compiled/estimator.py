@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimator.momentum import EstimatorDesign
-from .algebra import _QMC, _beta_ang, _beta_lin, _mv9, _solve9, _t9
+from .algebra import _QMC, _beta_ang, _beta_lin, _mv9, _solve9, _t9, mod_2pi
 from .jit import kernel
 from .layouts import CONTROLLER_STATE, DESIGN, HISTORY, MAX_ORDER, fill
 
@@ -59,15 +59,7 @@ def _angle_at(h, col, d):
     i = int(math.floor(d + 1e-9))
     g = d - i
     a = h[i].eta[col]
-    w = h[i + 1].eta[col] - a + math.pi
-    # w % 2 pi into [0, 2 pi), and the same bits (fmod is exact, and so is w - 2 pi there), without an
-    # fmod call in the usual case of one turn at most
-    two_pi = 2.0 * math.pi
-    if w >= two_pi:
-        w = w - two_pi if w < 2.0 * two_pi else w % two_pi
-    elif w < 0.0:
-        w = w + two_pi if w >= -two_pi else w % two_pi
-    return a + g * (w - math.pi)
+    return a + g * (mod_2pi(h[i + 1].eta[col] - a + math.pi) - math.pi)
 
 
 @kernel(inline="always")

@@ -420,25 +420,36 @@ def rk4_step(pp, x, f_cmd, dist, dt):
         v[2] -= vr * n2
 
 
-@kernel()
-def lumped_wrench(pp, x, xd, R, eta, u_prev, tau_prev, m_nom, I_nom, f, tau_eta):
-    """What the nominal model (mass ``m_nom``, inertia ``I_nom`` as a 9-tuple) misses, as
-    :func:`vtol_impedance.sim.loop._lumped_wrench`: ``f`` (world) and ``tau_eta`` (Euler coordinates)."""
+@kernel(inline="always")
+def origin_acceleration(pp, x, xd, R):
+    """The body origin's acceleration (world) from the CoM's: ``a_com - R (w_dot x c + w x (w x c))``."""
     c, w, wd = pp.c_B, x.omega_B, xd.omega_B
     w0, w1, w2 = w[0], w[1], w[2]
     a0, a1, a2 = wd[0], wd[1], wd[2]
-    # acceleration of the origin: a_com - R (w_dot x c + w x (w x c))
     u0, u1, u2 = w1 * c[2] - w2 * c[1], w2 * c[0] - w0 * c[2], w0 * c[1] - w1 * c[0]
     s0 = (a1 * c[2] - a2 * c[1]) + (w1 * u2 - w2 * u1)
     s1 = (a2 * c[0] - a0 * c[2]) + (w2 * u0 - w0 * u2)
     s2 = (a0 * c[1] - a1 * c[0]) + (w0 * u1 - w1 * u0)
+    a = xd.v_com_W
+    return (
+        a[0] - (R[0] * s0 + R[1] * s1 + R[2] * s2),
+        a[1] - (R[3] * s0 + R[4] * s1 + R[5] * s2),
+        a[2] - (R[6] * s0 + R[7] * s1 + R[8] * s2),
+    )
+
+
+@kernel()
+def lumped_wrench(a_o, omega, w_dot, R, eta, u_prev, tau_prev, m_nom, I_nom, f, tau_eta):
+    """What the nominal model (mass ``m_nom``, inertia ``I_nom`` as a 9-tuple) misses, as
+    :func:`vtol_impedance.sim.loop._lumped_wrench`: ``f`` (world) and ``tau_eta`` (Euler coordinates), from
+    the body origin's acceleration ``a_o`` (world), the body rate ``omega`` and ``w_dot`` (body), whichever
+    plant computed them."""
     for i in range(3):
-        a_o = xd.v_com_W[i] - (R[3 * i] * s0 + R[3 * i + 1] * s1 + R[3 * i + 2] * s2)
-        f[i] = m_nom * (a_o - (G if i == 2 else 0.0)) + u_prev * R[3 * i + 2]
+        f[i] = m_nom * (a_o[i] - (G if i == 2 else 0.0)) + u_prev * R[3 * i + 2]
     Q = _Q9(eta[0], eta[1])
-    d0, d1, d2 = _solve9(Q, w0, w1, w2)
+    d0, d1, d2 = _solve9(Q, omega[0], omega[1], omega[2])
     qd = _mv9(_Qd9(eta[0], eta[1], d0, d1), d0, d1, d2)
-    dd0, dd1, dd2 = _solve9(Q, a0 - qd[0], a1 - qd[1], a2 - qd[2])
+    dd0, dd1, dd2 = _solve9(Q, w_dot[0] - qd[0], w_dot[1] - qd[1], w_dot[2] - qd[2])
     _, M, C = _QMC(eta[0], eta[1], d0, d1, d2, I_nom)
     me = _mv9(M, dd0, dd1, dd2)
     ce = _mv9(C, d0, d1, d2)

@@ -7,6 +7,7 @@ derivatives for eq. (18b).
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -31,12 +32,21 @@ class FilterState(NamedTuple):
 def design_filter(wn: float, zeta: float, Ts: float) -> FilterDesign:
     wn = scalar("attitude filter wn", wn, lo=0.0, lo_open=True)
     zeta = scalar("attitude filter zeta", zeta, lo=0.0, lo_open=True)
+    return _design(wn, zeta, float(Ts))
+
+
+@functools.lru_cache(maxsize=256)
+def _design(wn: float, zeta: float, Ts: float) -> FilterDesign:
+    """The exact zero-order-hold discretisation (kept for reuse: a batch designs the same filter for every
+    vehicle; the arrays are read-only)."""
     A = np.array([[0.0, 1.0], [-wn * wn, -2.0 * zeta * wn]])
     aug = np.zeros((3, 3))
     aug[:2, :2] = A * Ts
     aug[1, 2] = wn * wn * Ts
     E = scipy.linalg.expm(aug)
-    return FilterDesign(E[:2, :2], E[:2, 2], wn, zeta)
+    Ad, Bd = E[:2, :2], E[:2, 2]
+    Ad.flags.writeable = Bd.flags.writeable = False
+    return FilterDesign(Ad, Bd, wn, zeta)
 
 
 def filter_step(

@@ -53,6 +53,7 @@ binomial or Butterworth prototype or user poles.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -226,6 +227,28 @@ class EstimatorDesign(NamedTuple):
         return self.lag + self.Ts * np.repeat([self.dv, self.da], 3)
 
 
+@functools.lru_cache(maxsize=256)
+def _channel(poles: tuple[complex, ...], Ts: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """One channel's ``Ad, Bd, C, CA, CB``: the filter with these poles in companion form, discretised
+    exactly for a zero-order-hold input. Kept for reuse (expm is most of a design's time; a sweep or a
+    batch designs the same filter many times); the arrays are read-only."""
+    n = len(poles)
+    coeffs = np.real(np.poly(np.array(poles)))  # s^n + a1 s^(n-1) + ... + an
+    A = np.zeros((n, n))
+    A[:-1, 1:] = np.eye(n - 1)
+    A[-1, :] = -coeffs[1:][::-1]
+    aug = np.zeros((n + 1, n + 1))
+    aug[:n, :n] = A * Ts
+    aug[n - 1, n] = Ts
+    E = scipy.linalg.expm(aug)
+    C = np.zeros(n)
+    C[0] = coeffs[-1]
+    out = E[:n, :n], E[:n, n], C, C @ A
+    for arr in out:
+        arr.flags.writeable = False
+    return (*out, float(C[n - 1]) if n == 1 else 0.0)  # B = e_n: only order 1 feeds w straight into r_dot
+
+
 def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
     """Exact zero-order-hold discretisation of ``G_i(s)`` for the sampling period ``Ts`` (s)."""
     Ts = scalar("Ts", Ts, lo=0.0, lo_open=True)
@@ -251,24 +274,7 @@ def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
     CB = np.zeros(6)
     lag = np.real(np.sum(1.0 / -poles, axis=1))
     for i in range(6):
-        same = [j for j in range(i) if np.array_equal(poles[j], poles[i])]
-        if same:  # channels of one bandwidth share their matrices (expm is most of a design's time)
-            j = same[0]
-            Ad[i], Bd[i], C[i], CA[i], CB[i] = Ad[j], Bd[j], C[j], CA[j], CB[j]
-            continue
-        coeffs = np.real(np.poly(poles[i]))  # s^n + a1 s^(n-1) + ... + an
-        A = np.zeros((n, n))
-        A[:-1, 1:] = np.eye(n - 1)
-        A[-1, :] = -coeffs[1:][::-1]
-        aug = np.zeros((n + 1, n + 1))
-        aug[:n, :n] = A * Ts
-        aug[n - 1, n] = Ts
-        E = scipy.linalg.expm(aug)
-        Ad[i] = E[:n, :n]
-        Bd[i] = E[:n, n]
-        C[i, 0] = coeffs[-1]
-        CA[i] = C[i] @ A
-        CB[i] = C[i, n - 1] if n == 1 else 0.0  # B = e_n: only order 1 feeds w straight into r_dot
+        Ad[i], Bd[i], C[i], CA[i], CB[i] = _channel(tuple(complex(p) for p in poles[i]), Ts)
     dv, da = params.velocity_delay / Ts, params.attitude_delay / Ts
     alpha = float(np.exp(-Ts / params.rotor_tau)) if params.rotor_tau > 0 else 0.0
     gamma = params.rotor_tau / Ts * (1.0 - alpha) if params.rotor_tau > 0 else 0.0

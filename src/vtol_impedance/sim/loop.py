@@ -74,13 +74,15 @@ from .plant import (
 from .result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
 from .sensors import NoiseSource, SensorParams, SensorSuite
 
-#: Bytes of random numbers drawn per block (bounds memory for large batches).
+#: Bytes of random numbers per block (NumPy backend); the compiled one, which draws as it goes, returns
+#: to Python (progress, interruption) after as many vehicle-ticks as this many bytes of noise would hold.
 BLOCK_BYTES = 50_000_000
 #: Control ticks per block of random numbers in the NumPy backend.
 BLOCK_TICKS = 200
 
-#: ``"mujoco"``: the NumPy controller flying MuJoCo's physics (:mod:`.mjplant`, the ``mujoco`` extra).
-BACKENDS = ("compiled", "numpy", "mujoco")
+#: ``"mujoco"``: the compiled controller flying MuJoCo's physics (:mod:`.mjplant`, the ``mujoco`` extra);
+#: ``"mujoco-numpy"``: the NumPy controller on it (the reference the compiled one is tested against).
+BACKENDS = ("compiled", "numpy", "mujoco", "mujoco-numpy")
 
 
 @dataclass(frozen=True)
@@ -122,15 +124,16 @@ def estimate_run(
 ) -> dict[str, float]:
     """Bytes and plant steps a run will need (the numbers :class:`Limits` are checked against)."""
     width = LOG_ROW.itemsize // 8
-    n_log = N if backend != "compiled" else ((N + dec - 1) // dec if dec else 0)
+    compiled = backend in ("compiled", "mujoco")  # decimated logs, no noise blocks
+    n_log = N if not compiled else ((N + dec - 1) // dec if dec else 0)
     mem = 8.0 * (
         B * n_log * width  # traces
         + B * history * (13 + n_rotors)  # sensor history
         + N * 12  # reference samples
         + n_dist * (N * n_sub + 2) * 6  # disturbance series at the plant rate
-    ) + min(BLOCK_BYTES, 8.0 * B * N * 12)  # noise blocks
-    if backend != "compiled":
-        mem *= 2.0  # temporaries of the batched NumPy arithmetic
+    )
+    if not compiled:  # the compiled kernels draw their noise as they go
+        mem = 2.0 * (mem + min(BLOCK_BYTES, 8.0 * B * N * 12))  # noise blocks, NumPy temporaries
     return {"memory_bytes": mem, "plant_steps": float(B) * N * n_sub}
 
 
@@ -303,9 +306,10 @@ def run_closed_loop(
         Called with the fraction done.
     config : dict, optional
         Extra entries for the result's ``config``.
-    backend : {"compiled", "numpy", "mujoco"}
-        ``"compiled"`` (numba), ``"numpy"`` (the reference) or ``"mujoco"`` (the NumPy controller on
-        MuJoCo's physics, an independent plant; needs the ``mujoco`` extra).
+    backend : {"compiled", "numpy", "mujoco", "mujoco-numpy"}
+        ``"compiled"`` (numba), ``"numpy"`` (the reference), ``"mujoco"`` (the compiled controller on
+        MuJoCo's physics, an independent plant; needs the ``mujoco`` extra) or ``"mujoco-numpy"`` (the
+        NumPy controller on MuJoCo: the same numbers, slower).
     log : str
         ``"full"`` (every control tick), ``"decimate:K"`` (every K-th), or ``"metrics"`` (no traces, only
         the per-vehicle metrics of ``window``; for large batches).
@@ -353,7 +357,7 @@ def run_closed_loop(
             raise InputError(f"window must be (t0, t1) with t0 <= t1, got {window!r}")
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if backend == "mujoco":
+    if backend.startswith("mujoco"):
         from .mjplant import require_mujoco
 
         require_mujoco()  # before any work: a clear message when the extra is missing
@@ -418,10 +422,15 @@ def run_closed_loop(
     )
     if backend == "compiled":
         rows, metrics, failures = _run_compiled(setup, progress)
-    elif backend == "mujoco":
+    elif backend.startswith("mujoco"):
         from .mjplant import MujocoPlant
 
-        rows, metrics, failures = _run_numpy(setup, progress, MujocoPlant(plants, PA, dist, x0, dt))
+        mj_plant = MujocoPlant(plants, PA, dist, x0, dt)
+        run = _run_mujoco if backend == "mujoco" else _run_numpy
+        try:
+            rows, metrics, failures = run(setup, progress, mj_plant)
+        finally:
+            mj_plant.close()
     else:
         rows, metrics, failures = _run_numpy(setup, progress)
 
@@ -510,7 +519,7 @@ def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) ->
 def _run_compiled(s: _Setup, progress: ProgressFn | None):
     from ..compiled.controller import initial_state as ctrl_initial_state
     from ..compiled.controller import pack_controller
-    from ..compiled.engine import run_block
+    from ..compiled.engine import noise_generators, run_block
     from ..compiled.layouts import ACCUMULATORS
     from .disturbances import pack_disturbances
     from .plant import pack_plant, pack_state
@@ -537,15 +546,69 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     logs = empty_log(B, n_log)
     acc = np.zeros(B, dtype=ACCUMULATORS)
     win = np.array(s.window)
-    block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))
+    gens = noise_generators(s.noise.gens)
+    block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))  # ticks between progress reports
     for k0 in range(0, s.N, block):
         k1 = min(k0 + block, s.N)
-        noise = s.noise.block(k1 - k0)
         run_block(k0, k1, s.Ts, s.dt, s.n_sub, X, hist, hcount, hhead, suite.k_mocap, suite.k_imu, suite.sigma,
-                  noise, S, EH, p, d, pp, dists, series, s.refs, alive, fail_time, fail_code, x_park, logs, s.dec,
+                  gens, S, EH, p, d, pp, dists, series, s.refs, alive, fail_time, fail_code, x_park, logs, s.dec,
                   acc, win)  # fmt: skip
         if progress is not None:
             progress(k1 / s.N)
+    failures = _failures(fail_code, fail_time)
+    return logs, _metrics_from_acc(acc, failures), failures
+
+
+def _run_mujoco(s: _Setup, progress: ProgressFn | None, plant: Any):
+    """The compiled controller flying MuJoCo (:class:`.mjplant.MujocoPlant`): per control tick MuJoCo gives
+    the truth and steps the period (one ``rollout`` call); the sensors, the controller, the lumped wrench,
+    the log and the metrics are the compiled engine's tick (:func:`vtol_impedance.compiled.engine.control_ticks`)."""
+    from ..compiled.controller import initial_state as ctrl_initial_state
+    from ..compiled.controller import pack_controller
+    from ..compiled.engine import control_ticks, failure_codes, noise_generators
+    from ..compiled.layouts import ACCUMULATORS
+    from .plant import pack_plant, pack_state
+
+    B = s.x0.shape[0]
+    if s.CA.batch_shape != (B,):
+        raise InputError("the compiled controller needs one controller per vehicle")
+    p, d = pack_controller(s.CA)
+    pp = pack_plant(s.PA)
+    S, EH = ctrl_initial_state(p, d)
+    sens = SensorSuite(s.sensors, s.PA, s.dt)
+    plant.sensor_ages = (sens.k_mocap, sens.k_imu)
+    sens.push(plant.x)
+    x_park = s.x0.copy()
+    alive = np.ones(B, dtype=bool)
+    fail_code = np.zeros(B, dtype=np.int64)
+    fail_time = np.zeros(B)
+    logs = empty_log(B, (s.N + s.dec - 1) // s.dec if s.dec else 0)
+    acc = np.zeros(B, dtype=ACCUMULATORS)
+    win = np.array(s.window)
+    gens = noise_generators(s.noise.gens)
+    F = np.zeros((B, s.PA.spins.shape[-1]))
+    report_every = max(s.N // 100, 1)
+    X = pack_state(plant.x)
+    code = np.zeros(B, dtype=np.int64)
+    for k in range(s.N):
+        t = k * s.Ts
+        a_o, w_dot, f_env, tau_env = plant.truth(t, F)
+        env = np.concatenate([f_env, tau_env], -1)
+        xm, xi = sens.delayed()
+        control_ticks(k, s.Ts, pack_state(xm), pack_state(xi), X, a_o, w_dot, env, sens.sigma, gens, S, EH, p, d, pp,
+                      s.refs, alive, logs, s.dec, acc, win, F)  # fmt: skip
+        plant.advance(t, F, s.n_sub, s.dt, sens.push)
+        X = pack_state(plant.x)
+        failure_codes(pp, X, alive, code)
+        newly = alive & (code != 0)
+        if np.any(newly):
+            fail_code[newly] = code[newly]
+            fail_time[newly] = t + s.Ts
+            alive &= ~newly
+            plant.park(alive, x_park)
+            X = pack_state(plant.x)
+        if progress is not None and (k % report_every == 0 or k == s.N - 1):
+            progress((k + 1) / s.N)
     failures = _failures(fail_code, fail_time)
     return logs, _metrics_from_acc(acc, failures), failures
 

@@ -252,6 +252,13 @@ class MujocoPlant:
         self._threads = [mj.MjData(m0) for _ in range(min(len(self.models), os.cpu_count() or 1))]
         self._full = mj.mjtState.mjSTATE_FULLPHYSICS
         self._inputs = mj.mjtState.mjSTATE_CTRL | mj.mjtState.mjSTATE_XFRC_APPLIED
+        self._pool: Any = None  # mujoco.rollout.Rollout, made at the first period, ended by close()
+
+    def close(self) -> None:
+        """End the rollout thread pool (the run does it when it ends; the plant can still be read)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
 
     # -- state conversion -------------------------------------------------------------------------------
     def set_state(self, b: int, x: np.ndarray) -> None:
@@ -321,6 +328,9 @@ class MujocoPlant:
     # -- the loop's interface ---------------------------------------------------------------------------
     def _forces(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Explicit disturbances (world force at the origin, body moment) and the origin's velocity."""
+        if not self.forces.items:  # nothing to evaluate; the origin's velocity is the free joint's
+            v_o = np.array([d.qvel[0:3] for d in self.datas]) @ T_NED_ENU.T
+            return np.zeros_like(v_o), np.zeros_like(v_o), v_o
         R = quat_to_rotation(self.x[:, QUAT])
         p_o, v_o = origin_kinematics(self.PA, self.x, R)
         f_W, tau_B = self.forces(t, p_o, v_o, R)
@@ -419,12 +429,16 @@ class MujocoPlant:
         active = [b for b in range(len(self.datas)) if not (self.failed[b] or self.frozen[b])]
         # the rotor commands, lags and the first step's forces; then each step's forces (time alone)
         f_W, tau_B, _ = self._apply(t, f_cmd)
-        R = quat_to_rotation(self.x[:, QUAT])
-        p_o, v_o = origin_kinematics(self.PA, self.x, R)
+        if self.forces.items:
+            R = quat_to_rotation(self.x[:, QUAT])
+            p_o, v_o = origin_kinematics(self.PA, self.x, R)
         m0 = self.models[0]
         inputs = np.empty((len(active), n_sub, mj.mj_stateSize(m0, self._inputs)))
         state0 = np.empty((len(active), mj.mj_stateSize(m0, self._full)))
         for j in range(n_sub):
+            if j and not self.forces.items:  # the inputs of the first step hold
+                inputs[:, j] = inputs[:, 0]
+                continue
             if j:
                 f_W, tau_B = self.forces(t + j * dt, p_o, v_o, R)
                 tau_B = np.broadcast_to(tau_B, f_W.shape)
@@ -436,8 +450,11 @@ class MujocoPlant:
         for i, b in enumerate(active):
             mj.mj_getState(self.models[b], self.datas[b], state0[i], self._full)
         if active:
-            states, _ = rollout.rollout([self.models[b] for b in active], self._threads, state0, inputs,
-                                        control_spec=self._inputs, nstep=n_sub)  # fmt: skip
+            if self._pool is None:  # one thread pool for the whole run (a pool per call costs its threads)
+                self._pool = rollout.Rollout(nthread=len(self._threads) if len(self._threads) > 1 else 0)
+            states = np.empty((len(active), n_sub, state0.shape[1]))
+            self._pool.rollout([self.models[b] for b in active], self._threads, state0, inputs,
+                               control_spec=self._inputs, nstep=n_sub, state=states)  # fmt: skip
         ages = self.sensor_ages
         wanted = set(range(n_sub)) if ages is None else {n_sub - 1 - k % n_sub for k in ages} | {n_sub - 1}
         converted = {}

@@ -36,7 +36,7 @@ from ..conventions import GRAVITY_W, G
 from ..errors import InputError, as_finite, positive, scalar
 from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
-from ..model.vehicle import VehicleParams, effectiveness
+from ..model.vehicle import MAX_ROTORS, VehicleParams, effectiveness
 
 #: State length without the rotors and the pendulum; the state is ``N_BODY + n_rotors + N_PEND`` long:
 #: ``[p_com, v_com, q, omega_B, rotor forces (n), pendulum bob from the joint r_W (3), its rate (3)]``.
@@ -453,12 +453,17 @@ def pack_plant(P: PlantArrays) -> np.ndarray:
 
 def pack_state(x: np.ndarray) -> np.ndarray:
     """States ``(B,)`` of :data:`vtol_impedance.compiled.layouts.STATE` from flat states ``(B, state_size(n))``."""
-    from ..compiled.layouts import STATE, fill
+    from ..compiled.layouts import STATE
 
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-1] - state_size(0) if x.ndim == 2 else -1
+    if not 0 < n <= MAX_ROTORS:
+        raise ValueError(f"flat states of shape (B, state_size(n)) with 1 <= n <= {MAX_ROTORS}, got {x.shape}")
     out = np.zeros(x.shape[0], dtype=STATE)
     for name, part in (("p_com_W", P_COM), ("v_com_W", V_COM), ("q_WB", QUAT), ("omega_B", OMEGA),
-                       ("f_rotor", ROTOR), ("r_pend_W", PEND_R), ("v_pend_W", PEND_V)):  # fmt: skip
-        fill(out, name, x[:, part])
+                       ("r_pend_W", PEND_R), ("v_pend_W", PEND_V)):  # fmt: skip
+        out[name] = x[:, part]
+    out["f_rotor"][:, :n] = x[:, ROTOR]
     return out
 
 

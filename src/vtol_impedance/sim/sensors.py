@@ -64,10 +64,14 @@ class SensorSuite:
     def _ago(self, k: int) -> np.ndarray:
         return self.history[max(len(self.history) - 1 - k, 0)]
 
+    def delayed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plant states the motion capture and the IMU read now (``mocap_delay``, ``imu_delay`` ago)."""
+        return self._ago(self.k_mocap), self._ago(self.k_imu)
+
     def measure(self, noise: np.ndarray) -> Measurement:
         """Measurement from the delayed states plus ``sigma * noise``; ``noise (..., 12)`` are standard
         normals ordered ``[position (3), velocity (3), attitude (3), gyro (3)]``."""
-        return measurement(self.plant, self._ago(self.k_mocap), self._ago(self.k_imu), self.sigma, noise)
+        return measurement(self.plant, *self.delayed(), self.sigma, noise)
 
     @property
     def sigma(self) -> np.ndarray:
