@@ -600,12 +600,7 @@ def _run_mujoco(s: _Setup, progress: ProgressFn | None, plant: Any):
         plant.advance(t, F, s.n_sub, s.dt, sens.push)
         X = pack_state(plant.x)
         failure_codes(pp, X, alive, code)
-        newly = alive & (code != 0)
-        if np.any(newly):
-            fail_code[newly] = code[newly]
-            fail_time[newly] = t + s.Ts
-            alive &= ~newly
-            plant.park(alive, x_park)
+        if _stop_failed(code, t + s.Ts, alive, fail_code, fail_time, plant, x_park):
             X = pack_state(plant.x)
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
             progress((k + 1) / s.N)
@@ -682,14 +677,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
 
         plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)
 
-        code = _check_vehicles(PA, plant.x)
-        newly = alive & (code != 0)
-        if np.any(newly):
-            fail_code[newly] = code[newly]
-            fail_time[newly] = t + s.Ts
-            alive &= ~newly
-            # Park failed vehicles so that their NaNs cannot reach the others' arithmetic.
-            plant.park(alive, x_park)
+        _stop_failed(_check_vehicles(PA, plant.x), t + s.Ts, alive, fail_code, fail_time, plant, x_park)
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
             progress((k + 1) / s.N)
 
@@ -701,6 +689,22 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
         res = Result(np.arange(s.N) * s.Ts, [""] * B, data, {"window": list(s.window[:2])}, failures)
         return logs[:, :0], compute_metrics(res), failures
     return logs[:, :: s.dec], [], failures
+
+
+def _stop_failed(
+    code: np.ndarray, t_end: float, alive: np.ndarray, fail_code: np.ndarray, fail_time: np.ndarray, plant: Any,
+    x_park: np.ndarray,
+) -> bool:  # fmt: skip
+    """Record the vehicles whose check ``code`` says they fail at ``t_end`` and park them, so that their NaNs
+    cannot reach the others' arithmetic (``alive`` is updated in place); whether any did."""
+    newly = alive & (code != 0)
+    if not np.any(newly):
+        return False
+    fail_code[newly] = code[newly]
+    fail_time[newly] = t_end
+    alive &= ~newly
+    plant.park(alive, x_park)
+    return True
 
 
 def _check_vehicles(PA: PlantArrays, x: np.ndarray) -> np.ndarray:

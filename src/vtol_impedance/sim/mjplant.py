@@ -341,18 +341,23 @@ class MujocoPlant:
         ``xfrc_applied``, the moment through the body-frame actuators ``moment_*`` (held in the body
         frame, as the built-in plant holds it)."""
         f_W, tau_B, v_o = self._forces(t)
-        n = self.n
+        n, P = self.n, self.PA
+        tau_flu, f_enu = tau_B @ T_FRD_FLU.T, f_W @ T_NED_ENU.T  # every vehicle at once
+        if self.lag.any():
+            act = np.zeros(f_cmd.shape)
+            for b in np.flatnonzero(self.lag):  # a vehicle without lag has no activation state
+                act[b] = self.datas[b].act[:n]
+            target = np.clip(f_cmd, P.f_min, P.f_max)
+            tau = np.where(target > act, P.tau_up[:, None], P.tau_down[:, None])
+            now = tau <= 0  # a direction without lag: the rotor is at its command at once
+            act, rate = np.where(now, target, act), np.where(now, 1.0, tau)
         for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
             d.ctrl[:n] = f_cmd[b]
-            d.ctrl[n:] = _flu(tau_B[b])
+            d.ctrl[n:] = tau_flu[b]
             if self.lag[b]:
-                target = np.clip(f_cmd[b], self.PA.f_min[b], self.PA.f_max[b])
-                up = target > d.act[:n]
-                tau = np.where(up, self.PA.tau_up[b], self.PA.tau_down[b])
-                now = tau <= 0  # a direction without lag: the rotor is at its command at once
-                d.act[:n] = np.where(now, target, d.act[:n])
-                m.actuator_dynprm[:n, 0] = np.where(now, 1.0, tau)
-            d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
+                d.act[:n] = act[b]
+                m.actuator_dynprm[:n, 0] = rate[b]
+            d.xfrc_applied[self.vehicle, 0:3] = f_enu[b]
         return f_W, tau_B, v_o
 
     def truth(self, t: float, f_cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
