@@ -220,6 +220,15 @@ def test_cli_runs_on_mujoco_and_writes_the_model(tmp_path, capsys):
     assert '"backend": "mujoco"' in (out / "wall-contact-v2.config.json").read_text()
 
 
+def test_cli_flies_the_numpy_controller_on_mujoco_when_asked(tmp_path):
+    out = tmp_path / "n"
+    code = main(["run", "operator-push", "--plant", "mujoco", "--backend", "numpy", "--duration", "0.3",
+                 "--no-plots", "--quiet", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    assert '"backend": "mujoco-numpy"' in (out / "operator-push-v3.config.json").read_text()
+    assert (out / "operator-push-v3.mjcf.xml").exists()
+
+
 def test_missing_mujoco_is_a_clear_error(monkeypatch, capsys, tmp_path):
     monkeypatch.setitem(sys.modules, "mujoco", None)  # import fails as if not installed
     b = build(get("operator-push"))
