@@ -16,7 +16,7 @@ import gc
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -516,22 +516,57 @@ def _metrics_from_acc(acc: np.ndarray, failures: list[dict[str, Any] | None]) ->
     return out
 
 
-def _run_compiled(s: _Setup, progress: ProgressFn | None):
+class _Engine(NamedTuple):
+    """What the compiled kernels take for a run, whichever plant flies it: controllers and their shared
+    design, plants, controller states and timing histories, the log and the window metrics, the noise
+    generators, and which vehicles fly on (with why and when the others stopped)."""
+
+    p: np.ndarray
+    d: np.ndarray
+    pp: np.ndarray
+    S: np.ndarray
+    EH: np.ndarray
+    logs: np.ndarray
+    acc: np.ndarray
+    win: np.ndarray
+    gens: Any
+    alive: np.ndarray
+    fail_code: np.ndarray
+    fail_time: np.ndarray
+
+
+def _engine(s: _Setup) -> _Engine:
     from ..compiled.controller import initial_state as ctrl_initial_state
     from ..compiled.controller import pack_controller
-    from ..compiled.engine import noise_generators, run_block
+    from ..compiled.engine import noise_generators
     from ..compiled.layouts import ACCUMULATORS
-    from .disturbances import pack_disturbances
-    from .plant import pack_plant, pack_state
+    from .plant import pack_plant
 
     B = s.x0.shape[0]
-    CA = s.CA
-    if CA.batch_shape != (B,):
+    if s.CA.batch_shape != (B,):
         raise InputError("the compiled backend needs one controller per vehicle")
-    p, d = pack_controller(CA)
-    pp = pack_plant(s.PA)
-    dists, series = pack_disturbances(s.dist.items)
+    p, d = pack_controller(s.CA)
     S, EH = ctrl_initial_state(p, d)
+    n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
+    return _Engine(
+        p, d, pack_plant(s.PA), S, EH, empty_log(B, n_log), np.zeros(B, dtype=ACCUMULATORS), np.array(s.window),
+        noise_generators(s.noise.gens), np.ones(B, dtype=np.bool_), np.zeros(B, dtype=np.int64), np.zeros(B),
+    )  # fmt: skip
+
+
+def _engine_result(e: _Engine) -> tuple[np.ndarray, list[dict[str, Any]], list[dict[str, Any] | None]]:
+    failures = _failures(e.fail_code, e.fail_time)
+    return e.logs, _metrics_from_acc(e.acc, failures), failures
+
+
+def _run_compiled(s: _Setup, progress: ProgressFn | None):
+    from ..compiled.engine import run_block
+    from .disturbances import pack_disturbances
+    from .plant import pack_state
+
+    e = _engine(s)
+    B = s.x0.shape[0]
+    dists, series = pack_disturbances(s.dist.items)
     suite = SensorSuite(s.sensors, s.PA, s.dt)
     X = pack_state(s.x0)
     x_park = X.copy()
@@ -539,53 +574,30 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     hist[:, 0] = X
     hcount = np.ones(B, dtype=np.int64)
     hhead = np.zeros(B, dtype=np.int64)
-    alive = np.ones(B, dtype=np.bool_)
-    fail_time = np.zeros(B)
-    fail_code = np.zeros(B, dtype=np.int64)
-    n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    logs = empty_log(B, n_log)
-    acc = np.zeros(B, dtype=ACCUMULATORS)
-    win = np.array(s.window)
-    gens = noise_generators(s.noise.gens)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))  # ticks between progress reports
     for k0 in range(0, s.N, block):
         k1 = min(k0 + block, s.N)
         run_block(k0, k1, s.Ts, s.dt, s.n_sub, X, hist, hcount, hhead, suite.k_mocap, suite.k_imu, suite.sigma,
-                  gens, S, EH, p, d, pp, dists, series, s.refs, alive, fail_time, fail_code, x_park, logs, s.dec,
-                  acc, win)  # fmt: skip
+                  e.gens, e.S, e.EH, e.p, e.d, e.pp, dists, series, s.refs, e.alive, e.fail_time, e.fail_code, x_park,
+                  e.logs, s.dec, e.acc, e.win)  # fmt: skip
         if progress is not None:
             progress(k1 / s.N)
-    failures = _failures(fail_code, fail_time)
-    return logs, _metrics_from_acc(acc, failures), failures
+    return _engine_result(e)
 
 
 def _run_mujoco(s: _Setup, progress: ProgressFn | None, plant: Any):
     """The compiled controller flying MuJoCo (:class:`.mjplant.MujocoPlant`): per control tick MuJoCo gives
     the truth and steps the period (one ``rollout`` call); the sensors, the controller, the lumped wrench,
     the log and the metrics are the compiled engine's tick (:func:`vtol_impedance.compiled.engine.control_ticks`)."""
-    from ..compiled.controller import initial_state as ctrl_initial_state
-    from ..compiled.controller import pack_controller
-    from ..compiled.engine import control_ticks, failure_codes, noise_generators
-    from ..compiled.layouts import ACCUMULATORS
-    from .plant import pack_plant, pack_state
+    from ..compiled.engine import control_ticks, failure_codes
+    from .plant import pack_state
 
+    e = _engine(s)
     B = s.x0.shape[0]
-    if s.CA.batch_shape != (B,):
-        raise InputError("the compiled controller needs one controller per vehicle")
-    p, d = pack_controller(s.CA)
-    pp = pack_plant(s.PA)
-    S, EH = ctrl_initial_state(p, d)
     sens = SensorSuite(s.sensors, s.PA, s.dt)
     plant.sensor_ages = (sens.k_mocap, sens.k_imu)
     sens.push(plant.x)
     x_park = s.x0.copy()
-    alive = np.ones(B, dtype=bool)
-    fail_code = np.zeros(B, dtype=np.int64)
-    fail_time = np.zeros(B)
-    logs = empty_log(B, (s.N + s.dec - 1) // s.dec if s.dec else 0)
-    acc = np.zeros(B, dtype=ACCUMULATORS)
-    win = np.array(s.window)
-    gens = noise_generators(s.noise.gens)
     F = np.zeros((B, s.PA.spins.shape[-1]))
     report_every = max(s.N // 100, 1)
     X = pack_state(plant.x)
@@ -595,17 +607,16 @@ def _run_mujoco(s: _Setup, progress: ProgressFn | None, plant: Any):
         a_o, w_dot, f_env, tau_env = plant.truth(t, F)
         env = np.concatenate([f_env, tau_env], -1)
         xm, xi = sens.delayed()
-        control_ticks(k, s.Ts, pack_state(xm), pack_state(xi), X, a_o, w_dot, env, sens.sigma, gens, S, EH, p, d, pp,
-                      s.refs, alive, logs, s.dec, acc, win, F)  # fmt: skip
+        control_ticks(k, s.Ts, pack_state(xm), pack_state(xi), X, a_o, w_dot, env, sens.sigma, e.gens, e.S, e.EH,
+                      e.p, e.d, e.pp, s.refs, e.alive, e.logs, s.dec, e.acc, e.win, F)  # fmt: skip
         plant.advance(t, F, s.n_sub, s.dt, sens.push)
         X = pack_state(plant.x)
-        failure_codes(pp, X, alive, code)
-        if _stop_failed(code, t + s.Ts, alive, fail_code, fail_time, plant, x_park):
+        failure_codes(e.pp, X, e.alive, code)
+        if _stop_failed(code, t + s.Ts, e.alive, e.fail_code, e.fail_time, plant, x_park):
             X = pack_state(plant.x)
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
             progress((k + 1) / s.N)
-    failures = _failures(fail_code, fail_time)
-    return logs, _metrics_from_acc(acc, failures), failures
+    return _engine_result(e)
 
 
 def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
