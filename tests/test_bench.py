@@ -17,11 +17,30 @@ def test_quick_bench_writes_a_complete_report(tmp_path, capsys):
     assert saved["compile_first_s"] is None
     assert [b["n"] for b in saved["batched"]] == [1, 10]
     assert all(b["failed"] == 0 and b["veh_s_per_s"] > 0 and b["peak_rss_mb"] > 0 for b in saved["batched"])
-    for key in ("single_compiled", "single_numpy", "single_mujoco", "batch_mujoco"):
+    for key in ("single_compiled", "single_numpy", "single_mujoco", "batch_mujoco", "free_flight_mujoco"):
         assert saved[key]["real_time_factor"] > 0
     assert saved["batch_mujoco"]["vehicles"] == 2
     lat = saved["latency"]
     assert 0 < lat["step_arrays_median_us"] <= lat["step_arrays_p99_us"]
     text = table(saved)
     assert "NumPy ref." in text and "batched N = 10" in text and "RotorPy" in text and "MuJoCo plant" in text
-    assert "2 vehicles on MuJoCo (threads), per vehicle" in text
+    assert "2 vehicles on MuJoCo (threads), per vehicle" in text and "MuJoCo, free flight" in text
+
+
+def test_a_bad_report_path_or_yardstick_is_refused_before_measuring(tmp_path, capsys, monkeypatch):
+    """Both were once found only after minutes of measuring: the measurements must not start."""
+    import vtol_impedance.bench as bench
+
+    def measured(*a, **k):
+        raise AssertionError("measuring started")
+
+    monkeypatch.setattr(bench, "_child", measured)
+    (tmp_path / "file").write_text("x")
+    for args, message in (
+        (["--out", str(tmp_path)], "is not a file"),
+        (["--out", str(tmp_path / "file" / "b.json")], "is not a folder"),
+        (["--out", str(tmp_path / "b.json"), "--yardstick", str(tmp_path / "nope.py")], "no file"),
+        (["--out", str(tmp_path / "b.json"), "--yardstick", str(tmp_path / "file")], "not the yardstick"),
+    ):
+        assert main(["bench", "--quick", "--quiet", *args]) == 2
+        assert message in capsys.readouterr().err

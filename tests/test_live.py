@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 import vtol_impedance
+from vtol_impedance.errors import InputError
 from vtol_impedance.live import ControlSettings, LiveError, LiveSettings, parse_address, replay, run_live
 from vtol_impedance.live.autopilot import BOOT_S, Impairments, SimAutopilot, SimSettings
 from vtol_impedance.live.display import Screen, View, render
@@ -147,6 +148,60 @@ def test_cli_bad_input_is_a_message_not_a_traceback(tmp_path):
                         "udpout:127.0.0.1:9", "--event", "3,explode,now"], env=ENV, capture_output=True, text=True,
                        timeout=60)  # fmt: skip
     assert r.returncode == 2 and "mode|stop|clock" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        ({"inject_force_W": (1e9, 0.0, 0.0)}, "inject force"),
+        ({"inject_force_W": (float("nan"), 0.0, 0.0)}, "inject force"),
+        ({"inject_torque_B": (0.0, 0.0, 1e5)}, "inject torque"),
+        ({"inject_on": 5.0, "inject_off": 1.0}, "must end after it starts"),
+        ({"inject_on": -1.0}, "inject on"),
+        ({"events": ((0.1, "clock", "nan"),)}, "clock jump"),
+        ({"events": ((0.1, "clock", "abc"),)}, "clock jump"),
+        ({"events": ((0.1, "stop", "BOGUS"),)}, "not a message this autopilot sends"),
+        ({"impairments": {"seed": -1}}, "seed"),
+        ({"seed": -1}, "seed"),
+    ],
+)
+def test_simulated_autopilot_settings_are_checked_before_it_flies(kw, message):
+    with pytest.raises(InputError, match=message):
+        if "impairments" in kw:
+            kw = dict(kw, impairments=Impairments(**kw["impairments"]))
+        SimSettings("udpout:127.0.0.1:9", **kw)
+
+
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        ({"hover_thrust": float("nan")}, "hover-thrust"),
+        ({"hover_thrust": 1.0}, "below 1"),
+        ({"max_thrust": -1.0}, "max-thrust"),
+        ({"rotor_constant": 0.0}, "rotor-constant"),
+        ({"mass": 1e30}, "mass"),
+        ({"inertia": (1.0, 1.0, 100.0)}, "triangle inequality"),
+        ({"control": {"variant": "comply", "impedance": (0.0, 0.0, 0.0)}}, "impedance"),
+        ({"control": {"variant": "pdc", "Kp": 0.0}}, "Kp"),
+    ],
+)
+def test_live_values_are_checked_before_the_link(kw, message):
+    """Each of these once passed the up-front checks and ended the session only after it connected."""
+    with pytest.raises(InputError, match=message):
+        if "control" in kw:
+            kw = dict(kw, control=ControlSettings(**kw["control"]))
+        LiveSettings("udpin:127.0.0.1:9", **kw)
+
+
+def test_a_simulated_vehicle_that_diverges_stops_the_run_with_its_reason():
+    """A force the rotors cannot hold (1 kN) throws the vehicle away: the run stops at the failure and says
+    why, instead of streaming a non-finite state."""
+    sim = SimAutopilot(quiet_spec(), SimSettings(f"udpout:127.0.0.1:{free_port()}", speed=100.0, duration=30.0,
+                                                 inject_force_W=(1e3, 0.0, 0.0), inject_on=0.5))  # fmt: skip
+    s = sim.run()
+    assert s["failure"] is not None and s["simulated_s"] < 30.0
+    assert "m from the origin" in s["failure"]["reason"] or "tilt" in s["failure"]["reason"]
+    assert np.all(np.isfinite(sim.history[-1][1]))
 
 
 # --------------------------------------------------------------------------- the estimate

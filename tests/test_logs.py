@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -456,6 +457,29 @@ def test_empty_truncated_and_foreign_files(fl, tmp_path):
         read_csv(_write_csv(tmp_path / "q.csv", cols))
 
 
+def test_a_damaged_ulog_is_read_or_refused_never_a_crash(tmp_path):
+    """Bytes flipped anywhere in a real log (its definitions included): pyulog may read it, the reader
+    then either recovers what it can or refuses it with an InputError; no KeyError from deep inside."""
+    from vtol_impedance.logs.samples import path as sample_path
+
+    data = bytearray(Path(sample_path("px4")).read_bytes())
+    refused = 0
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        bad = bytearray(data)
+        at = rng.integers(16, len(bad), 200)
+        bad_bytes = rng.integers(0, 256, 200).astype(np.uint8)
+        for i, b in zip(at, bad_bytes, strict=True):
+            bad[i] = b
+        f = tmp_path / f"bad{seed}.ulg"
+        f.write_bytes(bytes(bad))
+        try:
+            resample(read_ulog(f))
+        except InputError:
+            refused += 1
+    assert refused >= 1  # the damage is real: some of these cannot be read
+
+
 def test_a_truncated_ulog_keeps_what_was_written(fl, tmp_path):
     good = _ulog(fl, tmp_path / "g.ulg", "new")
     data = good.read_bytes()
@@ -524,3 +548,38 @@ def test_a_resampled_log_too_long_to_hold_is_refused():
     raw = RawLog(two(3), two(3), two(3), Signal("thrust", "u", t, np.full((2, 1), 12.0), hold=True), None)
     with pytest.raises(InputError, match="samples, above 50000000"):
         resample(raw, 1000.0, max_gap_s=2e6)
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--start", "nan"], "start"),
+        (["--end", "inf"], "end"),
+        (["--start", "5", "--end", "2"], "must end after it starts"),
+        (["--mass", "1e30"], "mass"),
+        (["--mass", "0"], "mass"),
+        (["--hover-thrust", "nan"], "hover thrust"),
+        (["--hover-thrust", "1.5"], "hover thrust"),
+    ],
+)
+def test_estimate_values_are_checked_before_the_log_is_read(flags, message, tmp_path, capsys):
+    """Each of these was once ignored or used as given (a NaN window, a 1e30 kg vehicle)."""
+    assert main(["estimate", "--example", "px4", *flags, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_infinite_cell_is_a_missing_sample_without_a_numpy_warning(tmp_path, capsys):
+    """A cell of ``inf`` is handled as a gap, as NaN is; NumPy's "invalid value" warning must not leak."""
+    import csv
+
+    from vtol_impedance.logs.samples import path as sample_path
+
+    rows = list(csv.reader(sample_path("csv").open()))
+    rows[50][rows[0].index("vz")] = "inf"
+    f = tmp_path / "inf.csv"
+    with f.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    assert main(["estimate", str(f), "--mass", "1.2", "--out", str(tmp_path / "o")]) == 0
+    assert "invalid value" not in capsys.readouterr().err

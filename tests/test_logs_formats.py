@@ -292,3 +292,15 @@ def test_a_tlog_across_a_reboot_keeps_the_longest_boot(fl, tmp_path):
     assert f.t[-1] - f.t[0] > 11.5 and f.restart.sum() == 1
     bound = _accel_bound(0.04) + _hold_bound(fl, 0.02) + 2e-3
     _check_force(estimate(f, S.MASS, None), f.t - 5.0, bound)
+
+
+def test_a_foreign_file_named_bin_gives_one_line_not_a_flood(tmp_path, capfd):
+    """pymavlink's compiled indexer prints a line per unreadable byte at the descriptor level (177,000 for
+    a ULog named .bin): the user sees the one-line error only."""
+    from vtol_impedance.logs.samples import path as sample_path
+
+    f = tmp_path / "x.bin"
+    f.write_bytes(sample_path("px4").read_bytes())
+    assert main(["estimate", str(f), "--out", str(tmp_path / "o")]) == 2
+    out, err = capfd.readouterr()
+    assert out == "" and len(err.splitlines()) <= 3 and "no DataFlash messages" in err

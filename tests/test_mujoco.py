@@ -110,6 +110,14 @@ def test_state_round_trip_and_mujocos_own_kinematics():
     mp = MujocoPlant([P], PA, DisturbanceSet([]), x, 0.001)
     np.testing.assert_allclose(mp._read(), x, atol=1e-12)
     d, m = mp.datas[0], mp.models[0]
+    # the rollout's states are read by offset: qpos, qvel and act where MuJoCo puts them
+    full = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(m, d, full, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    oq, ov, oa = mp._offsets
+    parts = full[None, oq : oq + m.nq], full[None, ov : ov + m.nv], full[None, oa : oa + m.na]
+    for part, own in zip(parts, (d.qpos, d.qvel, d.act), strict=True):
+        np.testing.assert_array_equal(part[0], own)
+    np.testing.assert_allclose(mp._convert(*parts, np.array([0])), x, atol=1e-12)
     bob = mp.bob[0]
     np.testing.assert_allclose(d.xipos[bob], T_NED_ENU @ (x[0, P_COM] + x[0, PEND_R]), atol=1e-12)
     vel = np.zeros(6)

@@ -13,6 +13,7 @@ from vtol_impedance.scenarios import (
     get,
     load_toml,
     names,
+    set_value,
 )
 
 
@@ -84,6 +85,9 @@ def test_disturbance_overrides_and_validation():
     assert s.disturbances[0]["mean_force"] == 1.0
     with pytest.raises(InputError, match="valid keys"):
         apply_overrides(get("case-b-fan"), ["disturbances.0.speed=1.0"])
+    for index in ("-1", "+0", "1", "0x0"):  # a negative index once added a second fan, changed
+        with pytest.raises(ScenarioError, match="use an index 0..0"):
+            apply_overrides(get("case-b-fan"), [f"disturbances.{index}.mean_force=2.0"])
     with pytest.raises(InputError, match="valid kinds"):
         ScenarioSpec(name="x-v1", disturbances=({"kind": "tornado"},))
 
@@ -147,3 +151,27 @@ def test_trajectories_are_smooth_and_join():
     ts = np.arange(t0, t1, 0.001)
     length = np.sum([np.linalg.norm(c.trajectory.sample(t).v_W) for t in ts]) * 0.001
     assert length == pytest.approx(2 * 2 * np.pi * 1.0, rel=1e-3)
+
+
+def test_numpy_values_are_taken_and_a_key_must_be_a_name():
+    """A sweep or a user hands NumPy scalars and arrays: taken as the Python numbers they are."""
+    s = get("case-a-payload")
+    assert set_value(s, "payload.mass", np.float32(0.25)).payload.mass == pytest.approx(0.25)
+    assert set_value(s, "seed", np.int64(3)).seed == 3 and type(set_value(s, "seed", np.int64(3)).seed) is int
+    assert set_value(s, "plant.inertia_scale", np.array([1.0, 1.1, 1.2])).plant.inertia_scale == (1.0, 1.1, 1.2)
+    assert set_value(s, "trajectory.land", np.bool_(True)).trajectory.land is True
+    with pytest.raises(ScenarioError, match="integer"):
+        set_value(s, "seed", np.float64(1.5))
+    for key in (None, "", 3):
+        with pytest.raises(ScenarioError, match="dotted name"):
+            set_value(s, key, 1.0)
+
+
+def test_one_component_of_a_vector_is_set_as_in_a_sweep():
+    """``--set payload.offset_B[0]=0.02`` takes the keys a sweep axis takes (docs: the same keys)."""
+    s = apply_overrides(get("case-a-payload"), ["payload.offset_B[0]=0.02", "control.Kp[2]=20"])
+    assert s.payload.offset_B == (0.02, 0.0, 0.03)
+    assert s.control.Kp == (16.0, 16.0, 20.0)
+    for bad in ("payload.offset_B[3]=1", "payload.mass[0]=1", "trajectory.land[0]=1"):
+        with pytest.raises(ScenarioError, match="not a vector"):
+            apply_overrides(get("case-a-payload"), [bad])

@@ -70,6 +70,7 @@ def reference(tmp_path_factory):
         ({"seeds": 0}, "seeds"),
         ({"colour": "red"}, "colour"),
         ({"axes": {"payload.offset_B[5]": [0.1]}}, "component 5"),
+        ({"axes": {"seed": [1, 2]}}, "seed cannot be an axis"),
         ({"max_flights": 3}, "above max_flights = 3"),
         (
             {
@@ -219,6 +220,19 @@ def test_summary_statistics_and_figures(reference, tmp_path):
     verify_run_folder(out)
 
 
+def test_a_text_axis_gets_its_report(tmp_path):
+    """An axis of words (the estimator's prototype) is summarised and drawn per word, as a number axis is."""
+    spec = dict(SMALL, seeds=1, axes={"control.estimator_prototype": ["zeta", "binomial"]})
+    out = tmp_path / "words"
+    run_sweep(from_dict(spec), out, show_progress=False)
+    assert "report.html" in {p.name for p in write_report(out)}
+    s = summarise(out)
+    assert {(r["control.estimator_prototype"], r["controller"]) for r in s["rows"]} == {
+        (w, c) for w in ("zeta", "binomial") for c in ("pd", "pdc")
+    }
+    assert all(np.isfinite(r["mean"]) for r in s["rows"])
+
+
 def test_unfinished_sweep_has_no_report(tmp_path):
     out = tmp_path / "sweep"
     run_sweep(from_dict(SMALL), out, show_progress=False)
@@ -289,6 +303,9 @@ def test_tuning_population_is_the_same_for_every_trial():
     b = t.trial_sweep({"control.Kp": 20.0})
     assert a["axes"] == b["axes"] and len(a["axes"]["payload.mass"]) == 3
     assert "control.Kp = 20.0" in best_scenario_toml(t, {"control.Kp": 20.0})
+    with pytest.raises(InputError, match="one per tuning"):  # once "got [\"['pd', 'pdc']\"]"
+        tuning_from_dict({"name": "t", "base": "case-a-payload", "controller": ["pd", "pdc"],
+                          "search": {"control.Kp": {"min": 8.0, "max": 30.0}}})  # fmt: skip
 
 
 def _toml(d: dict, prefix: str = "") -> str:

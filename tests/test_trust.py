@@ -16,7 +16,7 @@ import pytest
 
 from vtol_impedance import Controller, ControllerWarning
 from vtol_impedance.cli import main
-from vtol_impedance.control import ControllerParams, ImpedanceGains, Measurement, Reference
+from vtol_impedance.control import ControllerParams, Impedance, ImpedanceGains, Measurement, Reference
 from vtol_impedance.control.reference import Hold, Trajectory
 from vtol_impedance.errors import InputError
 from vtol_impedance.io import RunFolder, verify_run_folder
@@ -103,7 +103,8 @@ def test_scenario_files_of_the_wrong_type_are_refused(toml, msg, tmp_path, capsy
 
 def test_output_location_is_checked_before_the_work(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
-    for out, msg in ((tmp_path / "file", "is a regular file"), (tmp_path / "file" / "sub", "in its path")):
+    not_a_folder = "is a file (or a device), not a folder"
+    for out, msg in ((tmp_path / "file", not_a_folder), (tmp_path / "file" / "sub", "in its path")):
         t0 = time.perf_counter()
         assert main(["run", "case-a-payload", "--quiet", "--out", str(out)]) == 2
         assert msg in capsys.readouterr().err
@@ -113,6 +114,19 @@ def test_output_location_is_checked_before_the_work(tmp_path, capsys):
     assert main(["run", "case-a-payload", "--quiet", "--duration", "0.2", "--out", str(tmp_path / "mine")]) == 2
     assert "no vtol-impedance run wrote" in capsys.readouterr().err
     assert (tmp_path / "mine" / "thesis.tex").read_text() == "precious"
+    # a manifest.json this tool did not write does not make a folder a run of it
+    for text in ("garbage", "{}", "[1, 2]", '{"tool": "other", "files": {}}'):
+        (tmp_path / "mine" / "manifest.json").write_text(text)
+        assert main(["run", "case-a-payload", "--quiet", "--duration", "0.2", "--out", str(tmp_path / "mine")]) == 2
+        assert "is not a vtol-impedance run folder" in capsys.readouterr().err
+        assert (tmp_path / "mine" / "thesis.tex").read_text() == "precious"
+    # a run's folder is replaced by the next run, unless a file was added to it since
+    run = ["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.2", "--out", str(tmp_path / "run")]
+    assert main(run) == 0 and main(run) == 0
+    (tmp_path / "run" / "notes.txt").write_text("mine")
+    assert main(run) == 2
+    assert "files its run did not write: ['notes.txt']" in capsys.readouterr().err
+    assert (tmp_path / "run" / "notes.txt").read_text() == "mine"
     # a mount point cannot be swapped as a whole: refused before the flight, not after it
     t0 = time.perf_counter()
     assert main(["run", "case-a-payload", "--quiet", "--out", "/proc"]) == 2
@@ -327,6 +341,12 @@ def test_diagonal_matrix_gains_are_accepted_and_others_named():
     with pytest.raises(InputError, match="Dp must be numeric"):
         ImpedanceGains(Kp=16.0, Dp="12", Ko=1.0, Do=0.1)
     assert ImpedanceGains.from_position(16.0, 12.0, I).Ko[0] == pytest.approx(64 * I[0, 0])
+    # a gain of 1e160 once overflowed eq. (16) to a level attitude: refused, as the scenarios refuse it
+    for kw in ({"Kp": 1e160}, {"Dp": [1.0, 1.0, 1e7]}, {"Ki": 1e300}):
+        with pytest.raises(InputError, match="beyond any vehicle's gain"):
+            ImpedanceGains(**{"Kp": 16.0, "Dp": 12.0, "Ko": 1.0, "Do": 0.1, **kw})
+    with pytest.raises(InputError, match="at least"):
+        Impedance(M=1e-300, D=6.0, K=5.0)
 
 
 def test_unbounded_work_is_refused_up_front_with_the_estimate():
@@ -482,3 +502,45 @@ def test_scenario_file_round_trips_its_config(tmp_path):
     spec = load_toml(f)
     assert spec.name == "my-fan-v2" and spec.payload.mass == 0.2
     assert json.loads(json.dumps(spec.to_dict()))["payload"]["mass"] == 0.2
+
+
+def test_an_error_while_unwinding_an_interrupt_is_still_an_interrupt(monkeypatch, tmp_path, capsys):
+    """Ctrl-C while matplotlib writes a GIF: its writer's clean-up fails (IndexError) on the way out. The
+    user pressed Ctrl-C: exit 130 and "interrupted", not an internal error."""
+    import vtol_impedance.cli as cli
+
+    def interrupted_run(args, controllers):
+        try:
+            raise KeyboardInterrupt
+        finally:
+            [][0]  # noqa: B018 (a library's clean-up failing)
+
+    monkeypatch.setattr(cli, "cmd_run", interrupted_run)
+    assert cli.main(["run", "case-a-payload", "--out", str(tmp_path / "o")]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "internal error" not in err
+
+
+def test_complex_boolean_and_text_numbers_are_refused_not_cast():
+    """NumPy casts a complex number to its real part (with a warning) and True to 1.0: either would be a
+    silent wrong number in a gain or a measurement."""
+    from vtol_impedance import Controller
+
+    for bad in ([16.0 + 1j, 16.0, 16.0], np.array([True, True, True]), True, np.array(["16", "16", "16"])):
+        with pytest.raises(InputError, match="must be"):
+            ImpedanceGains(Kp=bad, Dp=12.0, Ko=1.0, Do=0.1)
+    c = Controller(ControllerParams.paper())
+    ref = Reference(np.array([0, 0, -1.0]), np.zeros(3), np.zeros(3), 0.0, 0.0, 0.0)
+    with pytest.raises(InputError, match="real numbers"):
+        c.step(Measurement(np.array([0, 0, -1.0 + 0j]), np.zeros(3), np.zeros(3), np.zeros(3)), ref)
+    with pytest.raises(InputError, match="must be numeric"):
+        ImpedanceGains(Kp=[[16.0, 16.0], [16.0]], Dp=12.0, Ko=1.0, Do=0.1)
+
+
+def test_a_controller_named_twice_on_the_command_line_is_refused(tmp_path, capsys):
+    """The same flight twice under one label compares nothing; the API keeps copies (identical vehicles)."""
+    for cmd in (["compare", "case-a-payload", "--controllers", "pd,pdc,pd", "--out", str(tmp_path / "o")],
+                ["margins", "case-a-payload", "--controllers", "pd,pd"]):  # fmt: skip
+        assert main(cmd) == 2
+        assert "given more than once" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -92,14 +92,18 @@ def _rotorpy(duration: float) -> dict[str, Any] | str:
         return f"failed: {str(exc)[-300:]}"
 
 
-def _single(backend: str, duration: float | None, repeats: int | None = None, vehicles: int = 1) -> dict[str, float]:
+def _single(
+    backend: str, duration: float | None, repeats: int | None = None, vehicles: int = 1, free: bool = False
+) -> dict[str, float]:
     """Case C (realistic plant, PD+C) through ``simulate``, all of it timed (building, the flight, the result);
     ``duration=None``: the scenario's own (46 s), as the yardstick's comparison flies it. ``vehicles > 1``:
     that many copies in one batch; the real-time factor is then per vehicle (simulated vehicle-seconds per
-    second)."""
+    second). ``free``: in free flight (starting in the air, no ground)."""
     from .scenarios import get, set_value, simulate
 
     spec = get("case-c-circle") if duration is None else set_value(get("case-c-circle"), "duration", duration)
+    if free:
+        spec = set_value(set_value(spec, "trajectory.start_on_ground", False), "plant.ground", False)
     variants = ["pdc"] * vehicles
     simulate(set_value(spec, "duration", 0.05), variants, backend=backend)  # warm-up / compile
     wall = float("inf")
@@ -111,14 +115,14 @@ def _single(backend: str, duration: float | None, repeats: int | None = None, ve
     return {"sim_seconds": sim_s, "wall": wall, "real_time_factor": vehicles * sim_s / wall, "vehicles": vehicles}
 
 
-def _mujoco(duration: float, vehicles: int = 1) -> dict[str, float] | str:
+def _mujoco(duration: float, vehicles: int = 1, free: bool = False) -> dict[str, float] | str:
     """The same flight on MuJoCo's physics (the compiled controller), if the extra is installed; with more
-    vehicles, MuJoCo steps them in threads (one rollout per control period)."""
+    vehicles, MuJoCo steps them in threads (one rollout per control period). ``free``: in free flight."""
     try:
         import mujoco  # noqa: F401
     except ImportError:
         return "not installed (pip install 'vtol-impedance[mujoco]')"
-    return _single("mujoco", duration, repeats=2, vehicles=vehicles)
+    return _single("mujoco", duration, repeats=2, vehicles=vehicles, free=free)
 
 
 def _latency(calls: int) -> dict[str, float]:
@@ -217,9 +221,11 @@ def _load_yardstick(path: Path) -> Any:
     if not path.is_file():
         raise InputError(f"--yardstick: no file {path} (the yardstick is numba_loop.py of the shared yardstick folder)")
     spec = importlib.util.spec_from_file_location("vtol_impedance_yardstick", path)
-    mod = importlib.util.module_from_spec(spec)
     try:
-        spec.loader.exec_module(mod)  # type: ignore[union-attr]
+        if spec is None or spec.loader is None:
+            raise ImportError("not a Python file")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
         mod.K, mod.MODE_PDC, mod.initial_state, mod.new_ctrl_state  # noqa: B018
     except Exception as exc:  # a foreign file: say so, do not show its traceback
         raise InputError(
@@ -228,12 +234,12 @@ def _load_yardstick(path: Path) -> Any:
     return mod
 
 
-def _versus(path: Path, n: int, T: float, rounds: int, log=print) -> dict[str, Any]:
+def _versus(path: Path, n: int, T: float, rounds: int, log=print, ys: Any = None) -> dict[str, Any]:
     """This project against the yardstick, in alternating rounds, best of each (the machine's speed drifts
     between minutes, so only ratios taken this way mean anything): one vehicle of case C (PD+C, this
     project's realistic plant against the yardstick's ideal one), a batch of ``n`` vehicles for ``T`` s
     (metrics only), and the controller + estimator step called from Python."""
-    ys = _load_yardstick(path)
+    ys = _load_yardstick(path) if ys is None else ys
     K, mode = ys.K, ys.MODE_PDC
     K.sim_single(0.05, 0.11, True, mode, 0.0, 1e300)  # compile
     dms, res_b = np.full(n, 0.11), np.zeros((n, 13))
@@ -282,6 +288,18 @@ def run(
     ``yardstick``: the path of the shared yardstick's ``numba_loop.py``, timed against this project in the same
     run (:func:`_versus`).
     """
+    from .errors import InputError
+
+    # what can be refused is refused before minutes of measuring: the report's file and the yardstick
+    out = Path(out)
+    if out.is_dir() or (out.exists() and not out.is_file()):
+        raise InputError(f"--out {out} is not a file (give the path of the JSON report)")
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir() or not os.access(parent, os.W_OK):
+                raise InputError(f"--out {out}: {parent} is not a folder this user can write into")
+            break
+    ys = _load_yardstick(yardstick) if yardstick is not None else None
     res: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "processor": platform.processor()},
         "quick": quick,
@@ -311,6 +329,7 @@ def run(
     res["single_numpy"] = _single("numpy", 1.0 if quick else 5.0)
     res["single_mujoco"] = _mujoco(1.0 if quick else 5.0)
     res["batch_mujoco"] = _mujoco(1.0 if quick else 5.0, vehicles=2 if quick else 8)
+    res["free_flight_mujoco"] = _mujoco(1.0 if quick else 5.0, free=True)
     log("controller + estimator step latency ...")
     res["latency"] = _latency(2000 if quick else 50000)
     log("wrench estimation on a flight log ...")
@@ -321,7 +340,7 @@ def run(
     log("RotorPy single-vehicle hover (if installed) ...")
     res["rotorpy"] = _rotorpy(2.0 if quick else 10.0)
     if yardstick is not None:
-        res["versus"] = _versus(yardstick, 1000 if quick else 10000, 2.0 if quick else 20.0, 1 if quick else 3, log)
+        res["versus"] = _versus(yardstick, 1000 if quick else 10000, 2.0 if quick else 20.0, 1 if quick else 3, log, ys)
         res["versus"]["ctrl_step_from_python_us"]["project_step_arrays_median"] = res["latency"][
             "step_arrays_median_us"
         ]
@@ -346,6 +365,9 @@ def table(res: dict[str, Any]) -> str:
     if isinstance(bmj, dict):
         what = f"{bmj['vehicles']:d} vehicles on MuJoCo (threads), per vehicle"
         lines.append(f"{what:<49}{bmj['real_time_factor']:10.2f} x real time")
+    fmj = res.get("free_flight_mujoco")
+    if isinstance(fmj, dict):
+        lines.append(f"single vehicle on MuJoCo, free flight (no ground) {fmj['real_time_factor']:9.2f} x real time")
     lines += [
         f"step_arrays latency, median / p99                {lat['step_arrays_median_us']:6.2f} / "
         f"{lat['step_arrays_p99_us']:.2f} us",

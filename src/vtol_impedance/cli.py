@@ -281,10 +281,11 @@ def cmd_margins(args: argparse.Namespace) -> int:
     from .analysis.report import write_html
     from .io import RunFolder
     from .scenarios import check
-    from .scenarios.margins import check_variants, scenario_margins, warnings_of
+    from .scenarios.margins import scenario_margins, warnings_of
+    from .scenarios.spec import check_variants
 
     spec = _load_spec(args.scenario, args.set, None, args.ideal)
-    variants = check_variants([c.strip() for c in args.controllers.split(",") if c.strip()])
+    variants = check_variants([c.strip() for c in args.controllers.split(",") if c.strip()], unique=True)
     check(spec, variants)
     out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"margins-{spec.name}"
     with RunFolder(out) as folder:
@@ -328,15 +329,12 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
-    from .control.impedance import VARIANTS
-    from .errors import InputError
     from .io import RunFolder
     from .scenarios import check
+    from .scenarios.spec import check_variants
 
     spec = _load_spec(args.scenario, args.set, args.duration, args.ideal)
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad or not variants:
-        raise InputError(f"unknown controller(s) {bad or variants}; choose from {', '.join(VARIANTS)}")
+    variants = check_variants(variants, unique=True)
     seed = _seed(args)
     check(spec, variants)
     backend = _backend(args)
@@ -848,6 +846,11 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
         print(
             f"warning: the computer fell {s['behind_real_time_s']:.1f} s behind --speed {args.speed:g}", file=sys.stderr
         )
+    if s["failure"] is not None:
+        f = s["failure"]
+        print(f"error: the simulated vehicle failed at {f['time']:.2f} s ({f['reason']}); the run stopped there",
+              file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 
@@ -1216,6 +1219,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: cannot write or read a file{where}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     except Exception as exc:  # the CLI never shows a traceback unless asked
+        if _interrupted(exc):  # a library's clean-up failed on the way out of an interrupt (PillowWriter)
+            print("interrupted; no results were written", file=sys.stderr)
+            return 130
         if os.environ.get("VTOL_IMPEDANCE_DEBUG"):
             raise
         print(
@@ -1227,6 +1233,18 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if threading_main():
             signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised while an interrupt (Ctrl-C, SIGTERM) was being handled."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__context__
+    return False
 
 
 def threading_main() -> bool:

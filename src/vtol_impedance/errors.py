@@ -32,10 +32,15 @@ def as_finite(name: str, value: Any, shape_tail: tuple[int, ...] | None = None) 
 
     ``shape_tail`` is the required trailing shape (leading batch dimensions are free).
     """
-    if isinstance(value, str | bytes | dict) or value is None:
+    if isinstance(value, str | bytes | dict | bool | np.bool_) or value is None:
         raise InputError(f"{name} must be numeric, got {value!r}")
     try:
+        kind = value.dtype.kind if isinstance(value, np.ndarray) else np.asarray(value).dtype.kind
+        if kind in "bcSUV":  # booleans, complex numbers, text, raw bytes: no silent cast to a real number
+            raise InputError(f"{name} must be real numbers, got {_short(value)}")
         arr = np.asarray(value, dtype=float)
+    except InputError:
+        raise
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} must be numeric, got {_short(value)} ({exc})") from None
     if arr.dtype == object:

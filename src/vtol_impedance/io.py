@@ -114,15 +114,15 @@ def _fsync_dir(path: Path) -> None:
 
 def check_output_folder(final: Path, swapped: bool = True) -> Path:
     """Refuse, before any work, an output folder that cannot hold a run: a path through or onto a regular
-    file, a mount point when the folder is ``swapped`` as a whole, or an existing folder with files that no
-    run of this tool wrote (no ``manifest.json``)."""
+    file, a mount point when the folder is ``swapped`` as a whole, or an existing folder that is not a run
+    of this tool as it wrote it (no ``manifest.json`` of this tool, or files it does not list)."""
     from .errors import InputError
 
     final = Path(final)
     for parent in [final, *final.parents]:
         if parent.exists() and not parent.is_dir():
             where = "is" if parent == final else f"has {parent} in its path, which is"
-            raise InputError(f"output folder {final} {where} a regular file, not a folder; choose another --out")
+            raise InputError(f"output folder {final} {where} a file (or a device), not a folder; choose another --out")
     mounted = final.exists() and (
         os.path.ismount(final) or final.stat().st_dev != final.absolute().parent.stat().st_dev
     )
@@ -131,12 +131,46 @@ def check_output_folder(final: Path, swapped: bool = True) -> Path:
             f"output folder {final} is a mount point (a volume, a USB stick): a run replaces its folder as a "
             f"whole, which a mount point cannot be; give a folder inside it, e.g. --out {final / 'run'}"
         )
-    if final.exists() and any(final.iterdir()) and not (final / MANIFEST).exists():
-        raise InputError(
-            f"output folder {final} already holds files that no vtol-impedance run wrote (no {MANIFEST}); "
-            "a run replaces its whole folder, so choose an empty or new --out"
-        )
+    if final.exists() and any(final.iterdir()):
+        if not (final / MANIFEST).exists():
+            why = f"already holds files that no vtol-impedance run wrote (no {MANIFEST})"
+        else:
+            try:
+                listed = _read_manifest(final)["files"]
+                extra = sorted(_files_in(final) - set(listed))
+                why = f"holds files its run did not write: {extra[:5]}" if extra else ""
+            except InputError as exc:
+                why = f"is not a vtol-impedance run folder ({exc})"
+        if why:
+            raise InputError(
+                f"output folder {final} {why}; a run replaces its whole folder, so choose an empty or new --out"
+            )
     return final
+
+
+def _files_in(folder: Path) -> set[str]:
+    """Every file under ``folder`` but its manifest, as paths relative to it."""
+    return {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()} - {MANIFEST}
+
+
+def _read_manifest(folder: Path, tools: tuple[str, ...] = ("vtol-impedance",)) -> dict[str, Any]:
+    """The manifest of a folder one of ``tools`` wrote (a run's; a sweep's is ``"vtol-impedance sweep"``),
+    or :class:`~vtol_impedance.errors.InputError`."""
+    import json
+
+    from .errors import InputError
+
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{folder} has no readable {MANIFEST}: {exc}") from None
+    if (
+        not isinstance(manifest, dict)
+        or manifest.get("tool") not in tools
+        or not isinstance(manifest.get("files"), dict)
+    ):
+        raise InputError(f"{folder / MANIFEST} was not written by vtol-impedance (no tool and files entries)")
+    return manifest
 
 
 class FolderLock:
@@ -268,17 +302,12 @@ def _versions() -> dict[str, str]:
 def verify_run_folder(folder: str | os.PathLike[str]) -> dict[str, Any]:
     """Check that ``folder`` holds exactly the files its manifest lists, with their hashes; returns the
     manifest or raises :class:`~vtol_impedance.errors.InputError` naming what differs."""
-    import json
-
     from .errors import InputError
 
     folder = Path(folder)
-    try:
-        manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{folder} has no readable {MANIFEST}: {exc}") from None
-    listed = manifest.get("files", {})
-    present = {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()} - {MANIFEST}
+    manifest = _read_manifest(folder, ("vtol-impedance", "vtol-impedance sweep"))
+    listed = manifest["files"]
+    present = _files_in(folder)
     if present != set(listed):
         raise InputError(
             f"{folder}: files differ from the manifest: extra {sorted(present - set(listed))}, "

@@ -124,6 +124,7 @@ class Controller:
             self._p, self._d = kernels.pack_controller(batch)
             self._nr = batch.E.shape[-1]
             self._out = kernels.new_output(self._p.shape[0])
+            self._out_views = [self._out[b] for b in range(self._p.shape[0])]  # each vehicle's record, a view
             self._step_entry = kernels.checked_step_entry()
         self.reset()
 
@@ -152,8 +153,8 @@ class Controller:
         """
         if self.backend != "compiled":
             raise InputError("step_arrays needs backend='compiled'")
-        if type(vehicle) is not int or not 0 <= vehicle < self._p.shape[0]:
-            raise InputError(f"step_arrays: vehicle must be an int in [0, {self._p.shape[0]}), got {vehicle!r}")
+        if type(vehicle) is not int or not 0 <= vehicle < len(self._out_views):
+            raise InputError(f"step_arrays: vehicle must be an int in [0, {len(self._out_views)}), got {vehicle!r}")
         # the compiled entry point skips numba's dispatch (a microsecond); its argument types are checked here
         if (
             type(y) is np.ndarray
@@ -165,7 +166,7 @@ class Controller:
             status = self._step_entry(self._p, self._d, self._s, self._h, vehicle, y, r, self._out)
         else:
             status = 3
-        out = self._out[vehicle]
+        out = self._out_views[vehicle]
         if status:
             if status == 3:
                 raise InputError(

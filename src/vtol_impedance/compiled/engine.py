@@ -125,7 +125,7 @@ def _accumulate(a, t, win, p_o, v_o, r, o, f_l, t_l):
 
 @kernel(inline="always")
 def _failure(pp, x):
-    """Why the vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop._check_vehicles`."""
+    """Why the vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop.check_vehicles`."""
     s = 0.0
     for i in range(3):
         s += x.p_com_W[i] + x.v_com_W[i] + x.omega_B[i] + x.r_pend_W[i] + x.v_pend_W[i]
@@ -211,6 +211,11 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     for i in range(6):
         dist[i] = 0.0
     H = hist.shape[1]
+    head, count = hhead[b], hcount[b]  # the ring's newest slot and fill, kept in registers
+    keep = np.empty(n_sub, dtype=np.bool_)  # the plant steps whose state a sensor will read: those
+    for js in range(n_sub):  # k_mocap or k_imu plant steps before a tick
+        ahead = n_sub - 1 - js
+        keep[js] = (k_mocap - ahead) % n_sub == 0 or (k_imu - ahead) % n_sub == 0
     for k in range(k0, k1):
         t = k * Ts
         # the truth at t_k (the rotor-lag rate the derivative also gives is not used here)
@@ -219,7 +224,7 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
         plant_derivative(pp_b, x, x.f_rotor, dist, xd, env)
         a_o = origin_acceleration(pp_b, x, xd, _R_of(x.q_WB))
         w_dot = (xd.omega_B[0], xd.omega_B[1], xd.omega_B[2])
-        xm, xi = _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu)
+        xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
         _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, refs[k], logs[b], dec,
                       acc[b], win, o, y, noise, f_l, t_l, tau_prev)  # fmt: skip
         f_cmd = o.f_rotor
@@ -234,12 +239,10 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
             if has_dists:
                 disturbance_at(pp_b, x, t + js * dt, dists, series, dist)
             rk4_step(pp_b, x, f_cmd, dist, dt)
-            hhead[b] = (hhead[b] + 1) % H
-            hcount[b] = min(hcount[b] + 1, H)
-            # keep only the states a sensor will read: those k_mocap or k_imu plant steps before a tick
-            ahead = n_sub - 1 - js
-            if (k_mocap - ahead) % n_sub == 0 or (k_imu - ahead) % n_sub == 0:
-                hist[b, hhead[b]] = x
+            head = head + 1 if head + 1 < H else 0
+            count = min(count + 1, H)
+            if keep[js]:
+                hist[b, head] = x
 
         code = _failure(pp_b, x)
         if code != 0:
@@ -247,7 +250,8 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
             fail_code[b] = code
             fail_time[b] = t + Ts
             X[b] = x_park[b]
-            return
+            break
+    hhead[b], hcount[b] = head, count
 
 
 @kernel()

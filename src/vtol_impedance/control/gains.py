@@ -8,6 +8,12 @@ import numpy as np
 
 from ..errors import InputError, as_finite, positive, scalar
 
+#: Largest gain accepted (SI units: N/m, N s/m, N m/rad, kg, ...), as the scenarios' ranges: orders of
+#: magnitude above any multirotor's, far below where eq. (16)'s arithmetic loses the error's direction.
+MAX_GAIN = 1e6
+#: Smallest impedance value accepted (a divisor of the impedance law, eq. (20)).
+MIN_IMPEDANCE = 1e-6
+
 
 def _vec3(name: str, value: float | np.ndarray, allow_zero: bool = False) -> np.ndarray:
     arr = as_finite(name, value)
@@ -18,6 +24,8 @@ def _vec3(name: str, value: float | np.ndarray, allow_zero: bool = False) -> np.
     if arr.shape not in ((), (1,), (3,)):
         raise InputError(f"{name} must be a scalar, 3 values or a diagonal 3x3 matrix, got shape {arr.shape}")
     arr = positive(name, arr, allow_zero=allow_zero)
+    if np.any(arr > MAX_GAIN):  # the arithmetic of eqs. (16)-(20) would overflow to a wrong command
+        raise InputError(f"{name} = {arr.tolist()} is beyond any vehicle's gain (<= {MAX_GAIN:g} in SI units)")
     arr = np.broadcast_to(arr, (3,)).astype(float)
     arr.setflags(write=False)
     return arr
@@ -144,8 +152,10 @@ class Impedance:
             if getattr(self, name) is None:
                 continue
             arr = _vec3(f"impedance {name}", getattr(self, name))
-            if np.any(arr <= 0):
-                raise InputError(f"impedance {name} must be positive on every axis, got {arr.tolist()}")
+            if np.any(arr < MIN_IMPEDANCE):
+                raise InputError(
+                    f"impedance {name} must be at least {MIN_IMPEDANCE:g} on every axis, got {arr.tolist()}"
+                )
             object.__setattr__(self, name, arr)
 
     def natural(self) -> dict[str, np.ndarray]:

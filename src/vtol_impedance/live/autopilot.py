@@ -47,8 +47,10 @@ from ..control.signals import Reference
 from ..conventions import G
 from ..errors import InputError, scalar
 from ..model.kinematics import euler_from_rotation, quat_from_euler, quat_to_rotation
+from ..records import REASONS
 from ..scenarios.spec import ScenarioSpec, build, controller_params
 from ..sim.disturbances import DisturbanceSet, StepWrench
+from ..sim.loop import check_vehicles
 from ..sim.plant import OMEGA, ROTOR, apply_instant_rotors, compile_plants, initial_state, origin_kinematics, rk4_step
 from ..sim.sensors import NoiseSource, SensorParams, SensorSuite
 from .link import Address, LiveError, mavutil, parse_address
@@ -69,6 +71,12 @@ SERVED = (
     "SERVO_OUTPUT_RAW", "ESC_STATUS", "ESC_TELEMETRY_1_TO_4", "VFR_HUD", "SYS_STATUS",
 )  # fmt: skip
 DEFAULT_EXTRA_HZ = {"VFR_HUD": 4.0, "SYS_STATUS": 1.0}
+#: Largest injected force and torque accepted: 85 and 34 times a Pelican's weight (11.8 N) and largest
+#: roll moment (2.9 N m), far beyond a test of the estimator, still inside float64's comfort.
+MAX_INJECT_FORCE_N = 1e3
+MAX_INJECT_TORQUE_NM = 1e2
+#: Largest scripted clock jump, s (about 11 days).
+MAX_CLOCK_JUMP_S = 1e6
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,7 @@ class Impairments:
         for name in ("loss", "duplicate", "reorder"):
             object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, hi=0.9))
         object.__setattr__(self, "latency_s", scalar("latency", self.latency_s, lo=0.0, hi=5.0))
+        object.__setattr__(self, "seed", int(scalar("seed", self.seed, lo=0, hi=2**63 - 1, integer=True)))
 
 
 @dataclass(frozen=True)
@@ -126,9 +135,26 @@ class SimSettings:
         for name in self.no_streams:
             if name not in SERVED:
                 raise InputError(f"--no-stream {name}: not a message this autopilot sends ({', '.join(SERVED)})")
+        for name, v, lim in (("inject force (N)", self.inject_force_W, MAX_INJECT_FORCE_N),
+                             ("inject torque (N m)", self.inject_torque_B, MAX_INJECT_TORQUE_NM)):  # fmt: skip
+            if len(v) != 3 or not all(abs(scalar(name, c)) <= lim for c in v):
+                raise InputError(f"{name} must be 3 values within +-{lim:g}, got {v!r}")
+        on = scalar("inject on (s)", self.inject_on, lo=0.0)
+        if not (self.inject_off > on):  # infinite: never off
+            raise InputError(f"the injection must end after it starts, got on {on:g} s, off {self.inject_off!r} s")
         for ev in self.events:
             if len(ev) != 3 or ev[1] not in ("mode", "stop", "clock") or not np.isfinite(float(ev[0])):
                 raise InputError(f"an event is (T, mode|stop|clock, ARG), got {ev!r}")
+            if ev[1] == "stop" and ev[2] not in SERVED:
+                raise InputError(f"event {ev!r}: {ev[2]!r} is not a message this autopilot sends ({', '.join(SERVED)})")
+            if ev[1] == "clock":
+                try:
+                    jump = float(ev[2])
+                except ValueError:
+                    jump = float("nan")
+                if not abs(jump) <= MAX_CLOCK_JUMP_S:
+                    raise InputError(f"event {ev!r}: a clock jump is a number of seconds within +-{MAX_CLOCK_JUMP_S:g}")
+        object.__setattr__(self, "seed", int(scalar("seed", self.seed, lo=0, hi=2**63 - 1, integer=True)))
         if not 1 <= int(self.system) <= 254:
             raise InputError(f"system id must be in 1..254, got {self.system}")
 
@@ -228,6 +254,7 @@ class SimAutopilot:
         self.stats: dict[str, Any] = {"setpoints": 0, "setpoint_latency_s": [], "modes": [(0.0, self.mode)],
                                       "requests": [], "behind_s": 0.0, "sent": 0}  # fmt: skip
         self.conn: Any = None
+        self.failure: dict[str, Any] | None = None  # the simulated vehicle's, when it diverged or crashed
         self._events = sorted((float(t), k, a) for t, k, a in settings.events)
         for _, kind, arg in self._events:
             if kind == "mode" and arg not in self.profile.modes:
@@ -523,6 +550,11 @@ class SimAutopilot:
                     self.last_out = out
                     self._emit(out, f_cmd, time.monotonic())
                     self._advance(f_cmd)
+                    code = int(check_vehicles(self.PA, self.x[None])[0])
+                    if code:  # stop here: a diverged state is no vehicle to report on
+                        self.failure = {"time": self.t, "reason": REASONS[code]}
+                        self._stop.set()
+                        break
                     p, v = origin_kinematics(self.PA, self.x)
                     self.history.append((self.t, p.copy(), v.copy(), self.mode))
                     n += 1
@@ -554,6 +586,7 @@ class SimAutopilot:
         return {
             "autopilot": self.profile.name,
             "simulated_s": self.t,
+            "failure": self.failure,
             "mode": self.mode,
             "modes": self.stats["modes"],
             "setpoints": self.stats["setpoints"],

@@ -95,9 +95,13 @@ class ControlSettings:
             ("tilt_max_deg", 1.0, 45.0), ("tilt_rate_max_deg_s", 1.0, 2000.0), ("thrust_rate_max", 0.1, 100.0),
             ("fence_radius_m", 0.05, 1e3), ("fence_height_m", 0.05, 1e3), ("max_speed_m_s", 0.05, 50.0),
             ("watchdog_s", 0.02, 5.0), ("handshake_timeout_s", 0.1, 60.0), ("engage_after_s", 0.0, 10.0),
-            ("Kp", 0.0, 1e4), ("Dp", 0.0, 1e4),
         ):  # fmt: skip
             object.__setattr__(self, name, scalar(name, getattr(self, name), lo=lo, hi=hi))
+        for name in ("Kp", "Dp"):  # zero would leave the position to drift: no controller at all
+            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, hi=1e4, lo_open=True))
+        imp = tuple(self.impedance) if isinstance(self.impedance, list | tuple) else ()
+        if len(imp) != 3 or not all(0.0 < scalar("--impedance", v) <= 1e6 for v in imp):
+            raise InputError(f"--impedance is M_d kg, D_d N s/m, K_d N/m, each positive, got {self.impedance!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}

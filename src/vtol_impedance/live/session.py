@@ -100,6 +100,20 @@ class LiveSettings:
             object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, lo_open=True, hi=3600.0))
         if self.hover_thrust is not None and self.max_thrust is not None:
             raise InputError("give --hover-thrust or --max-thrust, not both")
+        # the vehicle's numbers are checked here, before the link: after it they would end a live session
+        for name, attr, lo, hi in (("--mass (kg)", "mass", 0.0, 1e4), ("--hover-thrust", "hover_thrust", 0.0, 1.0),
+                                   ("--max-thrust (N)", "max_thrust", 0.0, 1e6),
+                                   ("--rotor-constant (N s^2/rad^2)", "rotor_constant", 0.0, 1.0)):  # fmt: skip
+            if getattr(self, attr) is not None:
+                object.__setattr__(self, attr, scalar(name, getattr(self, attr), lo=lo, hi=hi, lo_open=True))
+        if self.hover_thrust is not None and not self.hover_thrust < 1.0:
+            raise InputError(
+                f"--hover-thrust is the normalised thrust that holds the vehicle, below 1, got {self.hover_thrust}"
+            )
+        if self.inertia is not None:
+            from ..logs import check_inertia
+
+            check_inertia(self.inertia)
         if self.display not in ("auto", "tty", "plain", "none"):
             raise InputError(f"--display must be auto, tty, plain or none, got {self.display!r}")
         if self.system is not None and not 1 <= int(self.system) <= 255:

@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 
 from ..conventions import G
-from ..errors import InputError, as_finite, positive, scalar
+from ..errors import InputError, positive, scalar
 from ..estimator.momentum import EstimatorParams, design
 from ..estimator.series import causal, momentum_residual, zero_phase
 from ..model.dynamics import body_moment_from_euler, euler_moment_from_body
+from ..model.vehicle import check_inertia
 from . import rotors
 from .frames import ROTOR_SPEED_UNITS
 from .timeseries import FlightLog
@@ -410,32 +411,6 @@ def _torque_from_commands(
         "the moment estimate is skipped (give --torque-scale to convert them, or use rotor speeds with --vehicle)"
     )
     return None
-
-
-def check_inertia(inertia: Any) -> np.ndarray:
-    """A nominal inertia ``(3, 3)`` from 3 values or a matrix: finite, symmetric, positive definite and
-    physical (principal moments obey the triangle inequality)."""
-    I_B = as_finite("inertia", inertia)
-    if I_B.shape == (3,):
-        I_B = np.diag(I_B)
-    if I_B.shape != (3, 3):
-        raise InputError(f"inertia must be 3 values or a 3x3 matrix, got shape {I_B.shape}")
-    asym = np.abs(I_B - I_B.T)
-    if np.max(asym) > 1e-9 * max(np.max(np.abs(I_B)), 1e-300):
-        i, j = np.unravel_index(np.argmax(asym), asym.shape)
-        raise InputError(
-            f"inertia must be symmetric: I[{i},{j}] = {I_B[i, j]:.6g} but I[{j},{i}] = {I_B[j, i]:.6g} (a product of "
-            "inertia appears twice; was the matrix transcribed row by row?)"
-        )
-    ev = np.linalg.eigvalsh(I_B)
-    if np.any(ev <= 0):
-        raise InputError(f"inertia must be positive definite, its principal moments are {np.round(ev, 8).tolist()}")
-    if ev[0] + ev[1] < ev[2] * (1 - 1e-9):
-        raise InputError(
-            f"inertia is not a rigid body's: principal moments {np.round(ev, 8).tolist()} break the triangle "
-            "inequality (I1 + I2 >= I3)"
-        )
-    return I_B
 
 
 def peak_impulse_response(des: Any) -> np.ndarray:

@@ -119,13 +119,17 @@ def body_matrix(body: str) -> np.ndarray:
 
 
 def world_vector_to_ned(v: np.ndarray, world: str) -> np.ndarray:
-    """A world-frame vector (velocity, force) ``(..., 3)`` in NED."""
-    return np.asarray(v, dtype=float) @ world_matrix(world).T
+    """A world-frame vector (velocity, force) ``(..., 3)`` in NED; a non-finite entry spoils its sample
+    (marked missing later), quietly."""
+    with np.errstate(invalid="ignore"):  # inf * 0 in the product: that sample is NaN, as it should be
+        return np.asarray(v, dtype=float) @ world_matrix(world).T
 
 
 def body_vector_to_frd(v: np.ndarray, body: str) -> np.ndarray:
-    """A body-frame vector (body rates, torque) ``(..., 3)`` in FRD."""
-    return np.asarray(v, dtype=float) @ body_matrix(body).T
+    """A body-frame vector (body rates, torque) ``(..., 3)`` in FRD (a non-finite entry: as
+    :func:`world_vector_to_ned`)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(v, dtype=float) @ body_matrix(body).T
 
 
 def rotation_to_ned_frd(R: np.ndarray, world: str, body: str) -> np.ndarray:

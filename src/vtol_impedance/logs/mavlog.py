@@ -83,8 +83,37 @@ def _connect(path: Path, out: io.StringIO, err: io.StringIO):
         from pymavlink import mavutil
     except ImportError:  # pragma: no cover - a core dependency
         raise InputError("reading DataFlash and tlog files needs pymavlink: pip install pymavlink") from None
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with _descriptors_into(err), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         return mavutil.mavlink_connection(str(path))
+
+
+#: The most of pymavlink's own messages kept (a foreign file gives a "bad header" line per byte).
+MAX_READER_MESSAGES_BYTES = 1 << 20
+
+
+@contextlib.contextmanager
+def _descriptors_into(err: io.StringIO) -> Any:
+    """Standard output and error at the descriptor level into ``err``: pymavlink's compiled DataFlash
+    indexer prints there itself, a line per unreadable byte of a foreign file."""
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryFile() as tmp:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        saved = [os.dup(1), os.dup(2)]
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            tmp.seek(0)
+            err.write(tmp.read(MAX_READER_MESSAGES_BYTES).decode("utf-8", "replace"))
 
 
 def _close(reader: Any) -> None:

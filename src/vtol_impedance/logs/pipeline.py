@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, scalar
 from .checks import ConventionReport, ImplausibleTime, check_conventions, check_thrust_signal, time_plausible
 from .csvlog import CsvTable, read_csv_table, table_to_raw
 from .estimate import LogEstimate, check_inertia, estimate, uses_rotor_speeds
@@ -44,6 +44,21 @@ def _check_block(table: CsvTable) -> CsvTable:
     s = int(starts[int(np.argmax(act))])
     cols = {k: c[s : s + CHECK_ROWS] for k, c in table.cols.items()}
     return CsvTable(table.path, table.header, cols, table.time_role, list(table.notes))
+
+
+#: Fewest samples of a signal a log is estimated from: half a second at 100 Hz, five time constants of the
+#: default estimator (wn = 10 rad/s); fewer tell nothing, not even which conventions the file follows.
+MIN_LOG_SAMPLES = 50
+
+
+def _long_enough(raw: RawLog, path: Path) -> None:
+    short = [(s.name, len(s.t)) for s in raw.signals() if len(s.t) < MIN_LOG_SAMPLES]
+    if short:
+        name, n = min(short, key=lambda x: x[1])
+        raise InputError(
+            f"{path}: the {name} has {n} sample{'s' if n != 1 else ''}, too few to estimate from (at least "
+            f"{MIN_LOG_SAMPLES}: half a second at 100 Hz)"
+        )
 
 
 def read_any(
@@ -80,6 +95,7 @@ def read_any(
             from .mavlog import read_tlog
 
             raw = read_tlog(path)
+        _long_enough(raw, path)
         if raw.thrust is not None:
             raw.thrust = check_thrust_signal(raw.thrust, raw.notes)
         raw, rep = check_conventions(raw, conventions)
@@ -92,6 +108,7 @@ def read_any(
         time_unit=time_unit, velocity_world=velocity_world, rate_unit=rate_unit,
     )  # fmt: skip
     raw = table_to_raw(table, declared, rotor_speed_unit)
+    _long_enough(raw, path)
     notes: list[str] = []
     if raw.thrust is not None:
         check_thrust_signal(raw.thrust, notes)  # zeros or constant: refused before anything else
@@ -168,6 +185,10 @@ def _vehicle(
     return m, I_B, geometry, choices
 
 
+#: Heaviest vehicle a mass is accepted for, kg (the largest multirotors carry a few hundred).
+MAX_MASS_KG = 1e4
+
+
 def estimate_file(
     path: str | os.PathLike[str],
     mass: float | None = None,
@@ -186,6 +207,17 @@ def estimate_file(
     :class:`~vtol_impedance.model.vehicle.VehicleParams` for the nominal mass, inertia and rotor geometry
     where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
     :func:`~vtol_impedance.logs.estimate.estimate`."""
+    # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
+    if t_start is not None:
+        t_start = scalar("start (s)", t_start)
+    if t_end is not None:
+        t_end = scalar("end (s)", t_end)
+    if t_start is not None and t_end is not None and not t_end > t_start:
+        raise InputError(f"the window must end after it starts, got start {t_start:g} s and end {t_end:g} s")
+    if mass is not None:
+        mass = scalar("mass (kg)", mass, lo=0.0, hi=MAX_MASS_KG, lo_open=True)
+    if estimate_options.get("hover_thrust") is not None:
+        scalar("hover thrust", estimate_options["hover_thrust"], lo=0.0, hi=1.0, lo_open=True)
     raw, rep = read_any(path, **(read_options or {}))
     m, I_B, geometry, vchoices = _vehicle(raw, mass, inertia, vehicle)
     thrust_from = estimate_options.get("thrust_from", "auto")

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -226,6 +227,18 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
             ulog = ULog(fh, list(TOPICS))
     except Exception as exc:  # pyulog raises several types on a corrupt or foreign file
         raise InputError(f"{path} is not a readable ULog file ({type(exc).__name__}: {exc})") from None
+    try:
+        return _from_ulog(path, ulog)
+    except InputError:
+        raise
+    except (KeyError, IndexError, TypeError, AttributeError, ValueError) as exc:  # damaged, and pyulog read it
+        raise InputError(
+            f"{path}: the ULog's data are damaged or not laid out as PX4 writes them ({type(exc).__name__}: {exc})"
+        ) from None
+
+
+def _from_ulog(path: Path, ulog: Any) -> RawLog:
+    """:func:`read_ulog` of a file pyulog parsed."""
     notes: list[str] = []
     choices: list[str] = []
     if getattr(ulog, "file_corruption", False):
@@ -234,7 +247,11 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
     all_found = sorted(found)
     available: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = {}
     sample_times = []
-    for name, d in found.items():
+    for name, d in list(found.items()):
+        if "timestamp" not in d.data:  # a damaged format definition
+            notes.append(f"topic {name} has no timestamp (a damaged format definition): not used")
+            del found[name]
+            continue
         if "timestamp_sample" in d.data and name not in ("vehicle_thrust_setpoint", "vehicle_torque_setpoint"):
             ts = d.data["timestamp_sample"].astype(float)
             ok = np.isfinite(ts) & (ts > 0)
@@ -243,7 +260,12 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
         else:
             t = d.data["timestamp"].astype(float) * 1e-6
         available[name] = (t, d.data)
-    params = {k: float(v) for k, v in ulog.initial_parameters.items()}
+    params = {}
+    for k, v in ulog.initial_parameters.items():
+        try:
+            params[k] = float(v)
+        except (TypeError, ValueError):
+            notes.append(f"parameter {k!r} has no numeric value ({v!r}): not used")
 
     src, t, v = pick_fastest("velocity", VELOCITY, available, choices, str(path), all_found)
     vel = Signal("velocity", src, t, v)

@@ -33,16 +33,34 @@ LAYOUTS = ("plus", "x", "hex")
 MAX_ROTORS = 12
 
 
+def check_inertia(inertia: Any) -> np.ndarray:
+    """A nominal inertia ``(3, 3)`` from 3 values or a matrix: finite, symmetric, positive definite and
+    physical (principal moments obey the triangle inequality)."""
+    I_B = as_finite("inertia", inertia)
+    if I_B.shape == (3,):
+        I_B = np.diag(I_B)
+    if I_B.shape != (3, 3):
+        raise InputError(f"inertia must be 3 values or a 3x3 matrix, got shape {I_B.shape}")
+    asym = np.abs(I_B - I_B.T)
+    if np.max(asym) > 1e-9 * max(np.max(np.abs(I_B)), 1e-300):
+        i, j = np.unravel_index(np.argmax(asym), asym.shape)
+        raise InputError(
+            f"inertia must be symmetric: I[{i},{j}] = {I_B[i, j]:.6g} but I[{j},{i}] = {I_B[j, i]:.6g} (a product of "
+            "inertia appears twice; was the matrix transcribed row by row?)"
+        )
+    ev = np.linalg.eigvalsh(I_B)
+    if np.any(ev <= 0):
+        raise InputError(f"inertia must be positive definite, its principal moments are {np.round(ev, 8).tolist()}")
+    if ev[0] + ev[1] < ev[2] * (1 - 1e-9):
+        raise InputError(
+            f"inertia is not a rigid body's: principal moments {np.round(ev, 8).tolist()} break the triangle "
+            "inequality (I1 + I2 >= I3)"
+        )
+    return I_B
+
+
 def _inertia(value: Any) -> np.ndarray:
-    arr = as_finite("inertia", value)
-    if arr.shape == (3,):
-        arr = np.diag(arr)
-    if arr.shape != (3, 3):
-        raise InputError(f"inertia must be a 3-vector (diagonal) or a 3x3 matrix, got shape {arr.shape}")
-    if not np.allclose(arr, arr.T, atol=1e-12):
-        raise InputError(f"inertia matrix must be symmetric, got {arr.tolist()}")
-    if np.any(np.linalg.eigvalsh(arr) <= 0):
-        raise InputError(f"inertia matrix must be positive definite, eigenvalues {np.linalg.eigvalsh(arr)}")
+    arr = check_inertia(value).copy()
     arr.setflags(write=False)
     return arr
 

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
 from ..model.kinematics import rotation_zyx
 from ..robust import MarginReport, Thresholds, linearize, margins
 from .spec import Built, ScenarioSpec, checked
@@ -74,13 +73,3 @@ def warnings_of(reports: dict[str, MarginReport], thresholds: Thresholds | None 
             risk = " (compensating here can make the vehicle worse than PD)" if variant in ("pdc", "comply") else ""
             out.append(f"{DISPLAY_NAMES.get(variant, variant)}: " + "; ".join(v) + risk)
     return out
-
-
-def check_variants(variants: Any) -> list[str]:
-    from ..control.impedance import VARIANTS
-
-    variants = [variants] if isinstance(variants, str) else list(variants)
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad or not variants:
-        raise InputError(f"unknown controller variant(s) {bad or variants}; choose from {sorted(VARIANTS)}")
-    return variants

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..control.impedance import VARIANTS
-from ..errors import InputError, scalar
+from ..errors import scalar
 from ..sim.loop import ProgressFn, run_closed_loop
 from ..sim.result import Result
 from .registry import get
-from .spec import ScenarioSpec, checked
+from .spec import ScenarioSpec, check_variants, checked
 
 
 def simulate(
@@ -26,12 +25,7 @@ def simulate(
     ``backend`` and ``log`` are passed to :func:`~vtol_impedance.sim.loop.run_closed_loop`.
     """
     spec = get(scenario) if isinstance(scenario, str) else scenario
-    if isinstance(variants, str):
-        variants = [variants]
-    variants = list(variants)
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad or not variants:
-        raise InputError(f"unknown controller variant(s) {bad}; choose from {sorted(VARIANTS)}")
+    variants = check_variants(variants)
     b, ctrls = checked(spec, variants)
     seed = spec.seed if seed is None else scalar("seed", seed, lo=0, hi=2**63 - 1, integer=True)
     return run_closed_loop(

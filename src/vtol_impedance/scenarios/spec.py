@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..control.gains import Impedance, ImpedanceGains
-from ..control.impedance import ATTITUDE_FILTER_WN, PAPER_KI, ControllerParams, compile_controllers
+from ..control.impedance import ATTITUDE_FILTER_WN, PAPER_KI, VARIANTS, ControllerParams, compile_controllers
 from ..control.reference import Circle, Hold, MinJerk, Trajectory
 from ..errors import InputError, ScenarioError
 from ..estimator.momentum import EstimatorParams
@@ -224,10 +224,13 @@ class ScenarioSpec:
             from_dict(d)  # validates kinds and keys now, not mid-run
 
     def to_dict(self) -> dict[str, Any]:
-        return _to_plain(dataclasses.asdict(self))
+        return _to_plain(self)
 
 
 def _to_plain(v: Any) -> Any:
+    """Plain dicts, lists and Python numbers (as ``dataclasses.asdict`` with tuples as lists, in one pass)."""
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _to_plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
     if isinstance(v, dict):
         return {k: _to_plain(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
@@ -390,6 +393,20 @@ def check(spec: ScenarioSpec, variants: tuple[str, ...] | list[str] = ("pdc",)) 
     return built
 
 
+def check_variants(variants: Any, unique: bool = False) -> list[str]:
+    """``variants`` as a list of known controller names, or a clear error; ``unique``: each once (the
+    command line's comparisons: a repeat is the same flight twice under one label; the API allows copies,
+    a batch of identical vehicles)."""
+    variants = [variants] if isinstance(variants, str) else list(variants)
+    bad = [v for v in variants if not isinstance(v, str) or v not in VARIANTS]
+    if bad or not variants:
+        raise InputError(f"unknown controller variant(s) {bad or variants}; choose from {sorted(VARIANTS)}")
+    twice = sorted({v for v in variants if variants.count(v) > 1})
+    if unique and twice:
+        raise InputError(f"controller variant(s) {twice} given more than once; each is flown once per run")
+    return variants
+
+
 def checked(spec: ScenarioSpec, variants: tuple[str, ...] | list[str]) -> tuple[Built, list[ControllerParams]]:
     """:func:`check` without the controller design, returning what a run needs: the built scenario and one
     controller per variant (the run designs them once)."""
@@ -544,6 +561,8 @@ _OPTIONAL = {"control.wn_o", "control.wn_o_yaw", "control.attitude_filter_wn", "
 
 def _coerce(path: str, current: Any, value: Any) -> Any:
     """Convert ``value`` to the type of ``current`` or raise a clear error."""
+    if isinstance(value, np.generic | np.ndarray):  # NumPy's numbers (a sweep's, a user's) as Python's
+        value = value.tolist()
     if path in _OPTIONAL:
         if isinstance(value, str) and value in ("design", "auto"):
             return None
@@ -583,18 +602,47 @@ def _section_keys(obj: Any) -> list[str]:
     return [f.name for f in fields(obj)]
 
 
+#: A key naming one component of a vector value: ``payload.offset_B[0]``.
+_INDEXED = re.compile(r"^(?P<key>[A-Za-z_][\w.]*)\[(?P<i>\d)\]$")
+
+
+def get_value(spec: ScenarioSpec, key: str) -> Any:
+    """The value at the dotted ``key`` of ``spec``, as plain data (:meth:`ScenarioSpec.to_dict`)."""
+    obj: Any = spec.to_dict()
+    for part in key.split("."):
+        if isinstance(obj, list) and part.isdigit() and int(part) < len(obj):
+            obj = obj[int(part)]
+        elif isinstance(obj, dict) and part in obj:
+            obj = obj[part]
+        else:
+            raise ScenarioError(f"unknown key {key!r}")
+    return obj
+
+
 def set_value(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
-    """Return a copy of ``spec`` with the dotted ``key`` (``payload.mass``, ``disturbances.0.mean_force``) set."""
-    parts = key.split(".")
-    return _set(spec, parts, value, key)
+    """Return a copy of ``spec`` with the dotted ``key`` (``payload.mass``, ``disturbances.0.mean_force``, or
+    one component of a vector value, ``payload.offset_B[0]``) set."""
+    if not isinstance(key, str) or not key:
+        raise ScenarioError(f"a scenario key is a dotted name such as 'payload.mass', got {key!r}")
+    m = _INDEXED.match(key)
+    if m is not None:
+        current = get_value(spec, m["key"])
+        if isinstance(current, int | float) and m["key"] in _GAIN_KEYS:
+            current = [current] * 3  # a scalar gain taken per axis
+        if not isinstance(current, list) or int(m["i"]) >= len(current):
+            raise ScenarioError(f"{key}: {m['key']} is not a vector with a component {m['i']}")
+        new = list(current)
+        new[int(m["i"])] = value
+        return set_value(spec, m["key"], new)
+    return _set(spec, key.split("."), value, key)
 
 
 def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
     head, rest = parts[0], parts[1:]
     if isinstance(obj, tuple):  # the disturbances list
         try:
-            i = int(head)
-            item = obj[i]
+            i = int(head) if head.isdigit() else -1  # digits only: "-1" or "+0" would address another item
+            item = obj[i] if i >= 0 else obj[len(obj)]
         except (ValueError, IndexError):
             if not obj:
                 raise ScenarioError(

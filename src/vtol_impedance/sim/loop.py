@@ -688,7 +688,7 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
 
         plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)
 
-        _stop_failed(_check_vehicles(PA, plant.x), t + s.Ts, alive, fail_code, fail_time, plant, x_park)
+        _stop_failed(check_vehicles(PA, plant.x), t + s.Ts, alive, fail_code, fail_time, plant, x_park)
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
             progress((k + 1) / s.N)
 
@@ -718,8 +718,9 @@ def _stop_failed(
     return True
 
 
-def _check_vehicles(PA: PlantArrays, x: np.ndarray) -> np.ndarray:
-    """Failure code per vehicle (0 when healthy; see :data:`REASONS`)."""
+def check_vehicles(PA: PlantArrays, x: np.ndarray) -> np.ndarray:
+    """Failure code per vehicle of the states ``x (B, n)`` (0 when healthy; the reasons are
+    :data:`vtol_impedance.records.REASONS`)."""
     code = np.zeros(x.shape[0], dtype=np.int64)
     finite = np.all(np.isfinite(x), axis=-1)
     code[~finite] = FAIL_NAN

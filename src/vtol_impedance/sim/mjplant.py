@@ -240,6 +240,7 @@ class MujocoPlant:
         ]
         self.n = PA.spins.shape[-1]
         self.x = np.array(x0, dtype=float)
+        self.ctrl = np.zeros((len(self.datas), self.n))  # the rotor commands held in each data's ctrl
         self.failed = np.zeros(len(self.datas), dtype=bool)
         self.frozen = np.zeros(len(self.datas), dtype=bool)
         for b in range(len(self.datas)):
@@ -252,6 +253,12 @@ class MujocoPlant:
         self._threads = [mj.MjData(m0) for _ in range(min(len(self.models), os.cpu_count() or 1))]
         self._full = mj.mjtState.mjSTATE_FULLPHYSICS
         self._inputs = mj.mjtState.mjSTATE_CTRL | mj.mjtState.mjSTATE_XFRC_APPLIED
+        S = mj.mjtState
+        #: Where qpos, qvel and act start in a full physics state (MuJoCo orders its parts by their bits).
+        self._offsets = tuple(
+            mj.mj_stateSize(m0, int(before)) for before in (S.mjSTATE_TIME, S.mjSTATE_TIME | S.mjSTATE_QPOS,
+                                                            S.mjSTATE_TIME | S.mjSTATE_QPOS | S.mjSTATE_QVEL)
+        )  # fmt: skip
         self._pool: Any = None  # mujoco.rollout.Rollout, made at the first period, ended by close()
 
     def close(self) -> None:
@@ -288,41 +295,48 @@ class MujocoPlant:
             d.qvel[6:9] = R_bob.T @ (w_bob_W - R_enu @ _flu(w_B))
         if self.lag[b]:
             d.act[:] = x[ROTOR]
-        d.ctrl[: self.n] = x[ROTOR]
+        d.ctrl[: self.n] = self.ctrl[b] = x[ROTOR]
         mj.mj_forward(m, d)
 
     def _read(self) -> np.ndarray:
-        """The state of every vehicle from MuJoCo's ``qpos``, ``qvel`` and ``act``."""
-        mj = self.mj
-        B = len(self.datas)
-        x = np.zeros_like(self.x)
-        qpos = np.array([d.qpos[:7] for d in self.datas])
-        qvel = np.array([d.qvel[:6] for d in self.datas])
-        R_enu = np.empty((B, 9))
-        for b in range(B):
-            mj.mju_quat2Mat(R_enu[b], qpos[b, 3:7])
-        R_enu = R_enu.reshape(B, 3, 3)
-        R = T_NED_ENU @ R_enu @ T_FRD_FLU
-        p_o = qpos[:, 0:3] @ T_NED_ENU.T
-        v_o = qvel[:, 0:3] @ T_NED_ENU.T
-        w_B = qvel[:, 3:6] @ T_FRD_FLU.T
-        c = self.PA.c_B
-        x[:, P_COM] = p_o + matvec(R, np.broadcast_to(c, p_o.shape))
-        x[:, V_COM] = v_o + matvec(R, cross(w_B, np.broadcast_to(c, p_o.shape)))
-        x[:, QUAT] = [_mat2quat(mj, Rb) for Rb in R]
-        x[:, OMEGA] = w_B
-        for b, d in enumerate(self.datas):
-            x[b, ROTOR] = d.act if self.lag[b] else np.clip(d.ctrl[: self.n], self.PA.f_min[b], self.PA.f_max[b])
+        """The state of every vehicle from MuJoCo's ``qpos``, ``qvel``, ``act`` and ``ctrl``."""
+        d = self.datas
+        return self._convert([e.qpos for e in d], [e.qvel for e in d], [e.act for e in d], np.arange(len(d)))
+
+    def _convert(
+        self, qpos: Sequence[np.ndarray], qvel: Sequence[np.ndarray], act: Sequence[np.ndarray], veh: np.ndarray
+    ) -> np.ndarray:
+        """States in the layout of :mod:`.plant` from MuJoCo's ``qpos``, ``qvel`` (ENU/FLU, the body origin)
+        and ``act``, a row each (a 2-D array or a list); row ``i`` is a state of vehicle ``veh[i]``."""
+        x = np.empty((len(veh),) + self.x.shape[1:])
+        q7 = qpos[:, :7] if isinstance(qpos, np.ndarray) else np.array([r[:7] for r in qpos])
+        v6 = qvel[:, :6] if isinstance(qvel, np.ndarray) else np.array([r[:6] for r in qvel])
+        # q_WB (NED/FRD) = q(T_NED_ENU) q_ENU_FLU q(T_FRD_FLU), half-turns about (1, 1, 0)/sqrt(2) and x,
+        # written out; the sign is chosen with w >= 0 (the same rotation)
+        w, a, b, c = q7[:, 3], q7[:, 4], q7[:, 5], q7[:, 6]
+        q = x[:, QUAT]
+        q[:, 0], q[:, 1], q[:, 2], q[:, 3] = w + c, a + b, a - b, w - c
+        q *= np.copysign(1.0 / np.sqrt(np.einsum("ij,ij->i", q, q)), q[:, 0])[:, None]
+        R = quat_to_rotation(q)
+        c_B = self.PA.c_B[veh]
+        x[:, OMEGA] = v6[:, 3:6] * [1.0, -1.0, -1.0]  # T_FRD_FLU
+        x[:, P_COM] = q7[:, [1, 0, 2]] * [1.0, 1.0, -1.0] + matvec(R, c_B)  # T_NED_ENU: a swap and a sign
+        x[:, V_COM] = v6[:, [1, 0, 2]] * [1.0, 1.0, -1.0] + matvec(R, cross(x[:, OMEGA], c_B))
+        x[:, ROTOR] = np.clip(self.ctrl[veh], self.PA.f_min[veh], self.PA.f_max[veh])
+        x[:, PEND_R] = x[:, PEND_V] = 0.0
+        for i, b in enumerate(veh):
+            if self.lag[b]:
+                x[i, ROTOR] = act[i][: self.n]
             if self.bob[b] >= 0:
-                q_rel, w_rel = d.qpos[7:11], d.qvel[6:9]
-                R_rel = np.empty(9)
-                mj.mju_quat2Mat(R_rel, q_rel)
-                R_bob = R_enu[b] @ R_rel.reshape(3, 3)
-                L = float(self.PA.pend_L[b])
-                r = R_bob @ np.array([0.0, 0.0, -L])
-                w_bob = R_enu[b] @ qvel[b, 3:6] + R_bob @ w_rel
-                x[b, PEND_R] = T_NED_ENU @ r
-                x[b, PEND_V] = T_NED_ENU @ np.cross(w_bob, r)
+                R_enu, R_rel = np.empty(9), np.empty(9)
+                self.mj.mju_quat2Mat(R_enu, qpos[i][3:7])
+                self.mj.mju_quat2Mat(R_rel, qpos[i][7:11])
+                R_enu = R_enu.reshape(3, 3)
+                R_bob = R_enu @ R_rel.reshape(3, 3)
+                r = R_bob @ np.array([0.0, 0.0, -float(self.PA.pend_L[b])])
+                w_bob = R_enu @ qvel[i][3:6] + R_bob @ qvel[i][6:9]
+                x[i, PEND_R] = T_NED_ENU @ r
+                x[i, PEND_V] = T_NED_ENU @ np.cross(w_bob, r)
         return x
 
     # -- the loop's interface ---------------------------------------------------------------------------
@@ -352,7 +366,7 @@ class MujocoPlant:
             now = tau <= 0  # a direction without lag: the rotor is at its command at once
             act, rate = np.where(now, target, act), np.where(now, 1.0, tau)
         for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
-            d.ctrl[:n] = f_cmd[b]
+            d.ctrl[:n] = self.ctrl[b] = f_cmd[b]
             d.ctrl[n:] = tau_flu[b]
             if self.lag[b]:
                 d.act[:n] = act[b]
@@ -375,7 +389,8 @@ class MujocoPlant:
         acc = np.zeros(6)
         for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
             mj.mj_forward(m, d)
-            mj.mj_rnePostConstraint(m, d)
+            if self.bob[b] >= 0:  # the bob's acceleration below needs it; qacc and contacts do not
+                mj.mj_rnePostConstraint(m, d)
             a_o[b] = T_NED_ENU @ d.qacc[0:3]
             w_dot[b] = T_FRD_FLU @ d.qacc[3:6]
             R_enu = d.xmat[self.vehicle].reshape(3, 3)
@@ -454,23 +469,29 @@ class MujocoPlant:
                 mj.mj_getState(m, d, inputs[i, j], self._inputs)
         for i, b in enumerate(active):
             mj.mj_getState(self.models[b], self.datas[b], state0[i], self._full)
+        states = np.empty((len(active), n_sub, state0.shape[1]))
         if active:
             if self._pool is None:  # one thread pool for the whole run (a pool per call costs its threads)
                 self._pool = rollout.Rollout(nthread=len(self._threads) if len(self._threads) > 1 else 0)
-            states = np.empty((len(active), n_sub, state0.shape[1]))
+            # the arrays are made here with the sizes MuJoCo asks for: its argument checks are skipped
             self._pool.rollout([self.models[b] for b in active], self._threads, state0, inputs,
-                               control_spec=self._inputs, nstep=n_sub, state=states)  # fmt: skip
+                               control_spec=int(self._inputs), nstep=n_sub, state=states, skip_checks=True)  # fmt: skip
         ages = self.sensor_ages
         wanted = set(range(n_sub)) if ages is None else {n_sub - 1 - k % n_sub for k in ages} | {n_sub - 1}
-        converted = {}
-        for j in sorted(wanted):  # the last one last: the vehicles' data end at the period's final state
-            for i, b in enumerate(active):
-                mj.mj_setState(self.models[b], self.datas[b], states[i, j], self._full)
-                if not np.all(np.isfinite(states[i, j])):
-                    self.failed[b] = True
-            x = self._read()
-            x[self.failed] = np.nan
-            converted[j] = x
+        js = sorted(wanted)
+        self.failed[np.asarray(active, dtype=int)[~np.isfinite(states[:, js]).all(axis=(1, 2))]] = True
+        oq, ov, oa = self._offsets
+        nq, nv, na = m0.nq, m0.nv, m0.na
+        xs = np.repeat(self.x[None], len(js), 0)  # a vehicle that no longer steps keeps its state
+        if active:
+            rows = states[:, js].reshape(len(active) * len(js), -1)  # vehicle-major
+            conv = self._convert(rows[:, oq : oq + nq], rows[:, ov : ov + nv], rows[:, oa : oa + na],
+                                 np.repeat(active, len(js)))  # fmt: skip
+            xs[:, active] = conv.reshape(len(active), len(js), -1).swapaxes(0, 1)
+        xs[:, self.failed] = np.nan
+        converted = dict(zip(js, xs, strict=True))
+        for i, b in enumerate(active):  # the vehicles' data end at the period's final state
+            mj.mj_setState(self.models[b], self.datas[b], states[i, n_sub - 1], self._full)
         self.x = converted[n_sub - 1]
         # every step is pushed, in order; a state no sensor reads stands in as the period's last
         for j in range(n_sub):

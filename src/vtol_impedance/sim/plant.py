@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 from typing import NamedTuple
 
 import numpy as np
@@ -451,6 +452,22 @@ def pack_plant(P: PlantArrays) -> np.ndarray:
     )  # fmt: skip
 
 
+@cache
+def _state_columns(n_rotors: int) -> np.ndarray:
+    """Where each entry of a flat state with ``n_rotors`` rotors goes in a
+    :data:`~vtol_impedance.compiled.layouts.STATE` record read as float64 (every field is one)."""
+    from ..compiled.layouts import STATE
+
+    flat = np.arange(state_size(n_rotors))
+    cols = np.empty_like(flat)
+    for name, part in (("p_com_W", P_COM), ("v_com_W", V_COM), ("q_WB", QUAT), ("omega_B", OMEGA),
+                       ("f_rotor", ROTOR), ("r_pend_W", PEND_R), ("v_pend_W", PEND_V)):  # fmt: skip
+        at = flat[part]
+        cols[at] = STATE.fields[name][1] // 8 + np.arange(at.size)
+    cols.setflags(write=False)
+    return cols
+
+
 def pack_state(x: np.ndarray) -> np.ndarray:
     """States ``(B,)`` of :data:`vtol_impedance.compiled.layouts.STATE` from flat states ``(B, state_size(n))``."""
     from ..compiled.layouts import STATE
@@ -460,10 +477,7 @@ def pack_state(x: np.ndarray) -> np.ndarray:
     if not 0 < n <= MAX_ROTORS:
         raise ValueError(f"flat states of shape (B, state_size(n)) with 1 <= n <= {MAX_ROTORS}, got {x.shape}")
     out = np.zeros(x.shape[0], dtype=STATE)
-    for name, part in (("p_com_W", P_COM), ("v_com_W", V_COM), ("q_WB", QUAT), ("omega_B", OMEGA),
-                       ("r_pend_W", PEND_R), ("v_pend_W", PEND_V)):  # fmt: skip
-        out[name] = x[:, part]
-    out["f_rotor"][:, :n] = x[:, ROTOR]
+    out.view(np.float64).reshape(x.shape[0], -1)[:, _state_columns(n)] = x
     return out
 
 

@@ -220,7 +220,8 @@ def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
     cols = s["cols"]
     xs = _axis_values(s["rows"], axis)
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    key = np.array([v if isinstance(v, str) else json.dumps(v) for v in cols[axis]])  # vectors: stored as JSON
+    stored = lambda v: v if isinstance(v, str) else json.dumps(v)  # noqa: E731 (vectors: stored as JSON)
+    key = np.array([stored(v) for v in cols[axis]])
     vals = cols[s["metric"]].astype(float)
     failed = cols["diverged"].astype(bool)
     top = np.nanmax(np.where(failed, np.nan, vals)) if np.any(~failed) else 1.0
@@ -229,7 +230,7 @@ def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
     for c in s["controllers"]:
         med, lo, hi, nfail = [], [], [], []
         for v in xs:
-            sel = (key == json.dumps(v)) & (cols["controller"] == c)
+            sel = (key == stored(v)) & (cols["controller"] == c)
             ok = vals[sel & ~failed]
             ok = ok[np.isfinite(ok)]
             med.append(np.median(ok) if ok.size else np.nan)
@@ -246,7 +247,8 @@ def plot_against(s: dict[str, Any], path: Path, axis: str) -> Path:
         ax.set_xscale("log")
     if not numeric:
         ax.set_xticks(xpos, [tick(v) for v in xs], rotation=30, ha="right", fontsize=8)
-    ax.set_yscale("log")
+    if np.any(np.isfinite(vals) & (vals > 0) & ~failed):  # a log axis needs one positive value
+        ax.set_yscale("log")
     ax.set_xlabel(axis_label(axis))
     ax.set_ylabel(METRIC_LABELS[s["metric"]])
     ax.grid(alpha=0.3, which="both")

@@ -36,7 +36,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import re
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -56,24 +55,11 @@ MODES = ("grid", "zip", "random")
 KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "samples", "chunk", "traces",
         "max_flights", "margins", "set", "axes")  # fmt: skip
 MAX_FLIGHTS = 200_000
-_INDEXED = re.compile(r"^(?P<key>[A-Za-z_][\w.]*)\[(?P<i>\d)\]$")
-
-
-def _get(spec: ScenarioSpec, key: str) -> Any:
-    obj: Any = spec.to_dict()
-    for part in key.split("."):
-        if isinstance(obj, list):
-            obj = obj[int(part)]
-        elif isinstance(obj, dict) and part in obj:
-            obj = obj[part]
-        else:
-            raise ScenarioError(f"unknown key {key!r}")
-    return obj
 
 
 def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
-    """``set_value`` plus one component of a vector value (``payload.offset_B[0]``) and joint keys:
-    ``"plant.rotor_tau_up,plant.rotor_tau_down"`` set from a list of as many values."""
+    """``set_value`` (which takes one component of a vector value, ``payload.offset_B[0]``) plus joint
+    keys: ``"plant.rotor_tau_up,plant.rotor_tau_down"`` set from a list of as many values."""
     if "," in key:
         keys = [k.strip() for k in key.split(",")]
         if not isinstance(value, list | tuple) or len(value) != len(keys):
@@ -81,17 +67,7 @@ def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
         for k, v in zip(keys, value, strict=True):
             spec = set_param(spec, k, v)
         return spec
-    m = _INDEXED.match(key)
-    if m is None:
-        return set_value(spec, key, value)
-    current = _get(spec, m["key"])
-    if isinstance(current, int | float):
-        current = [current] * 3  # a scalar gain taken per axis
-    if not isinstance(current, list) or int(m["i"]) >= len(current):
-        raise ScenarioError(f"{key}: {m['key']} is not a vector with a component {m['i']}")
-    new = list(current)
-    new[int(m["i"])] = value
-    return set_value(spec, m["key"], new)
+    return set_value(spec, key, value)
 
 
 @dataclass(frozen=True)
@@ -281,6 +257,12 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
     if not isinstance(raw_axes, dict) or not raw_axes:
         raise InputError("a sweep needs [axes]: at least one scenario value to vary")
     axes = [_axis(k, v, mode) for k, v in raw_axes.items()]
+    for a in axes:
+        if "seed" in (k.strip() for k in a.key.split(",")):
+            raise InputError(
+                f"axis {a.key!r}: the sweep sets each flight's seed itself (from 'seed' and 'seeds'), so seed "
+                "cannot be an axis; raise 'seeds' for more repeats"
+            )
     for a in axes:  # unknown keys fail here, before any flight
         set_param(base, a.key, a.grid()[0] if mode != "random" else a.draw(np.random.default_rng(0)))
     if mode == "grid":

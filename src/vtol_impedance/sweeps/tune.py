@@ -43,10 +43,12 @@ from typing import Any
 
 import numpy as np
 
+from ..control.impedance import VARIANTS
 from ..errors import InputError, check_keys, scalar
 from ..robust.design import DesignError
+from ..scenarios.spec import _INDEXED, get_value
 from .run import METRICS, Executor, warm_up
-from .spec import _INDEXED, Axis, _axis, _flatten, _get, from_dict
+from .spec import Axis, _axis, _flatten, from_dict
 
 KEYS = ("name", "description", "base", "controller", "trials", "seed", "population", "set", "search", "spread", "cost")
 COST_KEYS = ("metric", "saturation_weight", "failure_penalty", "min_phase_margin_deg", "margin_penalty")
@@ -124,7 +126,7 @@ class Tuning:
         if self.spread:  # one point per member, one seed each
             axes, seeds = {a.key: [m[a.key] for m in members] for a in self.spread}, 1
         else:  # the members differ only by their noise: one point, a seed each (the axis changes nothing)
-            axes, seeds = {"seed": [0]}, self.population
+            axes, seeds = {"duration": [self.base_spec().duration]}, self.population
         fixed = dict(_flatten(self.data.get("set", {})))
         fixed.update(params)
         return {
@@ -158,9 +160,12 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
     metric = cost.get("metric", "rms_ep_cm")
     if metric not in METRICS:
         raise InputError(f"cost metric must be one of {', '.join(METRICS)}, got {metric!r}")
+    controller = data.get("controller", "pdc")
+    if not isinstance(controller, str):  # one controller is tuned at a time
+        raise InputError(f"controller is one of {', '.join(sorted(VARIANTS))} (one per tuning), got {controller!r}")
     t = Tuning(
         name=str(data.get("name", "tune")), description=str(data.get("description", "")), data=data, where=where,
-        controller=str(data.get("controller", "pdc")),
+        controller=controller,
         trials=int(scalar("trials", data.get("trials", 30), lo=1, hi=100_000, integer=True)),
         seed=int(scalar("seed", data.get("seed", 0), lo=0, hi=2**63 - 1, integer=True)),
         population=int(scalar("population", data.get("population", 4), lo=1, hi=10_000, integer=True)),
@@ -279,7 +284,7 @@ def best_scenario_toml(t: Tuning, best: dict[str, Any]) -> str:
     lines = [f"# best gains of tuning {t.name!r}, written by vtol-impedance tune", f"base = {json.dumps(base)}",
              f"name = {json.dumps(t.name + '-best-v1')}"]  # fmt: skip
     for k in dict.fromkeys(keys):
-        lines.append(f"{k} = {json.dumps(_get(spec, k))}")
+        lines.append(f"{k} = {json.dumps(get_value(spec, k))}")
     return "\n".join(lines) + "\n"
 
 
