@@ -150,6 +150,13 @@ def test_cli_bad_input_is_a_message_not_a_traceback(tmp_path):
     assert r.returncode == 2 and "mode|stop|clock" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_control_options_without_control_are_refused_not_ignored(capsys):
+    from vtol_impedance.cli import main
+
+    assert main(["live", "--connect", "udpin:127.0.0.1:9", "--kp", "5", "--comply", "1,1,0"]) == 2
+    assert "--comply, --kp apply with --control only" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     "kw, message",
     [

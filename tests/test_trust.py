@@ -123,6 +123,7 @@ def test_output_location_is_checked_before_the_work(tmp_path, capsys):
     # a run's folder is replaced by the next run, unless a file was added to it since
     run = ["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.2", "--out", str(tmp_path / "run")]
     assert main(run) == 0 and main(run) == 0
+    assert not (tmp_path / ".run.lock").exists()  # the lock goes with the run
     (tmp_path / "run" / "notes.txt").write_text("mine")
     assert main(run) == 2
     assert "files its run did not write: ['notes.txt']" in capsys.readouterr().err

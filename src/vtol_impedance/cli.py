@@ -709,20 +709,41 @@ def cmd_live(args: argparse.Namespace) -> int:
     MAVLink"."""
     import json as _json
 
+    from .errors import InputError
     from .estimator.momentum import EstimatorParams
     from .live import ControlSettings, EstimatorSettings, LiveSettings, run_live
 
     control = None
-    if args.control is not None:
+    only_with_control = {
+        "--comply": args.comply, "--impedance": args.impedance, "--kp": args.kp, "--dp": args.dp,
+        "--fence": args.fence, "--max-speed": args.max_speed, "--tilt-max": args.tilt_max,
+        "--tilt-rate": args.tilt_rate, "--watchdog": args.watchdog, "--on-loss": args.on_loss,
+        "--handshake-timeout": args.handshake_timeout, "--arm": args.arm or None,
+    }  # fmt: skip
+    if args.control is None:
+        given = [k for k, v in only_with_control.items() if v is not None]
+        if given:
+            raise InputError(f"{', '.join(given)} appl{'y' if len(given) > 1 else 'ies'} with --control only")
+    else:
         fence = _numbers(args.fence, "--fence", 2)
         comply = _numbers(args.comply, "--comply", 3)
         if comply is None:
             comply = (1.0, 1.0, 0.0) if args.control == "comply" else (0.0, 0.0, 0.0)
-        control = ControlSettings(
-            variant=args.control, comply=comply, impedance=_numbers(args.impedance, "--impedance", 3),
-            Kp=args.kp, Dp=args.dp, tilt_max_deg=args.tilt_max, tilt_rate_max_deg_s=args.tilt_rate,
-            fence_radius_m=fence[0], fence_height_m=fence[1], max_speed_m_s=args.max_speed,
-            watchdog_s=args.watchdog, on_loss=args.on_loss, handshake_timeout_s=args.handshake_timeout, arm=args.arm,
+        kw = {
+            "impedance": _numbers(args.impedance, "--impedance", 3),
+            "Kp": args.kp,
+            "Dp": args.dp,
+            "tilt_max_deg": args.tilt_max,
+            "tilt_rate_max_deg_s": args.tilt_rate,
+            "max_speed_m_s": args.max_speed,
+            "watchdog_s": args.watchdog,
+            "on_loss": args.on_loss,
+            "handshake_timeout_s": args.handshake_timeout,
+        }
+        if fence is not None:
+            kw["fence_radius_m"], kw["fence_height_m"] = fence
+        control = ControlSettings(  # what is not given keeps ControlSettings' default (one place for them)
+            variant=args.control, comply=comply, arm=args.arm, **{k: v for k, v in kw.items() if v is not None}
         )  # fmt: skip
     est = EstimatorSettings(
         rate_hz=args.rate, max_gap_s=args.max_gap, backend=args.backend,
@@ -1115,17 +1136,18 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--control", nargs="?", const="pdc", default=None, choices=["pdc", "comply"],
                    help="fly the outer loop: pdc (reject: PD + estimate) or comply (yield on --comply)")  # fmt: skip
     g.add_argument("--comply", default=None, metavar="X,Y,Z", help="comply fraction per world axis (comply: 1,1,0)")
-    g.add_argument("--impedance", default="2,6,5", metavar="M,D,K", help="comply's M_d kg, D_d N s/m, K_d N/m")
-    g.add_argument("--kp", type=float, default=4.0, help="position stiffness Kp, N/m (4; the paper's 16 is too fast "
-                   "for an autopilot's attitude interface, README)")  # fmt: skip
-    g.add_argument("--dp", type=float, default=5.0, help="position damping Dp, N s/m (5; paper: 12)")
-    g.add_argument("--fence", default="1.0,0.5", metavar="R,H", help="fence around the hold point: radius, height, m")
-    g.add_argument("--max-speed", type=float, default=1.5, help="speed fence, m/s")
-    g.add_argument("--tilt-max", type=float, default=20.0, help="largest roll/pitch set-point, deg")
-    g.add_argument("--tilt-rate", type=float, default=180.0, help="largest roll/pitch set-point rate, deg/s")
-    g.add_argument("--watchdog", type=float, default=0.25, help="no telemetry tick for this long hands back, s")
-    g.add_argument("--on-loss", default="hold", choices=["hold", "land"], help="what the watchdog hands back to")
-    g.add_argument("--handshake-timeout", type=float, default=3.0, help="each handshake step's time limit, s")
+    # these take effect with --control only (None: not given, the ControlSettings default)
+    g.add_argument("--impedance", default=None, metavar="M,D,K", help="comply's M_d kg, D_d N s/m, K_d N/m (2,6,5)")
+    g.add_argument("--kp", type=float, default=None, help="position stiffness Kp, N/m (4; the paper's 16 is too "
+                   "fast for an autopilot's attitude interface, README)")  # fmt: skip
+    g.add_argument("--dp", type=float, default=None, help="position damping Dp, N s/m (5; paper: 12)")
+    g.add_argument("--fence", default=None, metavar="R,H", help="fence around the hold point: radius, height (1,0.5) m")
+    g.add_argument("--max-speed", type=float, default=None, help="speed fence, m/s (1.5)")
+    g.add_argument("--tilt-max", type=float, default=None, help="largest roll/pitch set-point, deg (20)")
+    g.add_argument("--tilt-rate", type=float, default=None, help="largest roll/pitch set-point rate, deg/s (180)")
+    g.add_argument("--watchdog", type=float, default=None, help="no telemetry tick for this long hands back, s (0.25)")
+    g.add_argument("--on-loss", default=None, choices=["hold", "land"], help="what the watchdog hands back to (hold)")
+    g.add_argument("--handshake-timeout", type=float, default=None, help="each handshake step's time limit, s (3)")
     g.add_argument("--arm", action="store_true", help="arm a disarmed vehicle (else it must be armed and flying)")
     sp.add_argument("--duration", type=float, default=None, help="end after this many seconds (default: Ctrl-C)")
     sp.add_argument("--out", default=None, help=f"run folder (default: {DEFAULT_OUT}/live-<date>-<time>)")

@@ -183,13 +183,18 @@ class FolderLock:
         from .errors import InputError
 
         folder = Path(folder).absolute()
+        self.path = folder.parent / f".{folder.name}.lock"
         try:
             folder.parent.mkdir(parents=True, exist_ok=True)
-            self._fh = open(folder.parent / f".{folder.name}.lock", "a+")  # noqa: SIM115 (held until close)
+            self._fh = open(self.path, "a+")  # noqa: SIM115 (held until close)
         except OSError as exc:
             raise InputError(f"cannot create the output folder {folder}: {exc.strerror}") from None
         try:
             fcntl.flock(self._fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            # the holder before us removes its file on closing: a lock on a file no longer at the path is
+            # no lock (another run may hold the new one)
+            if os.stat(self.path).st_ino != os.fstat(self._fh.fileno()).st_ino:
+                raise OSError
         except OSError:
             self._fh.close()
             raise InputError(
@@ -197,6 +202,10 @@ class FolderLock:
             ) from None
 
     def close(self) -> None:
+        """Release the lock and remove its file (removed while still held: no one can take it in between)."""
+        if not self._fh.closed:
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
         self._fh.close()
 
 
