@@ -316,7 +316,8 @@ class MujocoPlant:
         w, a, b, c = q7[:, 3], q7[:, 4], q7[:, 5], q7[:, 6]
         q = x[:, QUAT]
         q[:, 0], q[:, 1], q[:, 2], q[:, 3] = w + c, a + b, a - b, w - c
-        q *= np.copysign(1.0 / np.sqrt(np.einsum("ij,ij->i", q, q)), q[:, 0])[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):  # a diverged vehicle's NaN stays NaN, quietly
+            q *= np.copysign(1.0 / np.sqrt(np.einsum("ij,ij->i", q, q)), q[:, 0])[:, None]
         R = quat_to_rotation(q)
         c_B = self.PA.c_B[veh]
         x[:, OMEGA] = v6[:, 3:6] * [1.0, -1.0, -1.0]  # T_FRD_FLU
