@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import InputError, scalar
 from ..io import RunFolder
-from ..model.vehicle import load_preset
+from ..model.vehicle import check_inertia, load_preset
 from .control import ControlSettings, OffboardController, OuterLoop
 from .display import Screen, StreamRow, View
 from .estimator import CSV_COLUMNS, EstimatorSettings, LiveEstimator, csv_row
@@ -111,8 +111,6 @@ class LiveSettings:
                 f"--hover-thrust is the normalised thrust that holds the vehicle, below 1, got {self.hover_thrust}"
             )
         if self.inertia is not None:
-            from ..logs import check_inertia
-
             check_inertia(self.inertia)
         if self.display not in ("auto", "tty", "plain", "none"):
             raise InputError(f"--display must be auto, tty, plain or none, got {self.display!r}")
