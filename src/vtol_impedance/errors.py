@@ -35,10 +35,10 @@ def as_finite(name: str, value: Any, shape_tail: tuple[int, ...] | None = None) 
     if isinstance(value, str | bytes | dict | bool | np.bool_) or value is None:
         raise InputError(f"{name} must be numeric, got {value!r}")
     try:
-        kind = value.dtype.kind if isinstance(value, np.ndarray) else np.asarray(value).dtype.kind
-        if kind in "bcSUV":  # booleans, complex numbers, text, raw bytes: no silent cast to a real number
+        raw = value if isinstance(value, np.ndarray) else np.asarray(value)  # converted once
+        if raw.dtype.kind in "bcSUV":  # booleans, complex numbers, text, raw bytes: no silent cast to a real number
             raise InputError(f"{name} must be real numbers, got {_short(value)}")
-        arr = np.asarray(value, dtype=float)
+        arr = np.asarray(raw, dtype=float)
     except InputError:
         raise
     except (TypeError, ValueError) as exc:

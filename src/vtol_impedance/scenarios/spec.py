@@ -640,15 +640,14 @@ def set_value(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
 def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
     head, rest = parts[0], parts[1:]
     if isinstance(obj, tuple):  # the disturbances list
-        try:
-            i = int(head) if head.isdigit() else -1  # digits only: "-1" or "+0" would address another item
-            item = obj[i] if i >= 0 else obj[len(obj)]
-        except (ValueError, IndexError):
-            if not obj:
-                raise ScenarioError(
-                    f"{full}: this scenario has no disturbances; add them as [[disturbances]] tables in a scenario file"
-                ) from None
-            raise ScenarioError(f"{full}: there are {len(obj)} disturbances; use an index 0..{len(obj) - 1}") from None
+        if not obj:
+            raise ScenarioError(
+                f"{full}: this scenario has no disturbances; add them as [[disturbances]] tables in a scenario file"
+            )
+        if not (head.isascii() and head.isdigit() and int(head) < len(obj)):  # "-1" or "+0" would address another
+            raise ScenarioError(f"{full}: there are {len(obj)} disturbances; use an index 0..{len(obj) - 1}")
+        i = int(head)
+        item = obj[i]
         if not rest:
             raise ScenarioError(f"{full}: name a field of disturbance {i}, e.g. disturbances.{i}.kind")
         new = dict(item)
