@@ -259,6 +259,24 @@ def test_paper_workers_die_with_their_parent(tmp_path):
 # --------------------------------------------------------------------------- the API
 
 
+def test_step_arrays_after_reset_is_a_new_flight():
+    """reset() forgets the estimate for step_arrays too: after a flight with a push, the first step equals a
+    fresh controller's, and the flight that follows is the same to the bit."""
+    y = np.zeros(12)
+    y[2] = -1.0
+    r = y.copy()
+    used, fresh = Controller(ControllerParams.paper("pdc")), Controller(ControllerParams.paper("pdc"))
+    for k in range(60):  # a vehicle drifting away at 0.5 m/s: the estimator learns a force
+        y[0], y[3] = 0.005 * k, 0.5
+        used.step_arrays(y, r)
+    assert np.abs(used.step_arrays(y, r)["f_hat_W"]).max() > 0.1
+    used.reset()
+    y[0] = y[3] = 0.0
+    for _ in range(5):
+        a, b = used.step_arrays(y, r), fresh.step_arrays(y, r)
+        assert all(np.array_equal(a[name], b[name]) for name in a.dtype.names)
+
+
 def test_step_arrays_checks_type_shape_and_dtype():
     ctrl = Controller(ControllerParams.paper("pdc"))
     y = np.zeros(12)
@@ -274,13 +292,18 @@ def test_step_arrays_checks_type_shape_and_dtype():
         (np.zeros(12, dtype=np.int64), "int64 array"),
         (list(np.zeros(12)), "list"),
         (np.zeros((12, 2))[:, 0], "non-contiguous float64"),
+        (np.zeros(12, dtype=">f8"), r">f8 array"),  # the same values in another byte order
+        (np.zeros(12).view(np.matrix), "matrix"),
     ):
         with pytest.raises(InputError, match=msg):
             ctrl.step_arrays(y, bad)
         with pytest.raises(InputError, match=msg):
             ctrl.step_arrays(bad, r)
-    with pytest.raises(InputError, match="vehicle"):
-        ctrl.step_arrays(y, r, vehicle=3)
+    for vehicle in (3, -1, True, 0.0, np.int64(0)):
+        with pytest.raises(InputError, match="vehicle"):
+            ctrl.step_arrays(y, r, vehicle=vehicle)
+    with pytest.raises(InputError, match="backend='compiled'"):
+        Controller(ControllerParams.paper("pdc"), backend="numpy").step_arrays(y, r)
     comply = Controller(ControllerParams.paper("comply"))
     with pytest.raises(InputError, match=r"comply fractions must be within \[0, 1\]"):
         comply.step_arrays(y, np.concatenate([r, [1.5, 0.0, 0.0]]))

@@ -28,6 +28,7 @@ from .model.dynamics import body_moment_from_euler
 from .model.kinematics import check_euler_regular, euler_rate_matrix_Q
 
 _F8 = np.dtype(np.float64)
+_ND = np.ndarray
 _ONE_F8 = (8,)  # the strides of a contiguous vector of float64
 
 
@@ -126,6 +127,8 @@ class Controller:
             self._out = kernels.new_output(self._p.shape[0])
             self._out_views = [self._out[b] for b in range(self._p.shape[0])]  # each vehicle's record, a view
             self._step_entry = kernels.checked_step_entry()
+        #: What :meth:`step_arrays` calls, in one tuple (one attribute read per call); None with NumPy.
+        self._fast: tuple | None = None
         self.reset()
 
     @property
@@ -141,6 +144,7 @@ class Controller:
         self._warned: set[str] = set()
         if self.backend == "compiled":
             self._s, self._h = self._k.initial_state(self._p, self._d)
+            self._fast = (self._step_entry, self._p, self._d, self._s, self._h, self._out, self._out_views)
 
     def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.void:
         """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, ``(15,)`` or
@@ -151,22 +155,18 @@ class Controller:
         :class:`InputError` on a wrong type, dtype, shape or a non-finite value, and
         :class:`SingularityError` at theta = +-90 deg.
         """
-        if self.backend != "compiled":
+        fast = self._fast
+        if fast is None:
             raise InputError("step_arrays needs backend='compiled'")
-        if type(vehicle) is not int or not 0 <= vehicle < len(self._out_views):
-            raise InputError(f"step_arrays: vehicle must be an int in [0, {len(self._out_views)}), got {vehicle!r}")
+        entry, p, d, s, h, o, views = fast
+        if type(vehicle) is not int or not 0 <= vehicle < len(views):
+            raise InputError(f"step_arrays: vehicle must be an int in [0, {len(views)}), got {vehicle!r}")
         # the compiled entry point skips numba's dispatch (a microsecond); its argument types are checked here
-        if (
-            type(y) is np.ndarray
-            and type(r) is np.ndarray
-            and y.dtype is _F8
-            and r.dtype is _F8
-            and y.strides == r.strides == _ONE_F8
-        ):
-            status = self._step_entry(self._p, self._d, self._s, self._h, vehicle, y, r, self._out)
+        if type(y) is _ND is type(r) and y.dtype is _F8 is r.dtype and y.strides == _ONE_F8 == r.strides:
+            status = entry(p, d, s, h, vehicle, y, r, o)
         else:
             status = 3
-        out = self._out_views[vehicle]
+        out = views[vehicle]
         if status:
             if status == 3:
                 raise InputError(
