@@ -299,9 +299,10 @@ def test_step_arrays_checks_type_shape_and_dtype():
             ctrl.step_arrays(y, bad)
         with pytest.raises(InputError, match=msg):
             ctrl.step_arrays(bad, r)
-    for vehicle in (3, -1, True, 0.0, np.int64(0)):
+    for vehicle in (3, -1, True, 0.0, np.int64(1), np.bool_(False), "0"):
         with pytest.raises(InputError, match="vehicle"):
             ctrl.step_arrays(y, r, vehicle=vehicle)
+    assert ctrl.step_arrays(y, r, vehicle=np.int64(0)).dtype == ctrl.step_arrays(y, r).dtype
     with pytest.raises(InputError, match="backend='compiled'"):
         Controller(ControllerParams.paper("pdc"), backend="numpy").step_arrays(y, r)
     comply = Controller(ControllerParams.paper("comply"))

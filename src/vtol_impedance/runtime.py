@@ -159,6 +159,8 @@ class Controller:
         if fast is None:
             raise InputError("step_arrays needs backend='compiled'")
         entry, p, d, s, h, o, views = fast
+        if type(vehicle) is not int and isinstance(vehicle, np.integer):
+            vehicle = int(vehicle)  # an index from NumPy (np.arange, np.flatnonzero) is an index
         if type(vehicle) is not int or not 0 <= vehicle < len(views):
             raise InputError(f"step_arrays: vehicle must be an int in [0, {len(views)}), got {vehicle!r}")
         # the compiled entry point skips numba's dispatch (a microsecond); its argument types are checked here
