@@ -22,6 +22,7 @@ def test_quick_bench_writes_a_complete_report(tmp_path, capsys):
     assert saved["batch_mujoco"]["vehicles"] == 2
     lat = saved["latency"]
     assert 0 < lat["step_arrays_median_us"] <= lat["step_arrays_p99_us"]
+    assert 0 < lat["step_arrays_call_median_us"]  # the call into a kernel that does nothing
     text = table(saved)
     assert "NumPy ref." in text and "batched N = 10" in text and "RotorPy" in text and "MuJoCo plant" in text
     assert "2 vehicles on MuJoCo (threads), per vehicle" in text and "MuJoCo, free flight" in text

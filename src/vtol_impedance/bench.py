@@ -144,6 +144,16 @@ def _latency(calls: int) -> dict[str, float]:
         t0 = clock()
         ctrl.step_arrays(y, r)
         ns[i] = clock() - t0
+    # the same calls into a kernel that does nothing: what the call itself costs (the checks in Python,
+    # the eight arguments handed to compiled code)
+    step = ctrl._fast
+    ctrl._fast = (ctrl._k.checked_step_entry(probe=True),) + step[1:]
+    call = np.empty(calls)
+    for i in range(calls):
+        t0 = clock()
+        ctrl.step_arrays(y, r)
+        call[i] = clock() - t0
+    ctrl._fast = step
     meas = Measurement(y[0:3], y[3:6], y[6:9], y[9:12])
     ref = Reference(r[0:3], r[3:6], r[6:9], np.array(0.0), np.array(0.0), np.array(0.0))
     slow = np.empty(min(calls, 2000))
@@ -154,6 +164,7 @@ def _latency(calls: int) -> dict[str, float]:
     return {
         "step_arrays_median_us": float(np.median(ns) / 1e3),
         "step_arrays_p99_us": float(np.percentile(ns, 99) / 1e3),
+        "step_arrays_call_median_us": float(np.median(call) / 1e3),
         "step_median_us": float(np.median(slow) / 1e3),
     }
 
@@ -260,22 +271,27 @@ def _versus(path: Path, n: int, T: float, rounds: int, log=print, ys: Any = None
         if b["veh_s_per_s"] > our_batch:
             our_batch, ours_b = b["veh_s_per_s"], b
     # the controller step from Python: the yardstick's kernel on its arrays, ours through step_arrays
+    # and the same call into a kernel that does nothing (its call's cost: numba's dispatch on five arguments)
+    from numba import njit
+
     x, cs = ys.initial_state(), ys.new_ctrl_state()
-    ctrl = ys.K.ctrl_step
-    for _ in range(200):
-        ctrl(x, cs, 0.0, mode, True)
-    ns = np.empty(20000)
     clock = time.perf_counter_ns
-    for i in range(len(ns)):
-        t0 = clock()
-        ctrl(x, cs, 0.01 * i, mode, True)
-        ns[i] = clock() - t0
+    ns, call = np.empty(20000), np.empty(20000)
+    for ctrl, times in ((ys.K.ctrl_step, ns), (njit(lambda x, cs, t, mode, circle: None), call)):
+        for _ in range(200):
+            ctrl(x, cs, 0.0, mode, True)
+        for i in range(len(times)):
+            t0 = clock()
+            ctrl(x, cs, 0.01 * i, mode, True)
+            times[i] = clock() - t0
     return {
         "yardstick": str(path), "n": n, "T": T, "rounds": rounds,
         "single_rtf": {"project": our_single, "yardstick": ys_single, "ratio": our_single / ys_single},
         "batch_veh_s_per_s": {"project": our_batch, "yardstick": ys_batch, "ratio": our_batch / ys_batch},
         "batch_peak_rss_mb": ours_b.get("peak_rss_mb", 0.0),
-        "ctrl_step_from_python_us": {"yardstick_median": float(np.median(ns) / 1e3)},
+        "ctrl_step_from_python_us": {
+            "yardstick_median": float(np.median(ns) / 1e3), "yardstick_call_median": float(np.median(call) / 1e3),
+        },
     }  # fmt: skip
 
 
@@ -371,8 +387,13 @@ def table(res: dict[str, Any]) -> str:
     lines += [
         f"step_arrays latency, median / p99                {lat['step_arrays_median_us']:6.2f} / "
         f"{lat['step_arrays_p99_us']:.2f} us",
-        f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us",
     ]
+    if "step_arrays_call_median_us" in lat:
+        lines.append(
+            f"  of which the call (checks, 8 arguments)        {lat['step_arrays_call_median_us']:8.2f} us "
+            "(a kernel doing nothing)"
+        )
+    lines.append(f"step (NamedTuple API) latency, median            {lat['step_median_us']:10.2f} us")
     for key, what in (("sweep_in_process", "in this process"), ("sweep_local_cluster_2", "LocalCluster, 2 workers")):
         sw = res.get(key)
         if isinstance(sw, dict):
@@ -410,6 +431,11 @@ def table(res: dict[str, Any]) -> str:
             f"vs yardstick: controller step from Python        {lat['step_arrays_median_us']:8.2f} / "
             f"{vs['ctrl_step_from_python_us']['yardstick_median']:.2f} us",
         ]
+        ys_call = vs["ctrl_step_from_python_us"].get("yardstick_call_median")
+        if ys_call is not None and "step_arrays_call_median_us" in lat:
+            ours = lat["step_arrays_median_us"] - lat["step_arrays_call_median_us"]
+            theirs = vs["ctrl_step_from_python_us"]["yardstick_median"] - ys_call
+            lines.append(f"vs yardstick: the same, less each one's call     {ours:8.2f} / {theirs:.2f} us")
     rp = res["rotorpy"]
     if isinstance(rp, dict):
         lines.append(f"RotorPy single vehicle, hover, 100 Hz steps       {rp['real_time_factor']:10.2f} x real time")

@@ -337,10 +337,17 @@ def checked_step(p, d, s, h, b, y, r, o):
     return OK
 
 
-def checked_step_entry():
+@kernel(_CHECKED)
+def _no_step(p, d, s, h, b, y, r, o):
+    """Nothing, with :func:`checked_step`'s signature: what calling it costs (``bench``)."""
+    return OK
+
+
+def checked_step_entry(probe: bool = False):
     """:func:`checked_step`'s compiled entry point: the same call without numba's dispatch (about a
-    microsecond). Its caller must pass exactly the signature's types (it is not checked again)."""
-    return checked_step.overloads[_CHECKED.args].entry_point
+    microsecond). Its caller must pass exactly the signature's types (it is not checked again).
+    ``probe``: the entry point of a kernel that does nothing with the same arguments (the call's cost)."""
+    return (_no_step if probe else checked_step).overloads[_CHECKED.args].entry_point
 
 
 @kernel()
