@@ -9,6 +9,8 @@ G(s) of eq. (10) applied to the true wrench."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import synthflight as S
@@ -148,8 +150,13 @@ def test_a_thrust_that_does_not_carry_the_weight(fl, tmp_path):
     f = resample(raw)
     with pytest.raises(InputError, match="does not carry the weight.*Check the mass"):
         estimate(f, 3 * S.MASS, None)
-    e = estimate(f, 1.4 * S.MASS, None)  # plausible but off: a loud warning names the mean force it implies
-    assert any("times the weight" in w for w in e.warnings)
+    for scale in (1.4, 0.75):  # plausible but off: a loud warning names the mean force it implies
+        e = estimate(f, scale * S.MASS, None)
+        (warning,) = [w for w in e.warnings if "times the weight" in w]
+        said = float(re.search(r"mean vertical force of about ([-+0-9.e]+) N", warning).group(1))
+        # the thrust carries the true weight and the flight's own downward bias: m_true g - m g + bias
+        assert said == pytest.approx((1 - scale) * S.MASS * S.G + S.F_BIAS[2], abs=0.1)
+        assert np.median(e.f_W[:, 2]) == pytest.approx(said, abs=0.2)
     assert not estimate(f, S.MASS, None).warnings
 
 

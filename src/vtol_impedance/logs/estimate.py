@@ -184,7 +184,7 @@ def check_weight(
     if not WEIGHT_WARN[0] <= r <= WEIGHT_WARN[1]:
         return r, (
             f"the thrust ({what}) gives {1 / r:.3g} times the weight m g = {mass * G:.3g} N in flight: the estimate "
-            f"will show a mean vertical force of about {mass * G * (1 - 1 / r):+.3g} N (NED, + down). If the vehicle "
+            f"will show a mean vertical force of about {mass * G * (1 / r - 1):+.3g} N (NED, + down). If the vehicle "
             f"carried nothing, check {fixes}"
         )
     return r, None
