@@ -61,9 +61,10 @@ def rotor_speeds(thrust: np.ndarray, tau_B: np.ndarray) -> np.ndarray:
     return np.sqrt(f / K_T)
 
 
-def write_synth_dataflash(fl, path, truncate: int | None = None):
+def write_synth_dataflash(fl, path, truncate: int | None = None, firmware: str | None = None, params=None):
     """The flight as ArduCopter logs it: ATT (centidegrees) and RATE (deg/s) at 50 Hz, XKF1 at 25 Hz, CTUN
-    (normalised throttle and hover throttle) at 50 Hz, ESC rpm at 50 Hz, PARM; TimeUS from boot + 2 s."""
+    (normalised throttle and hover throttle) at 50 Hz, ESC rpm at 50 Hz, PARM; TimeUS from boot + 2 s.
+    ``firmware``: the MSG naming it (e.g. "ArduCopter V4.5.1"); ``params``: more PARM rows."""
     us = np.round((fl.t + 2.0) * 1e6).astype(np.int64)
     a = np.arange(0, len(fl.t), 5)  # 50 Hz
     x = np.arange(2, len(fl.t), 10)  # 25 Hz
@@ -87,8 +88,12 @@ def write_synth_dataflash(fl, path, truncate: int | None = None):
         DFMessage("CTUN", "Qffffffefffhh", {"TimeUS": us[a], "ThI": u[a], "ABst": z, "ThO": u[a], "ThH": z + HOVER,
                                             "DAlt": z, "Alt": z, "BAlt": z, "DSAlt": z, "SAlt": z, "TAlt": z,
                                             "DCRt": z, "CRt": z}),
-        DFMessage("PARM", "QNf", {"TimeUS": [int(us[0])], "Name": ["MOT_THST_HOVER"], "Value": [HOVER]}),
+        DFMessage("PARM", "QNf", {"TimeUS": [int(us[0])] * (1 + len(params or {})),
+                                  "Name": ["MOT_THST_HOVER", *(params or {})],
+                                  "Value": [HOVER, *(params or {}).values()]}),
     ]  # fmt: skip
+    if firmware is not None:
+        msgs.append(DFMessage("MSG", "QZ", {"TimeUS": [int(us[0])], "Message": [firmware]}))
     ei = np.repeat(np.arange(4)[None, :], len(a), 0).ravel()
     et = np.repeat(us[a][:, None], 4, 1).ravel() + ei * 100
     er = w[a].ravel()

@@ -428,6 +428,29 @@ def test_thrust_unit_mistakes(fl, tmp_path):
     np.testing.assert_allclose(e.thrust_N, resample(read_csv(tmp_path / "n.csv")).thrust * S.MASS * S.G / HOVER)
 
 
+def test_a_learnt_hover_thrust_that_hides_a_force_is_warned_about(fl, tmp_path):
+    """An autopilot's learnt hover thrust follows a steady vertical force (a payload picked up): taken per
+    sample it hides that force. Here the log's hover thrust climbs 30 % in 4 s while the true one is HOVER:
+    warned, naming the value before; with that value given the true vertical force comes back. A drift as
+    slow as a battery's sag (6 % over the flight) is not warned about."""
+    cols = {k: v for k, v in _csv_cols(fl).items() if k != "thrust_n"}
+    cols["thrust_norm"] = _csv_cols(fl)["thrust_n"] * HOVER / (S.MASS * S.G)
+    t = cols["t_s"]
+    cols["hover_thrust"] = HOVER * (1.0 + 0.3 * np.clip((t - 4.0) / 4.0, 0.0, 1.0))
+    f = resample(read_csv(_write_csv(tmp_path / "learn.csv", cols)))
+    e = estimate(f, S.MASS, None)
+    (warning,) = [w for w in e.warnings if "learnt by the autopilot" in w]
+    assert f"--hover-thrust {HOVER:.4g}" in warning and "+30%" in warning
+    late = e.t > 8.5  # the learnt value hides the truth: about 30 % of the weight less, upward
+    assert np.median(e.f_W[late, 2]) == pytest.approx(S.F_BIAS[2] - 0.3 / 1.3 * S.MASS * S.G, abs=0.3)
+    given = estimate(f, S.MASS, None, hover_thrust=HOVER)
+    assert np.median(given.f_W[late, 2]) == pytest.approx(S.F_BIAS[2], abs=0.1)
+    assert not any("learnt by the autopilot" in w for w in given.warnings)
+    cols["hover_thrust"] = HOVER * (1.0 + 0.06 * t / t[-1])
+    e = estimate(resample(read_csv(_write_csv(tmp_path / "sag.csv", cols))), S.MASS, None)
+    assert not any("learnt by the autopilot" in w for w in e.warnings)
+
+
 def test_empty_truncated_and_foreign_files(fl, tmp_path):
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(InputError, match="is empty"):

@@ -533,6 +533,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         backend=args.backend,
         thrust_from=args.thrust_from,
         thrust_coefficient=args.thrust_coefficient,
+        airframe=args.airframe,
     )  # fmt: skip
     out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"estimate-{stem}"
     flight = est.flight
@@ -1008,6 +1009,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--start", type=float, default=None, help="estimate from this time on, s")
     g.add_argument("--end", type=float, default=None, help="estimate up to this time, s")
     g = sp.add_argument_group("thrust and torque")
+    g.add_argument("--airframe", default="auto", choices=["auto", "multirotor"],
+                   help="auto: a log of a vehicle that is not a multirotor (fixed wing, helicopter, rover, boat, "
+                   "submarine) is refused, a VTOL hybrid warned about; multirotor: take it as one anyway")  # fmt: skip
     g.add_argument("--thrust-from", default="auto", choices=["auto", "commands", "rotors"],
                    help="commands, or measured rotor speeds (no rotor lag); auto: rotor speeds when the log has "
                    "them at 20 Hz or more")  # fmt: skip

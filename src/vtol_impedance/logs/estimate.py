@@ -221,6 +221,33 @@ def _hover_for(
     return arr, src, summ
 
 
+#: A hover thrust taken per sample from the autopilot that moves by more than this share within
+#: HOVER_LEARN_WINDOW_S is learning a vertical force, not following the battery (which sags by about a
+#: tenth over a whole flight): warned about, since the per-sample map then hides that force.
+HOVER_LEARN_SHARE = 0.1
+HOVER_LEARN_WINDOW_S = 20.0
+
+
+def _hover_learning(t: np.ndarray, h: np.ndarray, src: str) -> str | None:
+    """A warning when the per-sample hover thrust ``h`` moves faster than a battery sags, else ``None``."""
+    n = len(h)
+    if n < 2 or np.ptp(h) == 0:  # a constant: given, fitted or a parameter
+        return None
+    k = min(max(int(np.searchsorted(t, t[0] + HOVER_LEARN_WINDOW_S)), 1), n - 1)
+    rel = h[k:] / h[:-k] - 1.0
+    i = int(np.argmax(np.abs(rel)))
+    if abs(rel[i]) <= HOVER_LEARN_SHARE:
+        return None
+    return (
+        f"the hover thrust learnt by the autopilot ({src}) moves from {h[i]:.4g} to {h[i + k]:.4g} "
+        f"({rel[i]:+.0%}) between {t[i]:.1f} and {t[i + k]:.1f} s, faster than a battery sags: it is learning a "
+        "steady vertical force (a payload, a tether, a push), which the per-sample hover thrust then hides from "
+        f"the estimate, or it starts from a value it had not learnt. To see such a force, give a constant: "
+        f"--hover-thrust {h[i]:.4g} (its value before, if it had been learnt), or fit one on a hover without "
+        "the force (--hover-segment T0,T1)"
+    )
+
+
 def commands_in_si(
     flight: FlightLog,
     mass: float,
@@ -379,6 +406,9 @@ def _thrust_from_commands(
             "thrust)? negate it"
         )
     h, src, summ = _hover_for(flight, mass, hover_thrust, hover_segment)
+    learning = _hover_learning(flight.t, h, src)
+    if learning:
+        notes.append("WARNING: " + learning)
     info["hover"] = h
     info["hover_thrust"] = summ
     per = "" if summ["min"] == summ["max"] else f", {summ['min']:.4f}..{summ['max']:.4f} over the log"

@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from .airframe import classify
 from .frames import ROTOR_SPEED_UNITS, eta_ned_frd, euler_rotation, quaternion_rotation
 from .timeseries import RawLog, Signal, typical_period
 from .ulog import RATE_TIE, fastest, rotor_geometry, torque_per_unit, vehicle_from_params
@@ -275,10 +276,14 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
                 continue
             if typ == "MSG":
                 text = str(getattr(m, "Message", ""))
-                if not version and any(k in text for k in ("Copter", "Plane", "Rover", "ArduPilot")):
+                if not version and any(k in text for k in ("Copter", "Plane", "Rover", "Sub", "Blimp", "ArduPilot")):
                     version = text
                 continue
-            if typ == "VER":
+            if typ == "VER":  # newer firmware names itself here too (FWS: "ArduCopter V4.5.1 (...)")
+                fws = getattr(m, "FWS", "")
+                fws = fws.decode(errors="replace") if isinstance(fws, bytes) else str(fws)
+                if fws.strip() and not version:
+                    version = fws.strip()
                 continue
             row = {k: getattr(m, k) for k in m.get_fieldnames() if not isinstance(getattr(m, k), str | bytes)}
             if "TimeUS" in row:
@@ -329,11 +334,14 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
         if got is None
     ]
     if thrust is None and rotor is None:
-        missing.append(("thrust", "CTUN (throttle out) or ESC (rotor speeds)"))
+        ctun = "; this log's CTUN has no ThO field" if "CTUN" in tables else ""
+        missing.append(("thrust", f"CTUN.ThO (throttle out{ctun}) or ESC (rotor speeds)"))
     if missing:
         have = ", ".join(f"{k} ({len(v['_t'])})" for k, v in sorted(tables.items()) if "_t" in v) or "none of interest"
+        kind = classify({"firmware": version}, params)
+        other = f" The log is of {kind[1]}, not a multirotor." if kind is not None and kind[0] != "multirotor" else ""
         raise InputError(
-            f"{path}: " + "; ".join(f"no {r}: needs {n}" for r, n in missing) + f". The log has: {have}. "
+            f"{path}: " + "; ".join(f"no {r}: needs {n}" for r, n in missing) + f". The log has: {have}.{other} "
             "Check LOG_BITMASK (ATTITUDE_MED/FAST, CTUN, NTUN/EKF, ESC) on the vehicle"
         )
     kw: dict[str, Any] = {"params": params, "choices": choices}
@@ -427,6 +435,7 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
     params: dict[str, float] = {}
     bad = 0
     autopilot = None
+    mav_types: dict[tuple[int, int], int] = {}  # each source's HEARTBEAT.type (MAV_TYPE)
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             while True:
@@ -449,8 +458,10 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
                     params[pid.rstrip("\x00")] = float(m.param_value)
                     continue
                 if typ == "HEARTBEAT":
-                    if autopilot is None and getattr(m, "autopilot", 8) != 8:  # 8: MAV_AUTOPILOT_INVALID (a GCS)
-                        autopilot = int(m.autopilot)
+                    if getattr(m, "autopilot", 8) != 8:  # 8: MAV_AUTOPILOT_INVALID (a GCS)
+                        if autopilot is None:
+                            autopilot = int(m.autopilot)
+                        mav_types.setdefault(src, int(getattr(m, "type", 0)))
                     continue
                 raw_rows[src][typ].append(m)
         finally:
@@ -560,6 +571,8 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
         "autopilot": {3: "ArduPilot", 12: "PX4"}.get(autopilot, f"MAV_AUTOPILOT {autopilot}"),
         "system_component": list(src),
     }
+    if src in mav_types:
+        meta["mav_type"] = mav_types[src]
     if rotor is not None:
         meta["rotor_speed_unit"] = "rpm"
     return RawLog(

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, scalar
+from .airframe import airframe_option, check_airframe
 from .checks import ConventionReport, ImplausibleTime, check_conventions, check_thrust_signal, time_plausible
 from .csvlog import CsvTable, read_csv_table, table_to_raw
 from .estimate import LogEstimate, check_inertia, estimate, uses_rotor_speeds
@@ -201,12 +202,15 @@ def estimate_file(
     t_start: float | None = None,
     t_end: float | None = None,
     read_options: dict[str, Any] | None = None,
+    airframe: str = "auto",
     **estimate_options: Any,
 ) -> LogEstimate:
     """Read, check, resample and estimate a log file (module docstring). ``vehicle``: a
     :class:`~vtol_impedance.model.vehicle.VehicleParams` for the nominal mass, inertia and rotor geometry
     where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
-    :func:`~vtol_impedance.logs.estimate.estimate`."""
+    :func:`~vtol_impedance.logs.estimate.estimate`. A log of a vehicle that is not a multirotor is refused
+    (:mod:`.airframe`) unless ``airframe="multirotor"``."""
+    airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:
         t_start = scalar("start (s)", t_start)
@@ -219,7 +223,9 @@ def estimate_file(
     if estimate_options.get("hover_thrust") is not None:
         scalar("hover thrust", estimate_options["hover_thrust"], lo=0.0, hi=1.0, lo_open=True)
     raw, rep = read_any(path, **(read_options or {}))
+    kind, kind_warning = check_airframe(raw.meta, raw.params, airframe)  # before the mass is asked for
     m, I_B, geometry, vchoices = _vehicle(raw, mass, inertia, vehicle)
+    vchoices.insert(0, kind)
     thrust_from = estimate_options.get("thrust_from", "auto")
     k_T = estimate_options.get("thrust_coefficient")
     if raw.rotor_speed is not None and thrust_from == "auto" and not uses_rotor_speeds(raw, thrust_from, k_T):
@@ -241,7 +247,7 @@ def estimate_file(
     est.info["choices"] = choices
     est.info["conventions"] = rep.to_dict()
     est.notes = rep.notes + est.notes
-    est.warnings = rep.warnings + est.warnings
+    est.warnings = rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
     return est
 
 
