@@ -15,13 +15,24 @@ import math
 import numpy as np
 import pytest
 import synthflight as S
-from logfiles import HOVER, K_T, ROTORS, csv_cols, write_csv, write_synth_dataflash, write_synth_tlog
+from logfiles import (
+    HOVER,
+    K_T,
+    ROTORS,
+    csv_cols,
+    synth_tlog_messages,
+    write_csv,
+    write_synth_dataflash,
+    write_synth_tlog,
+)
 from ulog_writer import write_ulog
 
 from vtol_impedance.cli import main
 from vtol_impedance.errors import InputError
 from vtol_impedance.logs import estimate, estimate_file, read_any, resample, samples
 from vtol_impedance.logs.frames import ROTOR_SPEED_UNITS
+from vtol_impedance.logs.timeseries import typical_period
+from vtol_impedance.logs.writers import write_tlog
 from vtol_impedance.model import load_preset
 from vtol_impedance.model.kinematics import quat_from_euler
 
@@ -118,6 +129,22 @@ def test_tlog_with_whole_percent_throttle(fl, tmp_path, protocol):
     assert any("VFR_HUD" in n and "receive time" in n for n in raw.notes)
     f = resample(raw, 100.0)
     quantum = 0.005 * S.MASS * S.G / HOVER  # half a percent of throttle, in newtons
+    bound = _accel_bound(0.04) + _hold_bound(fl, 0.02) + quantum + 0.01
+    _check_force(estimate(f, S.MASS, None), f.t - 5.0, bound)
+
+
+def test_a_tlog_received_in_bursts_keeps_its_untimed_thrust_in_place(fl, tmp_path):
+    """A link that queues and delivers once a second (a radio that buffers): every message arrives up to 1 s
+    late, unevenly. VFR_HUD has no time field; placed by the timed message sent before it, the thrust keeps
+    its timing (the same bound as on an even link), and its rate is the stream's, not the burst's."""
+    msgs = sorted(synth_tlog_messages(fl, thrust_stream="VFR_HUD"), key=lambda m: m[0])
+    t0 = msgs[0][0]
+    bursty = [(t0 + math.floor(r - t0) + 1.0 + 1e-6 * k, name, fields) for k, (r, name, fields) in enumerate(msgs)]
+    raw, _ = read_any(write_tlog(tmp_path / "bursts.tlog", bursty))
+    assert 1.0 / typical_period(raw.thrust.t) == pytest.approx(50.0, rel=0.05)
+    f = resample(raw, 100.0)
+    assert not [n for n in f.notes if "dropout" in n or "gap in thrust" in n]
+    quantum = 0.005 * S.MASS * S.G / HOVER
     bound = _accel_bound(0.04) + _hold_bound(fl, 0.02) + quantum + 0.01
     _check_force(estimate(f, S.MASS, None), f.t - 5.0, bound)
 

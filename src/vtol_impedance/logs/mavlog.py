@@ -20,7 +20,8 @@ parameters      ``PARM.Name, Value``
 ==============  ==========================================================================================
 
 **tlog** (the vehicle's clock: ``time_boot_ms``/``time_usec``; messages without one, ``VFR_HUD`` and
-``ESC_TELEMETRY_1_TO_4``, are placed on it by their receive time minus the link's smallest delay):
+``ESC_TELEMETRY_1_TO_4``, are placed on it at the time of the timed message sent just before them, at most
+their receive time minus the link's smallest delay):
 
 ==============  ==========================================================================================
 attitude        ``ATTITUDE.roll, pitch, yaw`` or ``ATTITUDE_QUATERNION.q1..q4`` (rad, body to NED)
@@ -436,6 +437,7 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
     bad = 0
     autopilot = None
     mav_types: dict[tuple[int, int], int] = {}  # each source's HEARTBEAT.type (MAV_TYPE)
+    order = 0
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             while True:
@@ -463,6 +465,7 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
                             autopilot = int(m.autopilot)
                         mav_types.setdefault(src, int(getattr(m, "type", 0)))
                     continue
+                m._order = order = order + 1  # its place in the file: the order the vehicle sent it in
                 raw_rows[src][typ].append(m)
         finally:
             _close(conn)
@@ -609,6 +612,7 @@ def _tlog_tables(msgs: dict[str, list]) -> tuple[dict[str, dict[str, np.ndarray]
         rows = [_fields(m) for m in ms]
         d = {k: np.array([r.get(k, np.nan) for r in rows]) for k in rows[0]}
         d["_recv"] = np.array([m._timestamp for m in ms], dtype=float)
+        d["_order"] = np.array([getattr(m, "_order", 0) for m in ms], dtype=float)
         if "time_boot_ms" in d:
             d["_t"] = d["time_boot_ms"] * 1e-3
         elif "time_usec" in d and np.median(d["time_usec"]) < 1e14:  # since boot, not a unix time
@@ -621,15 +625,20 @@ def _tlog_tables(msgs: dict[str, list]) -> tuple[dict[str, dict[str, np.ndarray]
     if offsets:
         off = np.concatenate(offsets)
         delay = float(np.percentile(off, 2))
+        timed = [d for d in tables.values() if "_t" in d]
+        seq = np.concatenate([d["_order"] for d in timed])
+        by_seq = np.argsort(seq, kind="stable")
+        seq, t_seq = seq[by_seq], np.maximum.accumulate(np.concatenate([d["_t"] for d in timed])[by_seq])
         placed = []
         for typ, d in tables.items():
             if "_t" not in d:
-                d["_t"] = d["_recv"] - delay
+                d["_t"] = _place_untimed(d["_order"], d["_recv"] - delay, seq, t_seq)
                 placed.append(typ)
         if placed:
             note = "; ".join(filter(None, [note, (
-                f"{', '.join(sorted(placed))}: no time field; placed on the vehicle clock by receive time minus the "
-                "link's smallest delay"
+                f"{', '.join(sorted(placed))}: no time field; placed on the vehicle clock after the timed message "
+                "sent before it (a link that delivers in bursts delays them unevenly), at most by receive time "
+                "minus the link's smallest delay"
             )]))  # fmt: skip
     else:
         for d in tables.values():
@@ -640,6 +649,22 @@ def _tlog_tables(msgs: dict[str, list]) -> tuple[dict[str, dict[str, np.ndarray]
         for k in list(d):
             d[k] = d[k][order]
     return tables, note
+
+
+#: An untimed message is placed at the vehicle time of the timed message sent just before it when that
+#: one's receive-time bound is within this of its own (else the link paused: receive time is the better).
+PLACE_WITHIN_S = 2.0
+
+
+def _place_untimed(order: np.ndarray, upper: np.ndarray, seq: np.ndarray, t_seq: np.ndarray) -> np.ndarray:
+    """Vehicle times of messages without a time field, from their places in the file ``order`` and their
+    receive times less the link's smallest delay ``upper`` (a bound: a message cannot be received before it
+    was sent): the vehicle time ``t_seq`` of the timed message just before (places ``seq``, sorted). A link
+    that queues and delivers in bursts holds the messages of a second back by up to that second; the
+    order they were sent in keeps their times."""
+    i = np.searchsorted(seq, order, side="left") - 1
+    before = np.where(i >= 0, t_seq[np.maximum(i, 0)], -np.inf)
+    return np.where((before <= upper) & (upper - before <= PLACE_WITHIN_S), before, upper)
 
 
 def _one_boot(tables: dict[str, dict[str, np.ndarray]]) -> str | None:
