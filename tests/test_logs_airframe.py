@@ -114,3 +114,14 @@ def test_a_dataflash_log_names_its_firmware(fl, tmp_path):
         estimate_file(plane, S.MASS)
     quadplane = write_synth_dataflash(fl, tmp_path / "qp.bin", firmware="ArduPlane V4.5.0", params={"Q_ENABLE": 1})
     assert any("QuadPlane" in w for w in estimate_file(quadplane, S.MASS).warnings)
+
+
+def test_a_quadplanes_hover_thrust_parameter_is_read(fl, tmp_path):
+    """A QuadPlane keeps its hover throttle in Q_M_THST_HOVER (a multicopter in MOT_THST_HOVER)."""
+    msgs = synth_tlog_messages(fl)
+    t, name, fields = msgs[0]
+    assert name == "PARAM_VALUE"
+    msgs[0] = (t, name, {**fields, "param_id": b"Q_M_THST_HOVER"})
+    est = estimate_file(write_tlog(tmp_path / "qp.tlog", msgs), S.MASS)
+    assert "Q_M_THST_HOVER" in est.info["thrust"]
+    assert est.info["hover_thrust"]["median"] == pytest.approx(fields["param_value"])

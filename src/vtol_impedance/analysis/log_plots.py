@@ -117,4 +117,5 @@ def _legend_note(fig, est: LogEstimate) -> None:
     if restarts:
         parts.append(f"red dashed: {restarts} restart(s) where the data stop")
     if parts:
-        fig.text(0.01, 0.005, "; ".join(parts), fontsize=7, color="dimgray", ha="left", va="bottom")
+        # under the figure (the saved area grows to hold it), clear of the x-axis label
+        fig.text(0.01, 0.0, "; ".join(parts), fontsize=7, color="dimgray", ha="left", va="top")

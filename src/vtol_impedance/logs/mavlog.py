@@ -13,6 +13,7 @@ body rates      ``RATE.R, P, Y`` (deg/s, AHRS-corrected gyro) or ``IMU.GyrX/Y/Z`
 velocity (NED)  ``XKF1.VN, VE, VD`` (EKF3, core 0) or ``NKF1.VN, VE, VD`` (EKF2, core 0), m/s
 thrust          ``CTUN.ThO`` (throttle out, 0..1, in ArduPilot's linearised thrust space)
 hover thrust    ``CTUN.ThH`` (learned hover throttle, per sample), else the parameter ``MOT_THST_HOVER``
+                (a QuadPlane's ``Q_M_THST_HOVER``)
 torque          ``RATE.ROut, POut, YOut`` (normalised; N m only with ``--torque-scale``: ArduPilot logs no
                 arm length)
 rotor speeds    ``ESC.RPM`` per ``Instance`` (4.1+; ESC ``i`` taken as motor ``i + 1``), or ``ESC1..ESC8.RPM``
@@ -351,9 +352,10 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
         ok = np.isfinite(d["ThH"]) & (d["ThH"] > 0.02) & (d["ThH"] < 1.0)
         if ok.sum() >= 2:
             kw["hover"] = Signal("hover thrust", "CTUN.ThH (learned hover throttle)", d["_t"][ok], d["ThH"][ok, None])
-    if "hover" not in kw and 0.02 < params.get("MOT_THST_HOVER", 0.0) < 1.0:
-        kw["hover_thrust"] = params["MOT_THST_HOVER"]
-        kw["hover_source"] = "the parameter MOT_THST_HOVER (no CTUN.ThH in the log)"
+    for name in ("MOT_THST_HOVER", "Q_M_THST_HOVER"):  # a multicopter's, a QuadPlane's
+        if "hover" not in kw and "hover_thrust" not in kw and 0.02 < params.get(name, 0.0) < 1.0:
+            kw["hover_thrust"] = params[name]
+            kw["hover_source"] = f"the parameter {name} (no CTUN.ThH in the log)"
     if rotor is not None:
         kw["rotor_speed"] = rotor
     meta = {"format": "dataflash", "file": str(path), "firmware": version or "unknown"}
@@ -554,7 +556,7 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
             "ATTITUDE_TARGET or ESC telemetry for a finer one"
         )
     kw: dict[str, Any] = {"params": params, "choices": choices}
-    for name in ("MPC_THR_HOVER", "MOT_THST_HOVER"):
+    for name in ("MPC_THR_HOVER", "MOT_THST_HOVER", "Q_M_THST_HOVER"):
         if 0.02 < params.get(name, 0.0) < 1.0:
             kw["hover_thrust"] = params[name]
             kw["hover_source"] = f"the parameter {name} (from the tlog's PARAM_VALUE messages)"
