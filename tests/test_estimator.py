@@ -263,3 +263,16 @@ def test_the_attitude_filter_design_is_the_exact_discretisation():
         np.testing.assert_allclose(f.Bd, Bd[:, 0], rtol=1e-12, atol=1e-14)
         with pytest.raises(ValueError):
             f.Bd[0] = 0.0
+
+
+@pytest.mark.parametrize("tau, Ts", [(0.02, 0.01), (0.05, 0.01), (0.005, 0.02)])
+def test_the_rotor_models_period_mean_is_the_lags_mean(tau, Ts):
+    """A first-order rotor ``tau y' = c - y`` from ``y0`` over one period: ``y(Ts) = c + (y0 - c) alpha`` and
+    its mean ``c + (y0 - c) gamma``; alpha and gamma checked against the exponential, integrated by quad."""
+    from scipy.integrate import quad
+
+    d = design(EstimatorParams(rotor_tau=tau), Ts)
+    assert d.alpha == pytest.approx(np.exp(-Ts / tau), rel=1e-12)
+    assert d.gamma == pytest.approx(quad(lambda t: np.exp(-t / tau), 0.0, Ts)[0] / Ts, rel=1e-9)
+    none = design(EstimatorParams(rotor_tau=0.0), Ts)  # no lag: the rotor is at its command at once
+    assert none.alpha == 0.0 and none.gamma == 0.0

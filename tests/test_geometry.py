@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.optimize
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -138,6 +139,17 @@ def test_allocation_limits_bound_and_priorities(backend, req):
     assert 0.0 <= a.rp_scale <= 1.0 and 0.0 <= a.yaw_scale <= 1.0
     np.testing.assert_allclose(a.tau_B[:2], a.rp_scale * tau[:2], atol=1e-9)
     assert a.tau_B[2] * tau[2] >= -1e-12 and abs(a.tau_B[2]) <= abs(tau[2]) + 1e-12
+    # the roll/pitch scale is the largest any bounded collective shift allows: an LP solved by scipy
+    # over (k, delta) with every rotor in range, f = p_u (u_c + delta) + k p_rp, |delta| <= shift u_c
+    pu, prp = g.E_pinv[:, 0], g.E_pinv[:, 1:3] @ tau[:2]
+    u_c = np.clip(u, (g.f_min / pu).max(), (g.f_max / pu).min())
+    lp = scipy.optimize.linprog(
+        [-1.0, 0.0], A_ub=np.block([[prp[:, None], pu[:, None]], [-prp[:, None], -pu[:, None]]]),
+        b_ub=np.concatenate([g.f_max - pu * u_c, pu * u_c - g.f_min]),
+        bounds=[(0.0, 1.0), (-shift * u_c, shift * u_c)], method="highs",
+    )  # fmt: skip
+    assert lp.status == 0  # compared as torques: with no roll/pitch requested any scale delivers it
+    assert a.rp_scale * np.hypot(*tau[:2]) == pytest.approx(lp.x[0] * np.hypot(*tau[:2]), abs=1e-6)
     # priority: if roll/pitch fit with no yaw at the requested collective, they are delivered in full
     f_rp = unmix(u, np.array([tau[0], tau[1], 0.0]), g.E_pinv)
     if np.all(f_rp >= g.f_min) and np.all(f_rp <= g.f_max):

@@ -185,3 +185,16 @@ def test_pelican_preset_matches_the_paper():
     assert 2.3 < v.thrust_to_weight < 2.5
     with pytest.raises(ValueError, match="available: hexarotor, pelican, pelican-x"):
         load_preset("mavic")
+
+
+@given(eta_st, rate_st, rate_st)
+def test_euler_and_body_moments_do_the_same_work(eta, eta_dot, tau):
+    """``tau_eta`` is the generalized force of the Euler coordinates: the power it delivers, ``tau_eta .
+    eta_dot``, is that of the body moment, ``tau_B . omega_B`` with ``omega_B = Q eta_dot`` (virtual work),
+    whichever way the moment is converted."""
+    from vtol_impedance.model.dynamics import body_moment_from_euler, euler_moment_from_body
+
+    omega_B = euler_rate_matrix_Q(eta) @ eta_dot
+    tau_B = body_moment_from_euler(tau, eta)
+    assert tau_B @ omega_B == pytest.approx(tau @ eta_dot, rel=1e-9, abs=1e-9)
+    assert euler_moment_from_body(tau, eta) @ eta_dot == pytest.approx(tau @ omega_B, rel=1e-9, abs=1e-9)
