@@ -127,6 +127,39 @@ def test_state_round_trip_and_mujocos_own_kinematics():
     np.testing.assert_allclose(d.xpos[1], T_NED_ENU @ p_o[0], atol=1e-12)
 
 
+@pytest.mark.parametrize("lag", [True, False])
+def test_the_compiled_state_conversion_is_the_numpy_one(lag):
+    """MuJoCo's states (ENU/FLU at the body origin) into the plant's, by the compiled kernel the compiled
+    loop uses and by the written-out NumPy: both give back the states MuJoCo was set to (by ``set_state``,
+    through MuJoCo's own quaternion functions), with and without rotor lag, an offset centre of mass, and
+    MuJoCo's quaternion of either sign (the same rotation)."""
+    rng = np.random.default_rng(3)
+    taus = {"rotor_tau_up": 0.01, "rotor_tau_down": 0.02} if lag else {"rotor_tau_up": 0.0, "rotor_tau_down": 0.0}
+    plants = [_plant(payload_mass=0.2, payload_offset_B=(0.03, 0.01, 0.06), **taus),
+              _plant(payload_mass=0.1, payload_offset_B=(-0.02, 0.04, 0.05), **taus)]  # fmt: skip
+    PA = compile_plants(plants)
+    x = initial_state(PA, rng.normal(0, 2, (2, 3)), np.array([[0.3, -0.2, 2.9], [-0.4, 0.5, -3.0]]))
+    x[:, 3:6] = rng.normal(0, 1, (2, 3))
+    x[:, OMEGA] = rng.normal(0, 2, (2, 3))
+    x[:, ROTOR] = rng.uniform(1.0, 5.0, (2, 4))
+    x[:, PEND_R] = x[:, PEND_V] = 0.0  # no pendulum: read back at rest
+    mp = MujocoPlant(plants, PA, DisturbanceSet([]), x, 0.001, compiled=True)
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    m0 = mp.models[0]
+    rows = np.empty((2, mujoco.mj_stateSize(m0, full)))
+    for row, m, d in zip(rows, mp.models, mp.datas, strict=True):
+        mujoco.mj_getState(m, d, row, full)
+    oq, ov, oa = mp._offsets
+    rows[1, oq + 3 : oq + 7] *= -1.0  # the same attitude
+    parts = rows[:, oq : oq + m0.nq], rows[:, ov : ov + m0.nv], rows[:, oa : oa + m0.na]
+    veh = np.array([0, 1])
+    compiled = mp._convert(*parts, veh)
+    mp.compiled = False
+    numpy = mp._convert(*parts, veh)
+    np.testing.assert_allclose(compiled, x, atol=1e-12)
+    np.testing.assert_allclose(compiled, numpy, rtol=1e-14, atol=1e-14)
+
+
 def _replay(P_list, cmd, Ts, dist_items, x0):
     """The same rotor commands, held over each control period, on both plants (1 kHz RK4 both; ours is
     the compiled plant, tied to the NumPy one by test_compiled.py)."""

@@ -425,7 +425,7 @@ def run_closed_loop(
     elif backend.startswith("mujoco"):
         from .mjplant import MujocoPlant
 
-        mj_plant = MujocoPlant(plants, PA, dist, x0, dt)
+        mj_plant = MujocoPlant(plants, PA, dist, x0, dt, compiled=backend == "mujoco")
         run = _run_mujoco if backend == "mujoco" else _run_numpy
         try:
             rows, metrics, failures = run(setup, progress, mj_plant)

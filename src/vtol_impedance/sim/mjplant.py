@@ -47,7 +47,19 @@ from ..errors import InputError
 from ..model.dynamics import matvec
 from ..model.kinematics import cross, quat_to_rotation
 from .disturbances import DisturbanceSet, Wall
-from .plant import OMEGA, P_COM, PEND_R, PEND_V, QUAT, ROTOR, V_COM, PlantArrays, PlantParams, origin_kinematics
+from .plant import (
+    OMEGA,
+    P_COM,
+    PEND_R,
+    PEND_V,
+    QUAT,
+    ROTOR,
+    V_COM,
+    PlantArrays,
+    PlantParams,
+    origin_kinematics,
+    unpack_state,
+)  # fmt: skip
 
 INSTALL_HINT = "pip install 'vtol-impedance[mujoco]'"
 #: Radius of the contact spheres; the planes are moved by it so that contact starts at the point itself.
@@ -214,9 +226,18 @@ class MujocoPlant:
     """
 
     def __init__(
-        self, plants: Sequence[PlantParams], PA: PlantArrays, dist: DisturbanceSet, x0: np.ndarray, dt: float
+        self,
+        plants: Sequence[PlantParams],
+        PA: PlantArrays,
+        dist: DisturbanceSet,
+        x0: np.ndarray,
+        dt: float,
+        compiled: bool = False,
     ) -> None:
         mj = require_mujoco()
+        #: States converted by the compiled kernel (:func:`vtol_impedance.compiled.frames.states_from_enu_flu`)
+        #: rather than by the NumPy of :meth:`_convert` (the same equations; the compiled loop's choice).
+        self.compiled = compiled
         self.mj = mj
         self.PA = PA
         walls = [d for d in dist.items if isinstance(d, Wall)]
@@ -242,6 +263,8 @@ class MujocoPlant:
         self.x = np.array(x0, dtype=float)
         self.ctrl = np.zeros((len(self.datas), self.n))  # the rotor commands held in each data's ctrl
         self.failed = np.zeros(len(self.datas), dtype=bool)
+        self._no_force = np.zeros((len(self.datas), 3))  # the explicit forces when there are none
+        self._no_force.setflags(write=False)
         self.frozen = np.zeros(len(self.datas), dtype=bool)
         for b in range(len(self.datas)):
             self.set_state(b, self.x[b])
@@ -260,6 +283,8 @@ class MujocoPlant:
                                                             S.mjSTATE_TIME | S.mjSTATE_QPOS | S.mjSTATE_QVEL)
         )  # fmt: skip
         self._pool: Any = None  # mujoco.rollout.Rollout, made at the first period, ended by close()
+        self._read_steps: dict[tuple, list[int]] = {}  # the steps converted, per period length and ages
+        self._all_rows: dict[int, np.ndarray] = {}  # each converted row's vehicle, when all step
 
     def close(self) -> None:
         """End the rollout thread pool (the run does it when it ends; the plant can still be read)."""
@@ -308,6 +333,14 @@ class MujocoPlant:
     ) -> np.ndarray:
         """States in the layout of :mod:`.plant` from MuJoCo's ``qpos``, ``qvel`` (ENU/FLU, the body origin)
         and ``act``, a row each (a 2-D array or a list); row ``i`` is a state of vehicle ``veh[i]``."""
+        if self.compiled and isinstance(qpos, np.ndarray) and not any(self.bob[b] >= 0 for b in veh):
+            from ..compiled.frames import states_from_enu_flu
+            from ..compiled.layouts import STATE
+
+            X = np.zeros(len(veh), dtype=STATE)
+            P = self.PA
+            states_from_enu_flu(qpos, qvel, act, veh, P.c_B, P.f_min, P.f_max, self.ctrl, self.lag, self.n, X)
+            return unpack_state(X, self.n)
         x = np.empty((len(veh),) + self.x.shape[1:])
         q7 = qpos[:, :7] if isinstance(qpos, np.ndarray) else np.array([r[:7] for r in qpos])
         v6 = qvel[:, :6] if isinstance(qvel, np.ndarray) else np.array([r[:6] for r in qvel])
@@ -345,7 +378,7 @@ class MujocoPlant:
         """Explicit disturbances (world force at the origin, body moment) and the origin's velocity."""
         if not self.forces.items:  # nothing to evaluate; the origin's velocity is the free joint's
             v_o = np.array([d.qvel[0:3] for d in self.datas]) @ T_NED_ENU.T
-            return np.zeros_like(v_o), np.zeros_like(v_o), v_o
+            return self._no_force, self._no_force, v_o
         R = quat_to_rotation(self.x[:, QUAT])
         p_o, v_o = origin_kinematics(self.PA, self.x, R)
         f_W, tau_B = self.forces(t, p_o, v_o, R)
@@ -357,7 +390,9 @@ class MujocoPlant:
         frame, as the built-in plant holds it)."""
         f_W, tau_B, v_o = self._forces(t)
         n, P = self.n, self.PA
-        tau_flu, f_enu = tau_B @ T_FRD_FLU.T, f_W @ T_NED_ENU.T  # every vehicle at once
+        forces = bool(self.forces.items)  # else the inputs stay at the zeros MuJoCo's reset left
+        if forces:
+            tau_flu, f_enu = tau_B @ T_FRD_FLU.T, f_W @ T_NED_ENU.T  # every vehicle at once
         if self.lag.any():
             act = np.zeros(f_cmd.shape)
             for b in np.flatnonzero(self.lag):  # a vehicle without lag has no activation state
@@ -368,11 +403,12 @@ class MujocoPlant:
             act, rate = np.where(now, target, act), np.where(now, 1.0, tau)
         for b, (m, d) in enumerate(zip(self.models, self.datas, strict=True)):
             d.ctrl[:n] = self.ctrl[b] = f_cmd[b]
-            d.ctrl[n:] = tau_flu[b]
+            if forces:
+                d.ctrl[n:] = tau_flu[b]
+                d.xfrc_applied[self.vehicle, 0:3] = f_enu[b]
             if self.lag[b]:
                 d.act[:n] = act[b]
                 m.actuator_dynprm[:n, 0] = rate[b]
-            d.xfrc_applied[self.vehicle, 0:3] = f_enu[b]
         return f_W, tau_B, v_o
 
     def truth(self, t: float, f_cmd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -456,18 +492,18 @@ class MujocoPlant:
         m0 = self.models[0]
         inputs = np.empty((len(active), n_sub, mj.mj_stateSize(m0, self._inputs)))
         state0 = np.empty((len(active), mj.mj_stateSize(m0, self._full)))
-        for j in range(n_sub):
-            if j and not self.forces.items:  # the inputs of the first step hold
-                inputs[:, j] = inputs[:, 0]
-                continue
+        for j in range(n_sub if self.forces.items else 1):  # without forces the first step's inputs hold
             if j:
                 f_W, tau_B = self.forces(t + j * dt, p_o, v_o, R)
                 tau_B = np.broadcast_to(tau_B, f_W.shape)
             for i, b in enumerate(active):
                 m, d = self.models[b], self.datas[b]
-                d.ctrl[self.n :] = _flu(tau_B[b])
-                d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
+                if j:  # the first step's were applied with the commands
+                    d.ctrl[self.n :] = _flu(tau_B[b])
+                    d.xfrc_applied[self.vehicle, 0:3] = _enu(f_W[b])
                 mj.mj_getState(m, d, inputs[i, j], self._inputs)
+        if not self.forces.items:
+            inputs[:, 1:] = inputs[:, :1]
         for i, b in enumerate(active):
             mj.mj_getState(self.models[b], self.datas[b], state0[i], self._full)
         states = np.empty((len(active), n_sub, state0.shape[1]))
@@ -477,19 +513,29 @@ class MujocoPlant:
             # the arrays are made here with the sizes MuJoCo asks for: its argument checks are skipped
             self._pool.rollout([self.models[b] for b in active], self._threads, state0, inputs,
                                control_spec=int(self._inputs), nstep=n_sub, state=states, skip_checks=True)  # fmt: skip
-        ages = self.sensor_ages
-        wanted = set(range(n_sub)) if ages is None else {n_sub - 1 - k % n_sub for k in ages} | {n_sub - 1}
-        js = sorted(wanted)
-        self.failed[np.asarray(active, dtype=int)[~np.isfinite(states[:, js]).all(axis=(1, 2))]] = True
+        js = self._steps_read(n_sub)
         oq, ov, oa = self._offsets
         nq, nv, na = m0.nq, m0.nv, m0.na
-        xs = np.repeat(self.x[None], len(js), 0)  # a vehicle that no longer steps keeps its state
+        every = len(active) == len(self.datas)  # every vehicle stepped: no state to keep
         if active:
             rows = states[:, js].reshape(len(active) * len(js), -1)  # vehicle-major
-            conv = self._convert(rows[:, oq : oq + nq], rows[:, ov : ov + nv], rows[:, oa : oa + na],
-                                 np.repeat(active, len(js)))  # fmt: skip
-            xs[:, active] = conv.reshape(len(active), len(js), -1).swapaxes(0, 1)
-        xs[:, self.failed] = np.nan
+            veh = self._all_rows.get(len(js)) if every else np.repeat(np.asarray(active, dtype=int), len(js))
+            if veh is None:
+                veh = self._all_rows[len(js)] = np.repeat(np.arange(len(active)), len(js))
+            finite = np.isfinite(rows).all(1).reshape(len(active), len(js)).all(1)
+            if not finite.all():
+                self.failed[np.asarray(active, dtype=int)[~finite]] = True
+            conv = self._convert(rows[:, oq : oq + nq], rows[:, ov : ov + nv], rows[:, oa : oa + na], veh)
+            conv = conv.reshape(len(active), len(js), -1).swapaxes(0, 1)
+        if every:
+            xs = conv
+        else:
+            xs = np.repeat(self.x[None], len(js), 0)  # a vehicle that no longer steps keeps its state
+            if active:
+                xs[:, active] = conv
+        if self.failed.any():
+            xs = xs.copy()
+            xs[:, self.failed] = np.nan
         converted = dict(zip(js, xs, strict=True))
         for i, b in enumerate(active):  # the vehicles' data end at the period's final state
             mj.mj_setState(self.models[b], self.datas[b], states[i, n_sub - 1], self._full)
@@ -497,6 +543,17 @@ class MujocoPlant:
         # every step is pushed, in order; a state no sensor reads stands in as the period's last
         for j in range(n_sub):
             push(converted.get(j, self.x))
+
+    def _steps_read(self, n_sub: int) -> list[int]:
+        """The steps of a period whose states are converted: those a sensor reads (:attr:`sensor_ages`) and
+        the last."""
+        key = (n_sub, self.sensor_ages)
+        js = self._read_steps.get(key)
+        if js is None:
+            ages = self.sensor_ages
+            wanted = set(range(n_sub)) if ages is None else {n_sub - 1 - k % n_sub for k in ages} | {n_sub - 1}
+            js = self._read_steps[key] = sorted(wanted)
+        return js
 
     def park(self, alive: np.ndarray, x_park: np.ndarray) -> None:
         """Failed vehicles go back to ``x_park`` and stay there (no more steps, no solver warnings)."""
