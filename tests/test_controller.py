@@ -1,5 +1,7 @@
 """Controller pieces (eqs. 14-20) and their API, against independent references."""
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -17,6 +19,7 @@ from vtol_impedance.control import (
 from vtol_impedance.conventions import G
 from vtol_impedance.errors import InputError, SingularityError
 from vtol_impedance.model import load_preset, mix
+from vtol_impedance.runtime import ControllerWarning
 
 VEH = load_preset("pelican")
 
@@ -201,3 +204,77 @@ def test_comply_attitude_defaults_to_the_plain_pd(backend):
     comply = Controller(ControllerParams.paper("comply"), backend=backend).step(meas, ref)
     np.testing.assert_allclose(comply.tau_B_request, pd.tau_B_request, rtol=1e-4, atol=1e-9)
     assert abs(pd.tau_B_request[2]) > 1e-3  # the yaw stiffness is in it
+
+
+@given(
+    st.tuples(*(st.floats(-3.0, 3.0),) * 3).map(np.array),
+    st.tuples(st.floats(-np.pi, np.pi), st.floats(-1.4, 1.4), st.floats(-np.pi, np.pi)).map(np.array),
+    st.tuples(*(st.floats(-2.0, 2.0),) * 3).map(np.array),
+    st.sampled_from(["xyzw", "wxyz"]),
+    st.sampled_from(["body-to-world", "world-to-body"]),
+)
+def test_measurement_from_another_simulators_frames(p_W, eta, omega_B, order, direction):
+    """A NED/FRD state written the way a z-up simulator holds it (world ENU, body FLU, SciPy's quaternion,
+    converted here by the frame matrices and SciPy) comes back exactly from ``Measurement.from_frames``."""
+    T_W, T_B = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]]), np.diag([1.0, -1.0, -1.0])
+    R_NED_FRD = Rotation.from_euler("ZYX", eta[::-1]).as_matrix()
+    R = T_W @ R_NED_FRD @ T_B  # ENU <- FLU
+    q = Rotation.from_matrix(R if direction == "body-to-world" else R.T).as_quat()  # x, y, z, w
+    q = q if order == "xyzw" else q[[3, 0, 1, 2]]
+    v_W = 0.5 * omega_B[::-1]
+    m = Measurement.from_frames(T_W @ p_W, T_W @ v_W, -q, T_B @ omega_B, world="enu", body="flu",
+                                quat_order=order, quat_direction=direction)  # fmt: skip
+    np.testing.assert_allclose(m.p_W, p_W, atol=1e-12)
+    np.testing.assert_allclose(m.v_W, v_W, atol=1e-12)
+    np.testing.assert_allclose(m.omega_B, omega_B, atol=1e-12)
+    assert m.eta_dot is None
+    err = np.angle(np.exp(1j * (m.eta - eta)))  # the same angles, up to whole turns
+    np.testing.assert_allclose(err, 0.0, atol=1e-9)
+
+
+def test_reference_and_frames_of_another_simulator_fly_the_same_controller():
+    """ENU inputs through ``from_frames`` give the controller what NED inputs give it; an ENU heading of 0
+    (nose east) is NED's pi/2; the estimate goes back with the same matrix."""
+    from vtol_impedance.model.frames import world_vector_from_ned
+
+    T_W = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])
+    ref = Reference.from_frames(np.array([1.0, 2.0, 3.0]), heading=0.2, heading_rate=0.1, world="enu")
+    assert ref.psi == pytest.approx(np.pi / 2 - 0.2) and ref.psi_dot == pytest.approx(-0.1)
+    np.testing.assert_allclose(ref.p_W, [2.0, 1.0, -3.0])
+    ned = Measurement(np.array([2.1, 0.9, -2.9]), np.array([0.1, 0.0, -0.2]), np.array([0.05, -0.03, 1.4]),
+                      omega_B=np.array([0.1, 0.2, -0.1]))  # fmt: skip
+    R = T_W @ Rotation.from_euler("ZYX", ned.eta[::-1]).as_matrix() @ np.diag([1.0, -1.0, -1.0])
+    enu = Measurement.from_frames(T_W @ ned.p_W, T_W @ ned.v_W, Rotation.from_matrix(R).as_quat(),
+                                  np.diag([1.0, -1.0, -1.0]) @ ned.omega_B, world="enu", body="flu",
+                                  quat_order="xyzw")  # fmt: skip
+    a, b = (Controller(ControllerParams.paper("pdc")) for _ in range(2))
+    for _ in range(3):
+        out_ned = a.step(ned, Reference(np.array([2.0, 1.0, -3.0]), psi=np.pi / 2 - 0.2, psi_dot=-0.1))
+        out_enu = b.step(enu, ref)
+    np.testing.assert_allclose(out_enu.f_rotor, out_ned.f_rotor, atol=1e-9)
+    np.testing.assert_allclose(world_vector_from_ned(out_enu.f_hat_W, "enu"), T_W @ out_ned.f_hat_W, atol=1e-12)
+    for bad, match in ((np.array([0.0, 0.0, 0.0, 2.0]), "not a unit quaternion"), (np.zeros(3), r"\(4,\)")):
+        with pytest.raises(InputError, match=match):
+            Measurement.from_frames(np.zeros(3), np.zeros(3), bad, np.zeros(3))
+    with pytest.raises(InputError, match="world frame must be one of ned, enu"):
+        Reference.from_frames(np.zeros(3), world="nwu")
+
+
+def test_inputs_in_a_wrong_frame_are_warned_about_through_the_estimate():
+    """ENU inputs read as NED (climbing at 0.5 m/s "up" where z is down): the estimate soon exceeds the
+    weight, which nothing a multirotor carries does, and one warning names the frames to check; a
+    correct hover with a payload does not warn."""
+    ctrl = Controller(ControllerParams.paper("pdc"))
+    enu = Measurement(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.5]), np.zeros(3), omega_B=np.zeros(3))
+    with pytest.warns(ControllerWarning, match="times the vehicle's weight.*world NED, z down") as record:
+        for _ in range(60):
+            ctrl.step(enu, Reference(np.array([0.0, 0.0, -1.0])))
+    assert sum("weight" in str(w.message) for w in record) == 1  # once until reset()
+    ok = Controller(ControllerParams.paper("pdc"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ControllerWarning)
+        hover = Measurement(np.array([0.0, 0.0, -1.0]), np.zeros(3), np.zeros(3), omega_B=np.zeros(3))
+        for _ in range(100):
+            ok.step(hover, Reference(np.array([0.0, 0.0, -1.0])))
+    with pytest.raises(InputError, match=r"psi_d has shape \(1,\); this controller expects a scalar$"):
+        ok.step(hover, Reference(np.array([0.0, 0.0, -1.0]), psi=np.array([0.0])))

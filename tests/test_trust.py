@@ -18,7 +18,7 @@ from vtol_impedance import Controller, ControllerWarning
 from vtol_impedance.cli import main
 from vtol_impedance.control import ControllerParams, Impedance, ImpedanceGains, Measurement, Reference
 from vtol_impedance.control.reference import Hold, Trajectory
-from vtol_impedance.errors import InputError
+from vtol_impedance.errors import InputError, SingularityError
 from vtol_impedance.io import RunFolder, verify_run_folder
 from vtol_impedance.model import load_preset
 from vtol_impedance.scenarios import get, load_toml, set_value, simulate
@@ -315,6 +315,20 @@ def test_step_arrays_checks_type_shape_and_dtype():
         ctrl.step_arrays(huge, r)
     out = ctrl.step_arrays(y, r)
     assert all(np.all(np.isfinite(out[name])) for name in out.dtype.names)
+    # a pitch of 30 (degrees meant) is no ZYX pitch: refused by both entry points, by both backends
+    degrees = y.copy()
+    degrees[7] = 30.0
+    with pytest.raises(InputError, match=r"pitch theta = 30 rad is beyond \+-pi/2.*degrees"):
+        ctrl.step_arrays(degrees, r)
+    for backend in ("compiled", "numpy"):
+        with pytest.raises(InputError, match="beyond \\+-pi/2"):
+            Controller(ControllerParams.paper("pdc"), backend=backend).step(
+                Measurement(np.zeros(3), np.zeros(3), np.array([0.0, -1.6, 0.0]), np.zeros(3)),
+                Reference(np.zeros(3)))  # fmt: skip
+    edge = y.copy()
+    edge[7] = -np.pi / 2  # the singularity itself is the singularity's error
+    with pytest.raises(SingularityError):
+        ctrl.step_arrays(edge, r)
     numpy_ctrl = Controller(ControllerParams.paper("pdc"), backend="numpy")
     with pytest.raises(InputError, match="beyond any vehicle"):
         numpy_ctrl.step(Measurement(np.array([0.0, 0.0, 1e308]), np.zeros(3), np.zeros(3), np.zeros(3)),

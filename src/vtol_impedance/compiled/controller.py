@@ -298,7 +298,10 @@ def controller_step(p, d, s, h, y, r, o):
 PLAUSIBLE = np.array([1e6] * 3 + [1e4] * 3 + [1e3] * 3 + [1e4] * 3)
 PLAUSIBLE_REF = np.array([1e6] * 3 + [1e4] * 3 + [1e5] * 3 + [1e3, 1e4, 1e5])
 
-OK, NON_FINITE, SINGULAR, WRONG_SHAPE, COMPLY_RANGE, IMPLAUSIBLE = 0, 1, 2, 3, 4, 5
+OK, NON_FINITE, SINGULAR, WRONG_SHAPE, COMPLY_RANGE, IMPLAUSIBLE, PITCH_RANGE = 0, 1, 2, 3, 4, 5, 6
+#: ZYX Euler angles keep the pitch within +-pi/2 (a measured pitch beyond it is in degrees or another
+#: convention); the margin is rounding's.
+PITCH_LIMIT = 0.5 * math.pi + 1e-9
 
 
 def _records(dtype: np.dtype, ndim: int = 1) -> types.Array:
@@ -316,7 +319,8 @@ _CHECKED = types.int64(
 def checked_step(p, d, s, h, b, y, r, o):
     """:func:`controller_step` for vehicle ``b`` of the arrays ``p``, ``s``, ``h``, ``o`` after input checks;
     returns :data:`OK` or why it refused (the state is then unchanged): :data:`NON_FINITE`, :data:`SINGULAR`
-    (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`), :data:`WRONG_SHAPE`,
+    (|cos theta| below the threshold of :mod:`vtol_impedance.conventions`), :data:`PITCH_RANGE` (|theta|
+    beyond pi/2: not a ZYX pitch), :data:`WRONG_SHAPE`,
     :data:`COMPLY_RANGE` (a comply fraction outside [0, 1]) or :data:`IMPLAUSIBLE` (beyond :data:`PLAUSIBLE`:
     finite but no vehicle's; it would poison the state). The caller's signature check refuses anything but
     C-contiguous float64 rows (a float32 or strided input would otherwise compile a new specialisation)."""
@@ -331,6 +335,8 @@ def checked_step(p, d, s, h, b, y, r, o):
     for i in range(12, r.shape[0]):
         if not (0.0 <= r[i] <= 1.0):
             return COMPLY_RANGE
+    if abs(y[7]) > PITCH_LIMIT:
+        return PITCH_RANGE
     if abs(math.cos(y[7])) < SINGULARITY_COS_EPS:
         return SINGULAR
     controller_step(p[b], d[0], s[b], h[b], y, r, o[b])

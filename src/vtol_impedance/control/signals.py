@@ -26,6 +26,37 @@ class Measurement(NamedTuple):
     eta_dot: np.ndarray | None = None
     omega_B: np.ndarray | None = None
 
+    @classmethod
+    def from_frames(
+        cls,
+        p: np.ndarray,
+        v: np.ndarray,
+        q: np.ndarray,
+        omega: np.ndarray,
+        *,
+        world: str = "ned",
+        body: str = "frd",
+        quat_order: str = "wxyz",
+        quat_direction: str = "body-to-world",
+    ) -> Measurement:
+        """The measurement from another tool's conventions: position ``p`` (m) and velocity ``v`` (m/s) of
+        the body origin in ``world`` (``"ned"``, or ``"enu"``: ROS, Gazebo, MuJoCo, most simulators), the
+        attitude as a unit quaternion ``q`` (``quat_order`` ``"wxyz"``, or ``"xyzw"``: SciPy, ROS;
+        ``quat_direction`` ``"body-to-world"`` or ``"world-to-body"``) and the gyro's body rates ``omega``
+        (rad/s) in ``body`` (``"frd"``, or ``"flu"``). Returns world NED, ZYX Euler angles of the NED/FRD
+        attitude and ``omega_B`` in FRD (:mod:`vtol_impedance.model.frames`). Batches: ``(..., 3)`` and
+        ``(..., 4)``."""
+        from ..errors import as_finite
+        from ..model.frames import body_vector_to_frd, eta_ned_frd, quaternion_rotation, world_vector_to_ned
+
+        R = quaternion_rotation(as_finite("q (quaternion)", q, (4,)), quat_order, quat_direction)
+        return cls(
+            world_vector_to_ned(as_finite("p (position)", p, (3,)), world),
+            world_vector_to_ned(as_finite("v (velocity)", v, (3,)), world),
+            eta_ned_frd(R, world, body),
+            omega_B=body_vector_to_frd(as_finite("omega (body rates)", omega, (3,)), body),
+        )
+
 
 def comply6(comply: np.ndarray | float) -> np.ndarray:
     """Comply fractions ``(..., 6)`` for ``[x, y, z, roll, pitch, yaw]`` from 1, 3 (the world axes; the
@@ -59,6 +90,33 @@ class Reference(NamedTuple):
     psi_dot: np.ndarray | float = 0.0
     psi_ddot: np.ndarray | float = 0.0
     comply: np.ndarray | float = 0.0
+
+    @classmethod
+    def from_frames(
+        cls,
+        p: np.ndarray,
+        v: np.ndarray = _ZERO3,
+        a: np.ndarray = _ZERO3,
+        heading: np.ndarray | float = 0.0,
+        heading_rate: np.ndarray | float = 0.0,
+        heading_acc: np.ndarray | float = 0.0,
+        comply: np.ndarray | float = 0.0,
+        *,
+        world: str = "ned",
+    ) -> Reference:
+        """The reference from another tool's world frame: position, velocity and acceleration in ``world``
+        (``"ned"`` or ``"enu"``) and the heading with its rate and acceleration in that world's convention
+        (ENU: counter-clockwise from east, so the default 0 is nose east; NED: clockwise from north)."""
+        from ..errors import as_finite
+        from ..model.frames import heading_rate_to_ned, heading_to_ned, world_vector_to_ned
+
+        return cls(
+            *(world_vector_to_ned(as_finite(n, x, (3,)), world) for n, x in (("p", p), ("v", v), ("a", a))),
+            heading_to_ned(as_finite("heading", heading), world),
+            heading_rate_to_ned(as_finite("heading_rate", heading_rate), world),
+            heading_rate_to_ned(as_finite("heading_acc", heading_acc), world),
+            comply,
+        )
 
 
 class ControlOutput(NamedTuple):

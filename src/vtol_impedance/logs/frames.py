@@ -19,14 +19,23 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ..conventions import T_FRD_FLU, T_NED_ENU
-from ..errors import InputError, _short
-from ..model.kinematics import euler_from_rotation, quat_to_rotation, rotation_zyx
+from ..model.frames import (  # noqa: F401  (the frame conversions, shared with the controller's inputs)
+    BODIES,
+    QUAT_DIRECTIONS,
+    QUAT_ORDERS,
+    WORLDS,
+    _choice,
+    body_matrix,
+    body_vector_to_frd,
+    eta_ned_frd,
+    quaternion_rotation,
+    rotation_from_ned_frd,
+    rotation_to_ned_frd,
+    world_matrix,
+    world_vector_to_ned,
+)  # fmt: skip
+from ..model.kinematics import rotation_zyx
 
-WORLDS = ("ned", "enu")
-BODIES = ("frd", "flu")
-QUAT_ORDERS = ("wxyz", "xyzw")
-QUAT_DIRECTIONS = ("body-to-world", "world-to-body")
 ANGLE_UNITS = ("rad", "deg")
 #: Seconds per unit of a time column.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -101,71 +110,6 @@ class Conventions:
         return " ".join(f"{self.FLAGS[n]} {getattr(self, n)}" for n in names)
 
 
-def _choice(name: str, value: str, allowed: tuple[str, ...]) -> str:
-    v = str(value).lower()
-    if v not in allowed:
-        raise InputError(f"{name} must be one of {', '.join(allowed)}, got {_short(value)}")
-    return v
-
-
-def world_matrix(world: str) -> np.ndarray:
-    """``T`` with ``v_NED = T v_world``."""
-    return T_NED_ENU if _choice("world frame", world, WORLDS) == "enu" else np.eye(3)
-
-
-def body_matrix(body: str) -> np.ndarray:
-    """``T`` with ``v_FRD = T v_body``."""
-    return T_FRD_FLU if _choice("body frame", body, BODIES) == "flu" else np.eye(3)
-
-
-def world_vector_to_ned(v: np.ndarray, world: str) -> np.ndarray:
-    """A world-frame vector (velocity, force) ``(..., 3)`` in NED; a non-finite entry spoils its sample
-    (marked missing later), quietly."""
-    with np.errstate(invalid="ignore"):  # inf * 0 in the product: that sample is NaN, as it should be
-        return np.asarray(v, dtype=float) @ world_matrix(world).T
-
-
-def body_vector_to_frd(v: np.ndarray, body: str) -> np.ndarray:
-    """A body-frame vector (body rates, torque) ``(..., 3)`` in FRD (a non-finite entry: as
-    :func:`world_vector_to_ned`)."""
-    with np.errstate(invalid="ignore"):
-        return np.asarray(v, dtype=float) @ body_matrix(body).T
-
-
-def rotation_to_ned_frd(R: np.ndarray, world: str, body: str) -> np.ndarray:
-    """``R_NED_FRD`` from a source rotation ``R_world_body`` (body to world)."""
-    return world_matrix(world) @ np.asarray(R, dtype=float) @ body_matrix(body)
-
-
-def rotation_from_ned_frd(R: np.ndarray, world: str, body: str) -> np.ndarray:
-    """The inverse of :func:`rotation_to_ned_frd` (for writing logs in another convention)."""
-    return world_matrix(world) @ np.asarray(R, dtype=float) @ body_matrix(body)
-
-
-def quaternion_rotation(q: np.ndarray, order: str = "wxyz", direction: str = "body-to-world") -> np.ndarray:
-    """Body-to-world rotation matrices ``(N, 3, 3)`` of source quaternions ``(N, 4)`` (normalised here;
-    a quaternion far from unit length is refused)."""
-    q = np.asarray(q, dtype=float)
-    if _choice("quaternion order", order, QUAT_ORDERS) == "xyzw":
-        q = q[..., [3, 0, 1, 2]]
-    norm = np.linalg.norm(q, axis=-1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > 0.05)
-    if len(bad):
-        raise InputError(
-            f"quaternion at sample {bad[0]} has norm {norm[bad[0]]:.3f}: not a unit quaternion "
-            "(check the column order flag: scalar first 'wxyz' or last 'xyzw')"
-        )
-    R = quat_to_rotation(q / norm[..., None])
-    if _choice("quaternion direction", direction, QUAT_DIRECTIONS) == "world-to-body":
-        R = np.swapaxes(R, -1, -2)
-    return R
-
-
 def euler_rotation(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Body-to-world rotation of ZYX Euler angles (radians)."""
     return rotation_zyx(np.stack([roll, pitch, yaw], -1))
-
-
-def eta_ned_frd(R_source: np.ndarray, world: str, body: str) -> np.ndarray:
-    """ZYX Euler angles ``eta`` of the NED/FRD attitude, from source rotations."""
-    return euler_from_rotation(rotation_to_ned_frd(R_source, world, body))
