@@ -168,6 +168,16 @@ def test_hover_equilibrium_and_ground_support():
     assert abs(x[V_COM][2]) < 1e-4
 
 
+def test_the_initial_hover_holds_payload_and_pendulum():
+    """At rest with an unmodelled payload (offset) and a hanging pendulum, the initial rotor forces carry
+    the whole weight: every state's rate is zero (the pendulum's too: it hangs along gravity)."""
+    P = compile_plants(PlantParams(VEH, payload_mass=0.11, payload_offset_B=(0.0, 0.0, 0.05), pendulum_mass=0.2,
+                                   pendulum_length=0.6, ground=False))  # fmt: skip
+    x = initial_state(P, np.array([0, 0, -2.0]))
+    np.testing.assert_allclose(x[ROTOR].sum(), (VEH.mass + 0.11 + 0.2) * G, rtol=1e-12)
+    np.testing.assert_allclose(plant_derivative(P, x, x[ROTOR]), 0.0, atol=1e-12)
+
+
 def test_rotor_lag_and_limits():
     P = compile_plants(PlantParams(VEH, rotor_tau_up=0.02, rotor_tau_down=0.04, ground=False))
     x = initial_state(P, np.array([0, 0, -5.0]), hover_rotors=False)
@@ -253,3 +263,36 @@ def test_a_zero_time_constant_removes_only_its_own_direction(backend):
     np.testing.assert_allclose(f[k][down], cmd[k - 1][down], atol=1e-6)
     expect = cmd[k - 1] + (f[k - 1] - cmd[k - 1]) * np.exp(-0.01 / 0.05)
     np.testing.assert_allclose(f[k][up], expect[up], atol=2e-3 if backend == "mujoco" else 1e-6)
+
+
+def test_band_limited_noise_has_its_rms_in_its_band():
+    """The noise disturbance's force has the RMS asked for per axis, and its power lies in [f_lo, f_hi]
+    (Welch's estimate, SciPy); channels are independent draws."""
+    from scipy.signal import welch
+
+    from vtol_impedance.sim.disturbances import BandLimitedNoise
+
+    d = BandLimitedNoise(force_rms_W=(0.3, 0.5, 0.0), torque_rms_B=(0.0, 0.0, 0.02), f_lo=0.5, f_hi=5.0)
+    d = d.prepare(120.0, 0.01, np.random.default_rng(7))
+    t = np.arange(0.0, 120.0, 0.01)
+    f, tau = (np.array(v) for v in zip(*(d(tk, np.zeros(3), np.zeros(3), np.eye(3)) for tk in t), strict=True))
+    np.testing.assert_allclose(np.sqrt(np.mean(f**2, axis=0)), [0.3, 0.5, 0.0], rtol=0.02, atol=1e-12)
+    assert np.sqrt(np.mean(tau[:, 2] ** 2)) == pytest.approx(0.02, rel=0.02)
+    freq, psd = welch(f[:, 0], fs=100.0, nperseg=4096)
+    band = (freq >= 0.5) & (freq <= 5.0)
+    assert psd[band].sum() / psd.sum() > 0.9
+    assert abs(np.corrcoef(f[:, 0], f[:, 1])[0, 1]) < 0.1
+
+
+@pytest.mark.parametrize("delay, steps", [(0.013, 13), (0.0129, 13), (0.0121, 12), (0.0, 0), (0.0004, 0)])
+def test_a_sensor_reads_the_state_of_the_plant_step_nearest_its_latency(delay, steps):
+    """Latencies are served at the plant's step (1 ms): the state pushed nearest ``delay`` ago (0.013 s
+    is 12.999... steps in floating point, and must not become 12)."""
+    from vtol_impedance.sim.sensors import SensorParams, SensorSuite
+
+    P = compile_plants(PlantParams(VEH))
+    suite = SensorSuite(SensorParams(mocap_delay=delay, imu_delay=0.0), P, 0.001)
+    for k in range(40):
+        suite.push(np.full(3, float(k)))
+    mocap, imu = suite.delayed()
+    assert mocap[0] == 39 - steps and imu[0] == 39
