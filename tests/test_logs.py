@@ -20,7 +20,7 @@ from vtol_impedance.cli import main
 from vtol_impedance.errors import InputError
 from vtol_impedance.estimator import EstimatorParams, design, estimator_step, initial_state
 from vtol_impedance.estimator.series import causal, momentum_residual, zero_phase
-from vtol_impedance.logs import estimate, fit_hover_thrust, frames, read_csv, read_ulog, resample
+from vtol_impedance.logs import estimate, fit_hover_thrust, frames, read_any, read_csv, read_ulog, resample
 from vtol_impedance.logs.timeseries import RawLog, Signal
 from vtol_impedance.model.kinematics import euler_rate_matrix_Q, rotation_zyx
 
@@ -348,6 +348,23 @@ def test_ulog_without_rotor_geometry_skips_the_moment(fl, tmp_path, capsys):
     assert any("moment estimate is skipped" in n for n in e.notes)
     e2 = estimate(resample(read_ulog(path)), S.MASS, np.diag(S.INERTIA), torque_scale=[1.0, 1.0, 1.0])
     assert e2.tau_B is not None
+
+
+def test_hover_thrust_fitted_on_a_tilted_hover(tmp_path):
+    """Held tilted 20 deg by a steady side force (a wind), the vehicle's vertical balance is
+    ``u cos(phi) cos(theta) m g / h = m g``: the fit finds h exactly, where a balance without the tilt
+    would be off by 1/cos (7 %). Conventions unchecked: the thrust axis is tilted from the specific force
+    on purpose (the side force holds it)."""
+    t = np.arange(0.0, 10.0, 0.01)
+    phi, theta = 0.1, 0.35 + 0.05 * np.sin(1.3 * t)
+    theta_dot = 0.05 * 1.3 * np.cos(1.3 * t)
+    z = np.zeros_like(t)
+    cols = {"t_s": t, "vx": z, "vy": z, "vz": z, "roll": z + phi, "pitch": theta, "yaw": z,
+            "wx": z, "wy": np.cos(phi) * theta_dot, "wz": -np.sin(phi) * theta_dot,  # omega_B = Q eta_dot
+            "thrust_norm": 0.45 / (np.cos(phi) * np.cos(theta))}  # fmt: skip
+    raw, _ = read_any(_write_csv(tmp_path / "tilted.csv", cols), conventions="unchecked")
+    h, res = fit_hover_thrust(resample(raw, 100.0), 1.5, (2.0, 8.0))
+    assert h == pytest.approx(0.45, rel=1e-4) and res < 1e-3  # the interpolated attitude: 1e-5
 
 
 def test_hover_thrust_fitted_on_a_segment(fl, tmp_path):
