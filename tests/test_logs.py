@@ -623,3 +623,18 @@ def test_an_infinite_cell_is_a_missing_sample_without_a_numpy_warning(tmp_path, 
         csv.writer(fh).writerows(rows)
     assert main(["estimate", str(f), "--mass", "1.2", "--out", str(tmp_path / "o")]) == 0
     assert "invalid value" not in capsys.readouterr().err
+
+
+def test_sih_parameters_give_the_inertia_tensor_in_place():
+    """PX4's simulation-in-hardware parameters name each inertia entry (SIH_IXY is I_xy, ...): every
+    product lands in its two symmetric places, and a vehicle without them has no inertia."""
+    from vtol_impedance.logs.ulog import vehicle_from_params
+
+    params = {"SIH_MASS": 1.5, "SIH_IXX": 0.025, "SIH_IYY": 0.026, "SIH_IZZ": 0.03, "SIH_IXY": 0.001,
+              "SIH_IXZ": 0.002, "SIH_IYZ": 0.003}  # fmt: skip
+    mass, inertia = vehicle_from_params(params)
+    assert mass == 1.5
+    for (i, j), name in {(0, 0): "XX", (1, 1): "YY", (2, 2): "ZZ", (0, 1): "XY", (0, 2): "XZ", (1, 2): "YZ"}.items():
+        assert inertia[i, j] == inertia[j, i] == params[f"SIH_I{name}"]
+    assert vehicle_from_params({"SIH_MASS": 1.5, "SIH_IXX": 0.025}) == (1.5, None)
+    assert vehicle_from_params({"SIH_MASS": 0.0}) == (None, None)
