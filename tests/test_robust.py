@@ -105,10 +105,20 @@ def test_first_order_lag_matches_the_closed_form():
     assert got.gain_up_db > 30.0  # continuous, never -180 deg; held, only near the Nyquist frequency
 
 
+def test_a_slow_loop_is_found_on_the_default_grid():
+    """The default grid starts at OMEGA_MIN = 1e-3 rad/s: a sampled integrator ``k Ts / (z - 1)`` crossing
+    over at 2e-3 rad/s (an integral loop of minutes) has its crossover and its 90 deg of phase found."""
+    Ts, k = 0.01, 2e-3
+    got = loop_margins("slow", ct.ss([[1.0]], [[Ts]], [[k]], 0.0, Ts))
+    assert got.crossover == pytest.approx(k, rel=1e-3)
+    assert got.phase_deg == pytest.approx(90.0 - np.degrees(k * Ts / 2), abs=1e-3)
+
+
 def test_margins_agree_with_python_control():
     L = _pd_on_a_mass(1.2, 16.0, 12.0, 0.03, 0.01)
-    gm, pm, _sm, _wpc, wgc, _wms = ct.stability_margins(L)
+    gm, pm, sm, _wpc, wgc, _wms = ct.stability_margins(L)
     got = loop_margins("x", L)
+    assert got.sensitivity_peak == pytest.approx(1.0 / sm, rel=1e-3)  # the nearest approach to -1
     assert got.phase_deg == pytest.approx(pm, abs=1e-3)
     assert got.crossover == pytest.approx(wgc, rel=1e-5)
     assert got.gain_up_db == pytest.approx(20 * np.log10(gm), abs=1e-3)
