@@ -286,7 +286,7 @@ for _i, (_x, _y, _k) in enumerate(ROTORS):
     CA.update({f"CA_ROTOR{_i}_PX": _x, f"CA_ROTOR{_i}_PY": _y, f"CA_ROTOR{_i}_KM": _k})
 
 
-def _ulog(fl, path, generation: str, params=CA, v_every: int = 25, topics_drop=()):
+def _ulog(fl, path, generation: str, params=CA, v_every: int = 25, topics_drop=(), **version):
     """The synthetic flight as PX4 would log it: velocity at 10 Hz, commands normalised."""
     us = (fl.t * 1e6).astype(np.uint64) + np.uint64(1_000_000)
     c_t = S.MASS * S.G / (4 * HOVER)  # a rotor's thrust at full command (linear map)
@@ -314,7 +314,7 @@ def _ulog(fl, path, generation: str, params=CA, v_every: int = 25, topics_drop=(
         topics["actuator_controls_0"] = {"timestamp": us, "control": np.column_stack([c, u, np.zeros((len(u), 4))])}
     for name in topics_drop:
         topics.pop(name)
-    return write_ulog(path, topics, params, "v1.14.0" if generation == "new" else "v1.12.3")
+    return write_ulog(path, topics, params, "v1.14.0" if generation == "new" else "v1.12.3", **version)
 
 
 def _accel_bound(fl, dt_v: float) -> float:
@@ -323,6 +323,17 @@ def _accel_bound(fl, dt_v: float) -> float:
     smooth = S.accel(t) - S.f_ext_of(t) / S.MASS  # the wrench is constant over the windows checked
     jerk = np.gradient(smooth, t, axis=0)
     return float(S.MASS * dt_v / 2 * np.abs(jerk).max())
+
+
+@pytest.mark.parametrize(
+    "release, git_hash, named",
+    [(0x010F00FF, None, "v1.15.0"), (0x010F0000, "cb09dde6e1a2", "v1.15.0 (dev cb09dde6)"), (None, None, "unknown")],
+)
+def test_a_px4_logs_version_is_named_for_releases_and_development_builds(fl, tmp_path, release, git_hash, named):
+    """PX4 encodes its version as major, minor, patch and a type byte (255: release, 0: development);
+    pyulog names only releases, so a development build is named here with its git hash."""
+    raw = read_ulog(_ulog(fl, tmp_path / "v.ulg", "new", release=release, git_hash=git_hash))
+    assert raw.meta["px4_version"] == named
 
 
 @pytest.mark.parametrize("generation", ["new", "old"])

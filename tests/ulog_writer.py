@@ -22,6 +22,8 @@ def write_ulog(
     params: dict[str, float] | None = None,
     sys_version: str = "v1.14.0",
     truncate_at: int | None = None,
+    release: int | None = None,
+    git_hash: str | None = None,
 ) -> Path:
     """``topics[name] = {"timestamp": uint64 microseconds, field: values}``; a field whose values are 2-D
     (N, k) becomes an array field ``float field[k]``. All other fields are float32."""
@@ -46,6 +48,12 @@ def write_ulog(
         layouts[name] = (fmt, order)
     key = b"char[%d] ver_sw_release_str" % len(sys_version)
     out += _msg(b"I", bytes([len(key)]) + key + sys_version.encode())
+    if release is not None:  # PX4's encoded version: major, minor, patch, type (0 dev, 255 release)
+        key = b"uint32_t ver_sw_release"
+        out += _msg(b"I", bytes([len(key)]) + key + struct.pack("<I", release))
+    if git_hash is not None:
+        key = b"char[%d] ver_sw" % len(git_hash)
+        out += _msg(b"I", bytes([len(key)]) + key + git_hash.encode())
     for k, v in (params or {}).items():
         pk = f"float {k}".encode()
         out += _msg(b"P", bytes([len(pk)]) + pk + struct.pack("<f", v))

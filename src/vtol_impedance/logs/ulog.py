@@ -148,6 +148,15 @@ def torque_per_unit(params: dict[str, float]) -> tuple[np.ndarray, int] | None:
     return np.array([1.0 / s_rp, 1.0 / s_rp, 1.0 / s_y]), n
 
 
+def _dev_version(ulog: Any) -> str | None:
+    """A development build's version ('v1.15.0 (dev)'; pyulog names only releases), with its git hash."""
+    v = ulog.get_version_info()
+    if v is None:
+        return None
+    ver_sw = str(ulog.msg_info_dict.get("ver_sw", ""))[:8]
+    return f"v{v[0]}.{v[1]}.{v[2]} (dev{' ' + ver_sw if ver_sw else ''})"
+
+
 def vehicle_from_params(params: dict[str, float], prefix: str = "SIH_") -> tuple[float | None, np.ndarray | None]:
     """``(mass, inertia 3x3)`` from simulation-in-hardware parameters, ``None`` where absent or not positive."""
     m = params.get(f"{prefix}MASS")
@@ -282,7 +291,7 @@ def _from_ulog(path: Path, ulog: Any) -> RawLog:
     rates = Signal("body rates", src, t, w)
     meta: dict = {"format": "ulog", "file": str(path)}
     try:
-        meta["px4_version"] = ulog.get_version_info_str() or "unknown"
+        meta["px4_version"] = ulog.get_version_info_str() or _dev_version(ulog) or "unknown"
     except Exception:  # an absent or malformed version string
         meta["px4_version"] = "unknown"
     meta["px4_generation"] = (
