@@ -128,6 +128,14 @@ def test_thrust_of_zeros_held_or_frozen():
     assert len(check_thrust_signal(_thrust(idle), []).t) == 1000 - 219  # only the frozen stretch again
     pct = np.round(50 + 5 * np.sin(np.arange(1000) * 0.01)) / 100
     assert len(check_thrust_signal(_thrust(pct), []).t) == 1000
+    # a PX4 vehicle idling after landing (armed, a steady idle thrust above zero) is kept, not "frozen";
+    # a value held to the end at the flying level is a frozen logger
+    flying = 11.8 + 0.3 * np.sin(np.arange(1000) * 0.05)
+    landed = np.concatenate([flying[:700], np.full(300, 3.5)])
+    notes = []
+    assert len(check_thrust_signal(_thrust(landed), notes).t) == 1000 and not notes
+    stuck = np.concatenate([flying[:700], np.full(300, flying[700])])  # at the flying level to the end: frozen
+    assert len(check_thrust_signal(_thrust(stuck), []).t) == 1000 - 299
 
 
 def test_thrust_columns_of_zeros_and_negated_thrust_from_a_file(fl, tmp_path):

@@ -483,7 +483,8 @@ def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
     """Refuse a thrust column of zeros or one constant throughout; a stretch of at least 1 s (and 10
     samples) where the logger repeated the same value, below the column's maximum (not saturated) and above
     a fifth of its usual level (not idle on the ground), becomes a dropout (its repeated rows are dropped;
-    the resampler bridges or restarts)."""
+    the resampler bridges or restarts); at either end of the log, under half the usual level, it is the
+    vehicle idling before take-off or after landing, kept."""
     if sig is None:
         return None
     v = np.asarray(sig.values, dtype=float)[:, 0]
@@ -520,7 +521,9 @@ def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
         while j < n and same[j]:
             j += 1
         start = i - 1  # the run is v[start .. j-1]
-        if j - start >= 10 and t[j - 1] - t[start] >= 1.0 and lo < v[start] < hi:
+        # at either end of the log and under half the usual level: idling before take-off or after landing
+        idle = (start == 0 or j == n) and v[start] < 0.5 * float(np.percentile(np.abs(vf), 95))
+        if j - start >= 10 and t[j - 1] - t[start] >= 1.0 and lo < v[start] < hi and not idle:
             drop[start + 1 : j] = True  # keep the run's first row: the step to the next fresh value is a gap
             notes.append(
                 f"thrust ({sig.source}) repeats {v[start]:.6g} from {t[start]:.3f} s to {t[j - 1]:.3f} s "
