@@ -100,9 +100,9 @@ def body_vector_from_frd(v: np.ndarray, body: str) -> np.ndarray:
 
 
 def heading_to_ned(psi: np.ndarray | float, world: str) -> np.ndarray:
-    """A yaw angle (rad) and, with the same call, a yaw rate or acceleration, in the library's NED
-    convention (clockwise from north seen from above) from ``world``'s: ENU measures counter-clockwise
-    from east, ``psi_NED = pi/2 - psi_ENU``; pass rates through :func:`heading_rate_to_ned`."""
+    """A yaw angle (rad) in the library's NED convention (clockwise from north seen from above) from
+    ``world``'s: ENU measures counter-clockwise from east, ``psi_NED = pi/2 - psi_ENU``. Its rates go
+    through :func:`heading_rate_to_ned`."""
     psi = np.asarray(psi, dtype=float)
     return np.pi / 2 - psi if _choice("world frame", world, WORLDS) == "enu" else psi
 
@@ -115,7 +115,6 @@ def heading_rate_to_ned(rate: np.ndarray | float, world: str) -> np.ndarray:
 
 __all__ = [
     "BODIES", "QUAT_DIRECTIONS", "QUAT_ORDERS", "WORLDS", "body_matrix", "body_vector_from_frd", "body_vector_to_frd",
-    "eta_ned_frd", "world_vector_from_ned",
-    "heading_rate_to_ned", "heading_to_ned", "quaternion_rotation", "rotation_from_ned_frd",
-    "rotation_to_ned_frd", "world_matrix", "world_vector_to_ned",
+    "eta_ned_frd", "heading_rate_to_ned", "heading_to_ned", "quaternion_rotation", "rotation_from_ned_frd",
+    "rotation_to_ned_frd", "world_matrix", "world_vector_from_ned", "world_vector_to_ned",
 ]  # fmt: skip
