@@ -261,20 +261,30 @@ def test_reference_and_frames_of_another_simulator_fly_the_same_controller():
 
 
 def test_inputs_in_a_wrong_frame_are_warned_about_through_the_estimate():
-    """ENU inputs read as NED (climbing at 0.5 m/s "up" where z is down): the estimate soon exceeds the
-    weight, which nothing a multirotor carries does, and one warning names the frames to check; a
-    correct hover with a payload does not warn."""
+    """ENU inputs read as NED: the controller, told the vehicle is below its reference, runs the rotors at
+    full thrust; the vehicle climbs at (4 x 7 N / 1.2 kg - g), which z-up readings report as a fall. The
+    estimate reaches about twice the thrust less twice the weight, 2.7 times the weight, which nothing a
+    multirotor carries gives, and one warning names the frames to check. A hover and a vehicle resting on
+    the ground (the estimate is then the ground's reaction, the weight) do not warn."""
     ctrl = Controller(ControllerParams.paper("pdc"))
-    enu = Measurement(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.5]), np.zeros(3), omega_B=np.zeros(3))
+    climb = 4 * 7.0 / 1.2 - 9.81  # m/s^2, up
     with pytest.warns(ControllerWarning, match="times the vehicle's weight.*world NED, z down") as record:
-        for _ in range(60):
+        for k in range(100):
+            t = 0.01 * k
+            enu = Measurement(np.array([0.0, 0.0, 1.0 + 0.5 * climb * t * t]), np.array([0.0, 0.0, climb * t]),
+                              np.zeros(3), omega_B=np.zeros(3))  # fmt: skip
             ctrl.step(enu, Reference(np.array([0.0, 0.0, -1.0])))
     assert sum("weight" in str(w.message) for w in record) == 1  # once until reset()
-    ok = Controller(ControllerParams.paper("pdc"))
+    ok, ground = Controller(ControllerParams.paper("pdc")), Controller(ControllerParams.paper("pdc"))
     with warnings.catch_warnings():
-        warnings.simplefilter("error", ControllerWarning)
+        warnings.filterwarnings("error", ".*times the vehicle's weight", ControllerWarning)
         hover = Measurement(np.array([0.0, 0.0, -1.0]), np.zeros(3), np.zeros(3), omega_B=np.zeros(3))
         for _ in range(100):
             ok.step(hover, Reference(np.array([0.0, 0.0, -1.0])))
+        # at rest on the ground, asked to go below it: the estimate is the ground's reaction, most of the weight
+        rest = Measurement(np.zeros(3), np.zeros(3), np.zeros(3), omega_B=np.zeros(3))
+        for _ in range(200):
+            out = ground.step(rest, Reference(np.array([0.0, 0.0, 1.0])))
+        assert np.linalg.norm(out.f_hat_W) > 0.7 * 1.2 * 9.81
     with pytest.raises(InputError, match=r"psi_d has shape \(1,\); this controller expects a scalar$"):
         ok.step(hover, Reference(np.array([0.0, 0.0, -1.0]), psi=np.array([0.0])))
