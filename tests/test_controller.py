@@ -288,3 +288,19 @@ def test_inputs_in_a_wrong_frame_are_warned_about_through_the_estimate():
         assert np.linalg.norm(out.f_hat_W) > 0.7 * 1.2 * 9.81
     with pytest.raises(InputError, match=r"psi_d has shape \(1,\); this controller expects a scalar$"):
         ok.step(hover, Reference(np.array([0.0, 0.0, -1.0]), psi=np.array([0.0])))
+
+
+@pytest.mark.parametrize("Kp, Dp", [(16.0, 12.0), (19.2, 3.0)])
+def test_natural_frequency_and_damping_are_the_position_loops_roots(Kp, Dp):
+    """``m s^2 + Dp s + Kp``: the product of its roots is wn^2 and their sum -2 zeta wn (numpy's roots of
+    the characteristic polynomial, over- and under-damped); ``from_natural`` inverts ``natural``."""
+    m = 1.2
+    roots = np.roots([m, Dp, Kp])
+    wn, zeta = np.sqrt(np.prod(roots).real), -np.sum(roots).real / (2 * np.sqrt(np.prod(roots).real))
+    g = ImpedanceGains(Kp=Kp, Dp=Dp, Ko=0.2, Do=0.05)
+    n = g.natural(m)
+    np.testing.assert_allclose(n["wn_p"], wn, rtol=1e-12)
+    np.testing.assert_allclose(n["zeta_p"], zeta, rtol=1e-12)
+    back = ImpedanceGains.from_natural(m, np.diag([3.4e-3, 3.4e-3, 4.7e-3]), wn, zeta, 8.0, 1.0)
+    np.testing.assert_allclose(back.Kp, Kp, rtol=1e-12)
+    np.testing.assert_allclose(back.Dp, Dp, rtol=1e-12)

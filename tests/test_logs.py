@@ -649,3 +649,19 @@ def test_sih_parameters_give_the_inertia_tensor_in_place():
         assert inertia[i, j] == inertia[j, i] == params[f"SIH_I{name}"]
     assert vehicle_from_params({"SIH_MASS": 1.5, "SIH_IXX": 0.025}) == (1.5, None)
     assert vehicle_from_params({"SIH_MASS": 0.0}) == (None, None)
+
+
+def test_px4_torque_normalisation_of_a_quad_longer_than_wide():
+    """PX4's allocator scales the roll and pitch columns of its mixer by sqrt(sum of squares / (nonzero / 2))
+    and uses the larger for both. Rotors at x = +-0.25 m, y = +-0.10 m: the roll column of the pseudo-
+    inverse is +-1/(4 * 0.10), so its scale is 1/(2 sqrt(2) 0.10), the larger one: one unit of roll or pitch
+    is 2 sqrt(2) 0.10 N m per newton of full-command rotor thrust (a square quad's both scales agree)."""
+    from vtol_impedance.logs.ulog import torque_per_unit
+
+    params = {"CA_ROTOR_COUNT": 4}
+    for i, ((x, y), km) in enumerate(zip([(0.25, 0.10), (-0.25, -0.10), (0.25, -0.10), (-0.25, 0.10)],
+                                         [0.05, 0.05, -0.05, -0.05], strict=True)):  # fmt: skip
+        params.update({f"CA_ROTOR{i}_PX": x, f"CA_ROTOR{i}_PY": y, f"CA_ROTOR{i}_KM": km})
+    k, n = torque_per_unit(params)
+    assert n == 4
+    np.testing.assert_allclose(k[:2], 2 * np.sqrt(2) * 0.10, rtol=1e-9)
