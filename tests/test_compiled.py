@@ -203,3 +203,34 @@ def test_sensor_noise_drawn_in_the_kernel_is_the_stated_gaussian():
         assert np.all(np.abs(lag1) < 4.0 / np.sqrt(N)), meas
         np.testing.assert_array_equal(n[0], n[2], err_msg=meas)  # same seed, same numbers
         assert abs(np.mean(n[0] * n[1])) < 4.0 / np.sqrt(3 * N), meas  # other seed, other numbers
+
+
+def test_cached_kernels_are_cleared_when_any_source_they_read_changes(tmp_path, monkeypatch):
+    """Numba keys a cached kernel on its own file only; a kernel that inlines another module's code would
+    load stale machine code after that module changed. The package stamps its cache with a hash of every
+    source the kernels read: a change to any of them clears the cache (once), and nothing else does."""
+    import vtol_impedance.compiled as pkg
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    src = [tmp_path / "engine.py", tmp_path / "plant.py"]
+    for p in src:
+        p.write_text("# kernel source\n")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    monkeypatch.setattr(pkg, "_HERE", tmp_path)
+    monkeypatch.setattr(pkg, "_SOURCES", tuple(src))
+
+    def cached(names=("engine.run_block-1.py311.nbi", "engine.run_block-1.py311.1.nbc")):
+        for n in names:
+            (cache / n).write_text("machine code")
+
+    pkg._refresh_cache()  # first use: stamped
+    cached()
+    pkg._refresh_cache()  # nothing changed: the cache stays
+    assert len(list(cache.glob("*.nb?"))) == 2
+    src[1].write_text("# kernel source, edited: the engine inlines it\n")
+    pkg._refresh_cache()
+    assert not list(cache.glob("*.nb?")) and (cache / "kernels.stamp").exists()
+    cached()
+    pkg._refresh_cache()  # the new sources are stamped: compiled once, kept
+    assert len(list(cache.glob("*.nb?"))) == 2
