@@ -84,3 +84,19 @@ def test_rotor_speeds_remove_the_rotor_lag(flight_log):
         assert p95_k < 0.25 * p95_c and p95_a < 0.3 * p95_c and med_a < med_c
         assert p95_m > 2 * p95_a  # a first-order model of the commands does not reach the measured speeds
     print(flight, [round(x, 3) for x in (med_c, p95_c, med_m, p95_m, med_k, p95_k, med_a, p95_a)])
+
+
+def test_thrust_coefficient_fitted_on_a_tilted_flight():
+    """Rotor speeds of a vehicle held at 0.3 rad of roll and 0.2 of pitch by a side force, bobbing 0.3 m/s
+    vertically: ``k_T sum w^2 cos(phi) cos(theta) = m (g - a_z)`` gives back k_T (without the tilt it would
+    be off by 1/cos, 6 %)."""
+    from vtol_impedance.logs.rotors import fit_thrust_coefficient
+
+    t = np.arange(0.0, 20.0, 0.01)
+    m, k_T, phi, theta = 1.2, 8e-6, 0.3, 0.2
+    v_z = 0.3 * np.sin(t)
+    sq_sum = m * (9.81 - 0.3 * np.cos(t)) / (k_T * np.cos(phi) * np.cos(theta))
+    eta = np.column_stack([np.full_like(t, phi), np.full_like(t, theta), np.zeros_like(t)])
+    v_W = np.column_stack([np.zeros_like(t), np.zeros_like(t), v_z])
+    k, res = fit_thrust_coefficient(t, v_W, eta, sq_sum, m, np.ones(len(t), bool))
+    assert k == pytest.approx(k_T, rel=1e-4) and res < 1e-3
