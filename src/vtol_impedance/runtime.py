@@ -176,8 +176,9 @@ class Controller:
 
         Returns the output record (:data:`vtol_impedance.compiled.layouts.OUTPUT`: ``out["f_rotor"][:n]``,
         ``out["f_hat_W"]``, ``out["thrust"]``, ...; a view, overwritten by the next call). Raises
-        :class:`InputError` on a wrong type, dtype, shape or a non-finite value, and
-        :class:`SingularityError` at theta = +-90 deg.
+        :class:`InputError` on a wrong type, dtype, shape, a non-finite value or a pitch beyond +-pi/2, and
+        :class:`SingularityError` at theta = +-90 deg. ``y`` holds Euler rates, not the gyro's body rates
+        (``eta_dot = Q(eta)^-1 omega_B``).
         """
         fast = self._fast
         if fast is None:
