@@ -55,6 +55,8 @@ def test_the_mav_type_tables_follow_the_mavlink_standard():
         ({}, {"MAV_TYPE": 22.0, "VT_TYPE": 2.0}, "vtol"),
         ({}, {"MAV_TYPE": 1.0}, "other"),
         ({"mav_type": 6}, {}, None),  # a ground station names no vehicle
+        ({"firmware": "ArduPlane V4.5.0"}, {"Q_ENABLE": float("nan")}, "other"),  # a damaged parameter says nothing
+        ({}, {"MAV_TYPE": float("nan")}, None),
         ({}, {}, None),
     ],
 )

@@ -20,7 +20,7 @@ from .control.impedance import (
     initial_controller_state,
 )
 from .control.signals import ControlOutput, Measurement, Reference, comply6
-from .conventions import G
+from .conventions import MAX_PITCH_RAD, G
 from .errors import InputError, SingularityError, as_finite, scalar
 from .estimator.momentum import EstimatorParams, estimator_step
 from .estimator.momentum import design as design_estimator
@@ -50,7 +50,7 @@ _PITCH_RANGE = (
 def _check_attitude(eta: np.ndarray) -> None:
     """A ZYX pitch within +-pi/2 and away from its singularity (:class:`SingularityError`)."""
     pitch = np.abs(eta[..., 1])
-    if np.any(pitch > 0.5 * np.pi + 1e-9):
+    if np.any(pitch > MAX_PITCH_RAD):
         raise InputError(_PITCH_RANGE.format(theta=float(np.max(pitch))))
     check_euler_regular(eta)
 

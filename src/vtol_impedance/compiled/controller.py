@@ -21,7 +21,7 @@ import numpy as np
 from numba import from_dtype, types
 
 from ..control.impedance import ControllerArrays
-from ..conventions import SINGULARITY_COS_EPS, G
+from ..conventions import MAX_PITCH_RAD, SINGULARITY_COS_EPS, G
 from .algebra import _mm9, _mv9, _solve9, _t9, mod_2pi
 from .estimator import estimator_update, pack_design
 from .estimator import initial_state as estimator_initial_state
@@ -299,9 +299,6 @@ PLAUSIBLE = np.array([1e6] * 3 + [1e4] * 3 + [1e3] * 3 + [1e4] * 3)
 PLAUSIBLE_REF = np.array([1e6] * 3 + [1e4] * 3 + [1e5] * 3 + [1e3, 1e4, 1e5])
 
 OK, NON_FINITE, SINGULAR, WRONG_SHAPE, COMPLY_RANGE, IMPLAUSIBLE, PITCH_RANGE = 0, 1, 2, 3, 4, 5, 6
-#: ZYX Euler angles keep the pitch within +-pi/2 (a measured pitch beyond it is in degrees or another
-#: convention); the margin is rounding's.
-PITCH_LIMIT = 0.5 * math.pi + 1e-9
 
 
 def _records(dtype: np.dtype, ndim: int = 1) -> types.Array:
@@ -335,7 +332,7 @@ def checked_step(p, d, s, h, b, y, r, o):
     for i in range(12, r.shape[0]):
         if not (0.0 <= r[i] <= 1.0):
             return COMPLY_RANGE
-    if abs(y[7]) > PITCH_LIMIT:
+    if abs(y[7]) > MAX_PITCH_RAD:
         return PITCH_RANGE
     if abs(math.cos(y[7])) < SINGULARITY_COS_EPS:
         return SINGULAR

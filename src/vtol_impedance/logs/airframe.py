@@ -17,6 +17,7 @@ that is wrong about itself.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from ..errors import InputError
@@ -47,7 +48,7 @@ def _from_mav_type(code: int, where: str) -> tuple[str, str] | None:
 
 def _param(params: dict[str, float], name: str) -> int | None:
     value = params.get(name)
-    return None if value is None else int(round(value))
+    return int(round(value)) if value is not None and math.isfinite(value) else None  # a damaged one says nothing
 
 
 def classify(meta: dict[str, Any], params: dict[str, float]) -> tuple[str, str] | None:
@@ -71,8 +72,9 @@ def classify(meta: dict[str, Any], params: dict[str, float]) -> tuple[str, str] 
             return "other", f"a {HELI_FRAME_CLASSES[frame_class]} ({firmware}, FRAME_CLASS {frame_class})"
         return "multirotor", f"a multirotor ({firmware})"
     if meta.get("mav_type") is not None:
-        found = _from_mav_type(int(meta["mav_type"]), "the autopilot's HEARTBEAT")
-        if found is not None and found[0] == "other" and found[1].startswith("a fixed wing") and q_enable:
+        mav_type = int(meta["mav_type"])
+        found = _from_mav_type(mav_type, "the autopilot's HEARTBEAT")
+        if mav_type == 1 and q_enable:  # ArduPilot's QuadPlane calls itself a fixed wing
             return "vtol", f"a QuadPlane (HEARTBEAT type 1 with Q_ENABLE {q_enable})"
         if found is not None and frame_class in HELI_FRAME_CLASSES and found[0] == "multirotor":
             return "other", f"a {HELI_FRAME_CLASSES[frame_class]} (FRAME_CLASS {frame_class})"
