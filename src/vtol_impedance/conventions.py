@@ -29,6 +29,6 @@ T_FRD_FLU: np.ndarray = np.diag([1.0, -1.0, -1.0])
 T_FRD_FLU.setflags(write=False)
 #: Distance of ``|cos(theta)|`` from zero under which the Euler parametrisation is declared singular.
 SINGULARITY_COS_EPS: float = 1e-3
-#: Largest |pitch| a ZYX Euler triple has (pi/2, with rounding's margin): a measured pitch beyond it is in
-#: degrees or of another convention, and is refused.
+#: Largest magnitude of the pitch a ZYX Euler triple has (pi/2, with rounding's margin): a measured pitch
+#: beyond it is in degrees or of another convention, and is refused.
 MAX_PITCH_RAD: float = 0.5 * np.pi + 1e-9
