@@ -260,6 +260,29 @@ def test_reference_and_frames_of_another_simulator_fly_the_same_controller():
         Reference.from_frames(np.zeros(3), world="nwu")
 
 
+def test_comply_fractions_from_another_simulators_frames_follow_its_axes():
+    """``comply`` given with ENU axes (yield to the east, reject north and up; nose east) is NED's ``[0, 1, 0]``: the
+    comply controller then flies exactly as with the NED reference, and not as one yielding to the north
+    (the estimate has both components here, so the two differ)."""
+    meas = Measurement(np.array([0.3, -0.2, -0.9]), np.array([0.2, -0.3, 0.1]), np.array([0.05, -0.04, 1.5]),
+                       omega_B=np.array([0.1, -0.2, 0.05]))  # fmt: skip
+    p_enu = np.array([0.0, 0.0, 1.0])
+    for six in (False, True):
+        tail = [0.0, 1.0, 0.0] if six else []
+        enu = Reference.from_frames(p_enu, comply=np.array([1.0, 0.0, 0.0, *tail]), world="enu")
+        np.testing.assert_array_equal(enu.comply, [0.0, 1.0, 0.0, *tail])
+        outs = {}
+        ned = lambda c, tail=tail: Reference(np.array([0.0, 0.0, -1.0]), psi=np.pi / 2, comply=[*c, *tail])  # noqa: E731
+        for name, ref in (("enu", enu), ("east", ned([0.0, 1.0, 0.0])), ("north", ned([1.0, 0.0, 0.0]))):
+            ctrl = Controller(ControllerParams.paper("comply"))
+            for _ in range(30):
+                outs[name] = ctrl.step(meas, ref)
+        assert np.all(np.abs(outs["enu"].f_hat_W[:2]) > 0.05)
+        np.testing.assert_allclose(outs["enu"].f_rotor, outs["east"].f_rotor, rtol=1e-12)
+        assert np.abs(outs["enu"].f_rotor - outs["north"].f_rotor).max() > 1e-3
+    assert Reference.from_frames(p_enu, comply=0.5, world="enu").comply == 0.5  # one fraction: every axis
+
+
 def test_inputs_in_a_wrong_frame_are_warned_about_through_the_estimate():
     """ENU inputs read as NED: the controller, told the vehicle is below its reference, runs the rotors at
     full thrust; the vehicle climbs at (4 x 7 N / 1.2 kg - g), which z-up readings report as a fall. The

@@ -174,8 +174,10 @@ def test_a_thrust_that_does_not_carry_the_weight(fl, tmp_path):
 def test_inertia_must_be_a_rigid_body():
     with pytest.raises(InputError, match=r"symmetric: I\[0,1\] = 0.001 but I\[1,0\] = 0"):
         check_inertia([[0.01, 0.001, 0], [0, 0.01, 0], [0, 0, 0.02]])
-    with pytest.raises(InputError, match="triangle inequality"):
+    with pytest.raises(InputError, match="triangle inequality.* by 90 % of I3; a typo or mixed units"):
         check_inertia([0.001, 0.001, 0.02])
+    with pytest.raises(InputError, match=r"by 1 % of I3; .*give I3 = I1 \+ I2"):  # RotorPy's Crazyflie
+        check_inertia([1.43e-5, 1.43e-5, 2.89e-5])
     with pytest.raises(InputError, match="positive definite"):
         check_inertia([0.01, -0.01, 0.02])
     np.testing.assert_array_equal(check_inertia([0.01, 0.01, 0.02]), np.diag([0.01, 0.01, 0.02]))

@@ -284,6 +284,37 @@ def test_design_is_reproducible_and_its_rule_holds():
     assert design(v, 16.0, 12.0) == d  # cached, the same answer
 
 
+def test_designed_controller_follows_its_own_advice_and_warns_where_thin():
+    """The DesignError's advice is gains the design accepts (numbers read off the message, not computed
+    here): their PD loop is stable on every plant of the design set, where the refused gains' is not on
+    the nominal one; the thin result's notes reach the caller as a DesignWarning, while the paper's
+    setup at 100 Hz gives none."""
+    import re
+    import warnings
+
+    from vtol_impedance.model import load_preset
+    from vtol_impedance.robust import DesignError, DesignWarning, designed_controller
+    from vtol_impedance.robust.design import PLANT_SET, Timing, _plant, _sensors
+
+    v = load_preset("pelican")
+    with pytest.raises(DesignError, match="Dp must come down to") as exc:
+        designed_controller(v, "pdc", Kp=16.0, Dp=12.0, rate=10.0)
+    dp, kp = (float(x) for x in re.search(r"to ([\d.]+) N s/m or less \(Kp to ([\d.]+) N/m", str(exc.value)).groups())
+    assert dp < 12.0 and kp < 16.0
+    with pytest.warns(DesignWarning, match="PD\\+C may be worse than PD"):
+        ctrl = designed_controller(v, "pdc", Kp=kp, Dp=dp, rate=10.0)
+    assert ctrl.Ts == pytest.approx(0.1) and ctrl.gains.Dp[0] == pytest.approx(dp)
+    t = Timing()
+    pd = dataclasses.replace(ctrl, variant="pd")
+    for inertia, payload in PLANT_SET:
+        assert margins(linearize(pd, _plant(v, inertia, payload, t.rotor_tau), _sensors(t))).stable
+    refused = dataclasses.replace(pd, gains=dataclasses.replace(pd.gains, Kp=np.full(3, 16.0), Dp=np.full(3, 12.0)))
+    assert not margins(linearize(refused, _plant(v, 1.0, 0.0, t.rotor_tau), _sensors(t))).stable
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DesignWarning)
+        designed_controller(v, "pdc", Kp=16.0, Dp=12.0)
+
+
 # ----------------------------------------------------------------------------- bad input
 
 

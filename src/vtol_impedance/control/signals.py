@@ -106,16 +106,28 @@ class Reference(NamedTuple):
     ) -> Reference:
         """The reference from another tool's world frame: position, velocity and acceleration in ``world``
         (``"ned"`` or ``"enu"``) and the heading with its rate and acceleration in that world's convention
-        (ENU: counter-clockwise from east, so the default 0 is nose east; NED: clockwise from north)."""
+        (ENU: counter-clockwise from east, so the default 0 is nose east; NED: clockwise from north).
+        ``comply`` gives the world axes in ``world``'s order too (ENU ``[east, north, up]``, reordered
+        here to NED's ``[north, east, down]``); its Euler-angle fractions (six values) are not reordered."""
         from ..errors import as_finite
-        from ..model.frames import heading_rate_to_ned, heading_to_ned, world_vector_to_ned
+        from ..model.frames import heading_rate_to_ned, heading_to_ned, world_axes_to_ned, world_vector_to_ned
 
+        c = np.asarray(comply, dtype=object)
+        if c.shape[-1:] in ((3,), (6,)):  # per axis: reorder the world axes (a bad value is named by step)
+            try:
+                c = np.array(comply, dtype=float)
+            except (TypeError, ValueError):
+                c = comply
+            else:
+                c[..., :3] = world_axes_to_ned(c[..., :3], world)
+        else:
+            c = comply
         return cls(
             *(world_vector_to_ned(as_finite(n, x, (3,)), world) for n, x in (("p", p), ("v", v), ("a", a))),
             heading_to_ned(as_finite("heading", heading), world),
             heading_rate_to_ned(as_finite("heading_rate", heading_rate), world),
             heading_rate_to_ned(as_finite("heading_acc", heading_acc), world),
-            comply,
+            c,
         )
 
 

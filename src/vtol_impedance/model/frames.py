@@ -46,6 +46,12 @@ def world_vector_to_ned(v: np.ndarray, world: str) -> np.ndarray:
         return np.asarray(v, dtype=float) @ world_matrix(world).T
 
 
+def world_axes_to_ned(c: np.ndarray, world: str) -> np.ndarray:
+    """Per-axis values ``(..., 3)`` of the world axes (comply fractions, gains: magnitudes with no sign)
+    in NED order: ENU's ``[east, north, up]`` become ``[north, east, down]``, nothing flipped."""
+    return np.asarray(c, dtype=float) @ np.abs(world_matrix(world)).T
+
+
 def body_vector_to_frd(v: np.ndarray, body: str) -> np.ndarray:
     """A body-frame vector (body rates, torque) ``(..., 3)`` in FRD (a non-finite entry: as
     :func:`world_vector_to_ned`)."""

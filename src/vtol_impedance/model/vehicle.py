@@ -52,9 +52,15 @@ def check_inertia(inertia: Any) -> np.ndarray:
     if np.any(ev <= 0):
         raise InputError(f"inertia must be positive definite, its principal moments are {np.round(ev, 8).tolist()}")
     if ev[0] + ev[1] < ev[2] * (1 - 1e-9):
+        short = 100.0 * (ev[2] - ev[0] - ev[1]) / ev[2]
+        hint = (
+            "measured values this close to the bound (a flat frame's) are within their error of it: give I3 = I1 + I2"
+            if short < 5.0
+            else "a typo or mixed units?"
+        )
         raise InputError(
             f"inertia is not a rigid body's: principal moments {np.round(ev, 8).tolist()} break the triangle "
-            "inequality (I1 + I2 >= I3)"
+            f"inequality (I1 + I2 >= I3) by {short:.2g} % of I3; {hint}"
         )
     return I_B
 
@@ -85,7 +91,9 @@ def drag_factor_from_constants(torque_constant: float, thrust_constant: float) -
 @dataclass(frozen=True)
 class Rotor:
     """One rotor: ``position_B`` (m, FRD, from the body origin), ``spin`` (+1 or -1, see the module
-    docstring), force limits ``f_min``, ``f_max`` (N)."""
+    docstring: +1 yaws the body nose-right; a z-up simulator's sign whose +1 yaws it counter-clockwise seen
+    from above, as RotorPy's ``rotor_directions``, is the opposite), force
+    limits ``f_min``, ``f_max`` (N; unset, the Pelican's 0 and 7 N: give your rotors')."""
 
     position_B: tuple[float, float, float]
     spin: int
@@ -169,10 +177,13 @@ class VehicleParams:
     inertia : ndarray, shape (3, 3)
         ``I_B`` about the centre of mass in the body frame, kg m^2 (a 3-vector is a diagonal).
     drag_factor : float
-        ``c`` of eq. (4d), N m per N.
+        ``c`` of eq. (4d), N m per N; the default 0.016 is the paper's Pelican's: give your rotors'
+        (:func:`drag_factor_from_constants`).
     rotors : tuple of Rotor or None
         Explicit rotors (:class:`Rotor`); or leave ``None`` and give a ``layout`` with the shorthand
-        ``arm_length`` (m), ``f_max``, ``f_min`` (N, the same for every rotor).
+        ``arm_length`` (m), ``f_max``, ``f_min`` (N, the same for every rotor). Unset, the limits are the
+        Pelican's (7 N and 0 per rotor, arm 0.21 m): for another vehicle give its own
+        (:func:`f_max_from_motor`) and check :attr:`thrust_to_weight` (multirotors fly at 1.5-5).
     layout : {"plus", "x", "hex"}
         ``"plus"`` (eq. (4), the default), ``"x"`` or ``"hex"`` (:func:`layout_positions`).
     name : str

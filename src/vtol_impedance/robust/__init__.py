@@ -1,7 +1,7 @@
 """Robustness by design: the closed loop linearised for any vehicle, its stability margins, and a design
 rule for bandwidths that keep them."""
 
-from .design import Design, DesignError, Timing, design, designed_controller
+from .design import Design, DesignError, DesignWarning, Timing, design, designed_controller
 from .linear import (
     LOOPS,
     LinearLoop,
@@ -18,6 +18,7 @@ __all__ = [
     "LOOPS",
     "Design",
     "DesignError",
+    "DesignWarning",
     "Timing",
     "design",
     "designed_controller",

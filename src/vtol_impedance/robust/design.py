@@ -31,6 +31,7 @@ import functools
 import hashlib
 import json
 import os
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,10 @@ _RP_LOOPS = ("roll torque", "pitch torque", "roll reference", "pitch reference")
 
 class DesignError(InputError):
     """No bandwidth keeps the loop stable with this latency and rotor lag."""
+
+
+class DesignWarning(UserWarning):
+    """A design that holds the loop stable but short of a margin threshold somewhere in its plant set."""
 
 
 @dataclass(frozen=True)
@@ -184,7 +189,7 @@ def design(
 
 
 #: Changes whenever the rule changes, so that no design cached on disk outlives it.
-_RULE = "2026-12-01 r1"
+_RULE = "2026-12-02 r2"
 
 
 def cache_dir() -> Path | None:
@@ -239,12 +244,12 @@ def _design_search(vehicle: VehicleParams, kp: tuple, dp: tuple, rate: float, t:
         if fine[0] is not None and fine[0] > score:
             score, wn_o, wn_f = fine
     if score is None:
-        raise DesignError(_unstabilisable(vehicle, kp, dp, Ts, t))
+        raise DesignError(_unstabilisable(vehicle, kp, dp, Ts, t, extremes))
     wn_yaw = min(wn_yaw_rule, wn_o)
 
     # 3. the fastest estimator that keeps the thresholds and costs little against PD on every plant
     thresholds = Thresholds()
-    pd_reports = [_report(controller("pd", wn_o, wn_f, 10.0), p, t, None) for p in plants]
+    pd_reports = [_report(controller("pd", wn_o, wn_f, _pd_estimator(Ts)), p, t, None) for p in plants]
     pd = [r.summary() for r in pd_reports]
     results: dict[float, tuple[bool, dict[str, float]]] = {}
 
@@ -274,7 +279,10 @@ def _design_search(vehicle: VehicleParams, kp: tuple, dp: tuple, rate: float, t:
     if not results[chosen][0]:
         notes.append(
             f"even a {chosen:g} rad/s estimator falls short on some plant of the design set ("
-            + "; ".join(_violations_of(worst_pdc, thresholds))
+            + "; ".join(
+                _violations_of(worst_pdc, thresholds)
+                or [f"it costs more than {COMPENSATION_COST_DEG:g} deg of phase margin against PD"]
+            )
             + "): PD+C may be worse than PD there"
         )
     if _violations_of(_worst(pd_reports), thresholds):
@@ -297,6 +305,12 @@ def _controller(
     )  # fmt: skip
 
 
+def _pd_estimator(Ts: float) -> float:
+    """The estimator bandwidth of PD candidates (never fed forward): the paper's 10 rad/s, or less at a
+    slow control rate (a bandwidth near the sampling rate would warn about a loop it does not affect)."""
+    return min(10.0, 0.5 / Ts)
+
+
 def _attitude_search(
     vehicle: VehicleParams, kp: tuple, dp: tuple, Ts: float, t: Timing, plants: list[PlantParams],
     ratios: tuple[float, ...], filters: tuple[float, ...],
@@ -311,27 +325,30 @@ def _attitude_search(
             wn_o, wn_f = r * speed, f * r * speed
             if wn_f >= nyquist:
                 continue
-            ctrl = _controller(vehicle, kp, dp, Ts, t, "pd", wn_o, wn_f, 10.0)
+            ctrl = _controller(vehicle, kp, dp, Ts, t, "pd", wn_o, wn_f, _pd_estimator(Ts))
             w = _worst([_report(ctrl, p, t, _RP_LOOPS) for p in plants])
             if w["stable"] and (best[0] is None or w["pm_min_deg"] > best[0]):
                 best = (w["pm_min_deg"], wn_o, wn_f)
     return best
 
 
-def _unstabilisable(vehicle: VehicleParams, kp: tuple, dp: tuple, Ts: float, t: Timing) -> str:
+def _unstabilisable(
+    vehicle: VehicleParams, kp: tuple, dp: tuple, Ts: float, t: Timing, plants: list[PlantParams]
+) -> str:
     """The message when no attitude bandwidth stabilises PD: name the timing and the largest ``Dp``
-    (with ``Kp`` scaled to keep the position loop's damping) for which one does."""
+    (with ``Kp`` scaled to keep the position loop's damping) for which one does, judged as step 1 judges
+    (the same ``plants`` and candidates), printed rounded down: the numbers it gives pass."""
     m = vehicle.mass
-    nominal = [_plant(vehicle, 1.0, 0.0, t.rotor_tau)]
     lo, hi = 0.0, 1.0
     for _ in range(7):
         k = 0.5 * (lo + hi)
         score, _, _ = _attitude_search(
-            vehicle, tuple(k * k * v for v in kp), tuple(k * v for v in dp), Ts, t, nominal, (1.5, 2.0, 2.5), (1.25,)
+            vehicle, tuple(k * k * v for v in kp), tuple(k * v for v in dp), Ts, t, plants, ATTITUDE_RATIOS, (1.25,)
         )  # fmt: skip
         lo, hi = (k, hi) if score is not None else (lo, k)
     where = (
-        f"Dp must come down to about {lo * max(dp[0], dp[1]):.3g} N s/m (Kp to {lo * lo * max(kp[0], kp[1]):.3g} N/m)"
+        f"Dp must come down to {_down(lo * max(dp[0], dp[1]))} N s/m or less (Kp to "
+        f"{_down(lo * lo * max(kp[0], kp[1]))} N/m)"
         if lo > 0
         else "no position gain does"
     )
@@ -347,8 +364,17 @@ def designed_controller(
     vehicle: VehicleParams, variant: str, Kp: Any, Dp: Any, rate: float = 100.0, timing: Timing | None = None,
     Ki: Any = 0.0, **kw: Any,
 ) -> ControllerParams:  # fmt: skip
-    """A :class:`ControllerParams` with the bandwidths of :func:`design` (the robust default)."""
+    """A :class:`ControllerParams` with the bandwidths of :func:`design` (the robust default).
+
+    ``timing`` is what the controller assumes about the vehicle it will fly; unset it is :class:`Timing`'s
+    default, the paper's Pelican in this simulator (20 ms position latency, 2 ms attitude latency, a 19 ms
+    rotor time constant). The bandwidths depend on it: give your vehicle's. Each note of the design (a
+    margin short of its threshold on the design's plant set, so that PD+C may be worse than PD there) is
+    issued as a :class:`DesignWarning` before the controller is returned; the :class:`DesignError` of a
+    loop no bandwidth can hold names the gains that can."""
     d = design(vehicle, Kp, Dp, rate, timing)
+    for note in d.notes:
+        warnings.warn(f"designed_controller: {note}", DesignWarning, stacklevel=2)
     base = ControllerParams(
         vehicle=vehicle,
         gains=d.gains(vehicle, Kp, Dp, Ki),
@@ -360,4 +386,10 @@ def designed_controller(
     return replace(base, **kw) if kw else base
 
 
-__all__ = ["Design", "DesignError", "Timing", "design", "designed_controller"]
+def _down(x: float) -> str:
+    """``x`` to three significant digits, rounded towards zero."""
+    e = 10.0 ** (np.floor(np.log10(x)) - 2) if x > 0 else 1.0
+    return f"{np.floor(x / e) * e:.3g}"
+
+
+__all__ = ["Design", "DesignError", "DesignWarning", "Timing", "design", "designed_controller"]
