@@ -234,14 +234,14 @@ def _preflight(specs: list[Any], variants: list[str], quiet: bool) -> dict[str, 
     """The margin check before a flight: margins of every controller at each scenario's operating point,
     and one warning (on stderr) naming what falls short of the thresholds. Returns the reports per
     scenario, for the run folder's figures and report."""
-    from .robust import Thresholds, TrimError
+    from .robust import LoopSizeError, Thresholds, TrimError
     from .scenarios.margins import scenario_margins, warnings_of
 
     out, lines = {}, []
     for spec in specs:
         try:
             reports = scenario_margins(spec, variants)
-        except TrimError as exc:  # the flight may still show what happens; say why there are no margins
+        except (TrimError, LoopSizeError) as exc:  # the flight may still show what happens; say why not
             lines.append(f"  {spec.name}: no margins, {exc}")
             out[spec.name] = {}
             continue

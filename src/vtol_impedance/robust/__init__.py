@@ -4,7 +4,9 @@ rule for bandwidths that keep them."""
 from .design import Design, DesignError, DesignWarning, Timing, design, designed_controller
 from .linear import (
     LOOPS,
+    MAX_LOOP_STATES,
     LinearLoop,
+    LoopSizeError,
     OperatingPoint,
     TrimError,
     equivalent_rotor_tau,
@@ -30,6 +32,8 @@ __all__ = [
     "LinearLoop",
     "OperatingPoint",
     "TrimError",
+    "LoopSizeError",
+    "MAX_LOOP_STATES",
     "equivalent_rotor_tau",
     "linearize",
     "operating_point",

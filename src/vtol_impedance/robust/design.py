@@ -45,7 +45,7 @@ from ..estimator.momentum import EstimatorParams
 from ..model.vehicle import VehicleParams
 from ..sim.plant import PlantParams
 from ..sim.sensors import SensorParams
-from .linear import TrimError, linearize
+from .linear import LoopSizeError, TrimError, linearize
 from .margins import MarginReport, Thresholds, margins
 
 #: Plants the design must hold on: (true inertia / nominal, payload / nominal mass).
@@ -140,6 +140,8 @@ def _report(ctrl: ControllerParams, plant: PlantParams, t: Timing, loops: tuple[
         return margins(linearize(ctrl, plant, _sensors(t)), loops=loops)
     except TrimError as exc:
         raise DesignError(f"the design's plant set cannot hover: {exc}") from exc
+    except LoopSizeError as exc:
+        raise DesignError(f"no design: {exc}") from exc
 
 
 def _violations_of(worst: dict[str, float], t: Thresholds) -> list[str]:

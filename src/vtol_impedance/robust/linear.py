@@ -94,6 +94,17 @@ class TrimError(InputError):
     """The vehicle cannot hover at the requested operating point (beyond its rotors or tilt limit)."""
 
 
+class LoopSizeError(InputError):
+    """The linearised loop would be too large to analyse (latencies of many control periods)."""
+
+
+#: The most states a linearised loop may have: the sensor latencies become delay lines of six states per
+#: control period, and a design's time grows with their number (100 Hz with the default 20 ms: 34
+#: states, margins in a second, a design in a few; 250 states, a 0.35 s latency at 100 Hz or 40 ms at
+#: 1 kHz, take about a minute on two cores; a 1 s latency at 100 Hz never finished in two minutes).
+MAX_LOOP_STATES = 250
+
+
 def equivalent_rotor_tau(tau_up: float, tau_down: float) -> float:
     """The first-order time constant the linear model uses for a rotor that spins up with ``tau_up`` and
     down with ``tau_down`` (s): their mean (module docstring)."""
@@ -590,6 +601,24 @@ class LinearLoop:
         return conns
 
 
+def _check_size(controller: ControllerParams, plant: PlantParams, sensors: SensorParams, plant_rate: float) -> None:
+    """Refuse, before any work, a loop of more than :data:`MAX_LOOP_STATES` states: the plant's minimal
+    coordinates and the latencies' delay lines (six states per control period, rounded up)."""
+    if not isinstance(controller, ControllerParams) or not isinstance(plant, PlantParams):
+        return  # named by _setup
+    Ts, dt = float(controller.Ts), 1.0 / plant_rate
+    delays = [round(d / dt) * dt for d in (sensors.mocap_delay, sensors.imu_delay)]
+    lines = sum(6 * (int(np.floor(d / Ts + 1e-9)) + 1) for d in delays if d > 0)
+    n = 12 + plant.vehicle.n_rotors + (4 if plant.pendulum_mass > 0 else 0) + lines
+    if n > MAX_LOOP_STATES:
+        raise LoopSizeError(
+            f"the linearised loop would have {n} states, more than MAX_LOOP_STATES = {MAX_LOOP_STATES}: a "
+            f"{1e3 * delays[0]:g} ms position and {1e3 * delays[1]:g} ms attitude latency are {lines // 6} control "
+            f"periods at {1.0 / Ts:g} Hz, each a line of six states; lower the latency or the control rate to "
+            "have margins computed"
+        )
+
+
 def linearize(
     controller: ControllerParams,
     plant: PlantParams,
@@ -610,6 +639,7 @@ def linearize(
     if not isinstance(sensors, SensorParams):
         raise InputError(f"sensors must be a SensorParams, got {type(sensors).__name__}")
     plant_rate = scalar("plant_rate", plant_rate, lo=0.0, lo_open=True)
+    _check_size(controller, plant, sensors, plant_rate)
     su = _setup(controller, plant, p_W, psi, comply)
     op, su, steady = _trim(su, force_W, torque_B)
     Ts = float(su.CA.Ts)
