@@ -100,3 +100,25 @@ def test_thrust_coefficient_fitted_on_a_tilted_flight():
     v_W = np.column_stack([np.zeros_like(t), np.zeros_like(t), v_z])
     k, res = fit_thrust_coefficient(t, v_W, eta, sq_sum, m, np.ones(len(t), bool))
     assert k == pytest.approx(k_T, rel=1e-4) and res < 1e-3
+
+
+def test_commands_that_cannot_calibrate_the_rotors_say_what_the_fit_loses(tmp_path):
+    """The shipped CSV sample carries a payload (+z in NED) and rotor speeds with normalised thrust and its
+    hover thrust. One hover-thrust sample of 0 spoils the commands' calibration: the thrust coefficient is
+    then fitted on the vertical balance, which takes the payload's weight into the thrust, and the
+    estimate says so in its warnings instead of quietly reporting no load."""
+    import csv
+    from importlib import resources
+
+    rows = list(csv.reader(open(resources.files("vtol_impedance.logs.samples") / "flight.csv")))
+    clean = estimate(resample(read_any(write_csv(tmp_path / "clean.csv", _columns(rows)))[0], 100.0), 1.2, None)
+    rows[400][rows[0].index("hover_thrust")] = "0"
+    spoilt = estimate(resample(read_any(write_csv(tmp_path / "spoilt.csv", _columns(rows)))[0], 100.0), 1.2, None)
+    assert np.mean(clean.f_W[:, 2]) > 0.5 and abs(np.mean(spoilt.f_W[:, 2])) < 0.2  # the load is gone
+    assert not any("could not calibrate" in w for w in clean.warnings)
+    (w,) = [w for w in spoilt.warnings if "could not calibrate" in w]
+    assert "hover thrust 0..0" in w and "payload's weight" in w and "--thrust-coefficient" in w
+
+
+def _columns(rows: list[list[str]]) -> dict[str, np.ndarray]:
+    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}

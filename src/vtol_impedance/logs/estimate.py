@@ -290,8 +290,13 @@ def commands_in_si(
         if thrust_coefficient is None and hover_segment is None and flight.thrust is not None:
             try:  # the commands' own calibration (newtons, or the hover map), to transfer to the rotors
                 cmd_N, _ = _thrust_from_commands(flight, mass, hover_thrust, None, {}, [])
-            except InputError:
+            except InputError as exc:
                 cmd_N = None
+                notes.append(
+                    f"WARNING: the thrust commands could not calibrate the rotor speeds ({exc}): the thrust "
+                    "coefficient is fitted on the vertical balance instead, which absorbs a steady vertical "
+                    "force such as a payload's weight (fix the commands, or give --thrust-coefficient)"
+                )
         if thrust_coefficient is not None:
             k_T = float(scalar("thrust coefficient", thrust_coefficient, lo=0.0, lo_open=True))
             src = "given"
