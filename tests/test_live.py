@@ -170,6 +170,8 @@ def test_control_options_without_control_are_refused_not_ignored(capsys):
         ({"events": ((0.1, "stop", "BOGUS"),)}, "not a message this autopilot sends"),
         ({"impairments": {"seed": -1}}, "seed"),
         ({"seed": -1}, "seed"),
+        ({"control_rate": 333.0, "plant_rate": 100.0}, r"plant rate \(100 Hz\) must be a whole multiple"),
+        ({"control_rate": 50.0, "plant_rate": 120.0}, "whole multiple of the control rate"),
     ],
 )
 def test_simulated_autopilot_settings_are_checked_before_it_flies(kw, message):
@@ -177,6 +179,22 @@ def test_simulated_autopilot_settings_are_checked_before_it_flies(kw, message):
         if "impairments" in kw:
             kw = dict(kw, impairments=Impairments(**kw["impairments"]))
         SimSettings("udpout:127.0.0.1:9", **kw)
+
+
+def test_an_open_ended_simulated_autopilot_bounds_its_disturbance_series():
+    """Without a duration the turbulence is drawn for a horizon whose series fit SERIES_BUDGET_BYTES
+    (an hour at 10 kHz took gigabytes); with one, for the whole flight."""
+    from vtol_impedance.live.autopilot import OPEN_HORIZON_MAX_S, SERIES_BUDGET_BYTES
+    from vtol_impedance.scenarios import get
+
+    spec = get("case-b-fan")
+    kw = {"control_rate": 100.0, "plant_rate": 10000.0}
+    sim = SimAutopilot(spec, SimSettings("udpout:127.0.0.1:9", **kw))
+    n = sum(d.encode()[2].size for d in sim.dist.items if d.encode()[2] is not None)
+    assert 0 < 8 * n * 4 <= SERIES_BUDGET_BYTES * 1.1 and sim.series_end_s < 600.0  # + the 5 s margin
+    assert SimAutopilot.open_horizon(0.01) == OPEN_HORIZON_MAX_S  # at 100 Hz: the hour
+    sized = SimAutopilot(spec, SimSettings("udpout:127.0.0.1:9", duration=12.0, **kw))
+    assert sized.series_end_s == pytest.approx(17.0)
 
 
 @pytest.mark.parametrize(

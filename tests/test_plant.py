@@ -284,6 +284,25 @@ def test_band_limited_noise_has_its_rms_in_its_band():
     assert abs(np.corrcoef(f[:, 0], f[:, 1])[0, 1]) < 0.1
 
 
+def test_noise_bands_are_checked_when_the_disturbance_is_made():
+    """A band below MIN_NOISE_F_LO_HZ (its settling padding is drawn at the plant rate: 1e-4 Hz took
+    7.6 GB), reversed, or not two numbers is refused at once, for noise and for a fan's turbulence."""
+    from vtol_impedance.errors import InputError
+    from vtol_impedance.sim.disturbances import MIN_NOISE_F_LO_HZ, from_dict
+
+    assert MIN_NOISE_F_LO_HZ == 0.01
+    for bad, match in (({"f_lo": 1e-4}, r"0.01 <= f_lo < f_hi Hz, got 0.0001..5"), ({"f_lo": 3.0, "f_hi": 2.0}, "3..2"),
+                       ({"f_lo": float("nan")}, "finite")):  # fmt: skip
+        with pytest.raises(InputError, match=match):
+            from_dict({"kind": "noise", "force_rms_W": [0.1, 0.0, 0.0], **bad})
+    for band in ((1e-3, 5.0), (5.0, 0.5), (1.0,)):
+        with pytest.raises(InputError, match="turbulence_band"):
+            from_dict({"kind": "fan", "position_W": [2.0, 0.0, -1.0], "direction_W": [-1.0, 0.0, 0.0],
+                       "turbulence_band": list(band)})  # fmt: skip
+    ok = from_dict({"kind": "noise", "force_rms_W": [0.1, 0.0, 0.0], "f_lo": 0.01, "f_hi": 0.1})
+    assert ok.prepare(1.0, 0.001, np.random.default_rng(0))._series.shape == (1002, 6)
+
+
 @pytest.mark.parametrize("delay, steps", [(0.013, 13), (0.0129, 13), (0.0121, 12), (0.0, 0), (0.0004, 0)])
 def test_a_sensor_reads_the_state_of_the_plant_step_nearest_its_latency(delay, steps):
     """Latencies are served at the plant's step (1 ms): the state pushed nearest ``delay`` ago (0.013 s

@@ -835,6 +835,12 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
             f"{sim.address.text}, hovering at {sim.hold_W.tolist()} m NED in {sim.mode}; Ctrl-C to stop",
             file=sys.stderr,
         )
+    if settings.duration is None and sim.dist.items and sim.series_end_s < 3600.0:
+        print(
+            f"note: the disturbances' random series are drawn for the first {sim.series_end_s:.0f} simulated s "
+            f"at {settings.plant_rate:g} Hz and hold their last value after that (give --duration to size them)",
+            file=sys.stderr,
+        )
     done = threading.Event()
     out: dict[str, Any] = {}
 

@@ -63,6 +63,12 @@ BOOT_S = 1.0
 LAND_SPEED_M_S = 0.5
 #: Age of the newest set-point under which OFFBOARD may be entered (PX4 wants a set-point stream first).
 OFFBOARD_READY_S = 0.5
+#: Simulated seconds of disturbance series (turbulence, noise) a run without ``duration`` prepares: at
+#: most an hour, and no more than :data:`SERIES_BUDGET_BYTES` at the plant rate (10 kHz: about 7 minutes).
+#: After it the series hold their last value (said when the run starts).
+OPEN_HORIZON_MAX_S = 3600.0
+#: Memory the open-ended series may take: samples x 6 channels x 8 bytes, and the filter's temporaries.
+SERIES_BUDGET_BYTES = 200e6
 #: Rotor constant of the simulated ESCs, N s^2/rad^2 (7 N, a Pelican rotor's f_max, at about 9500 rpm).
 ROTOR_CONSTANT = 7.0e-6
 #: Messages this autopilot can send, by name (the others are refused when asked for).
@@ -131,6 +137,12 @@ class SimSettings:
             object.__setattr__(self, "duration", scalar("duration", self.duration, lo=0.0, lo_open=True))
         object.__setattr__(self, "plant_rate", scalar("plant rate", self.plant_rate, lo=10.0, hi=10000.0))
         object.__setattr__(self, "control_rate", scalar("control rate", self.control_rate, lo=10.0, hi=1000.0))
+        ratio = self.plant_rate / self.control_rate
+        if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            raise InputError(
+                f"plant rate ({self.plant_rate:g} Hz) must be a whole multiple of the control rate "
+                f"({self.control_rate:g} Hz), at least 1x"
+            )
         profile(self.autopilot)
         for name in self.no_streams:
             if name not in SERVED:
@@ -197,6 +209,12 @@ class SimAutopilot:
     """The simulated autopilot (module docstring). :meth:`run` until ``duration`` or :meth:`stop`; the test
     hooks :meth:`pilot_mode`, :meth:`stop_stream` and :meth:`jump_clock` act as a pilot and as faults."""
 
+    @staticmethod
+    def open_horizon(dt: float, n_dist: int = 1) -> float:
+        """Seconds of disturbance series prepared for a run until stopped, at the plant step ``dt`` (s), for
+        ``n_dist`` disturbances (each at most six channels)."""
+        return float(min(OPEN_HORIZON_MAX_S, SERIES_BUDGET_BYTES * dt / (6 * 8 * 4 * max(n_dist, 1))))
+
     def __init__(self, spec: ScenarioSpec, settings: SimSettings) -> None:
         self.spec, self.s = spec, settings
         self.profile: AutopilotProfile = profile(settings.autopilot)
@@ -217,7 +235,12 @@ class SimAutopilot:
         self.sensors = SensorSuite(sensors, self.PA, self.dt)
         self.sensors.push(self.x)
         self.noise = NoiseSource([spec.seed])
-        horizon = (settings.duration or 3600.0) + 5.0
+        # an open-ended run prepares its disturbance series for a bounded horizon (documented: they hold
+        # their last value after it)
+        horizon = (
+            settings.duration if settings.duration is not None else self.open_horizon(self.dt, len(built.disturbances))
+        ) + 5.0
+        self.series_end_s = horizon
         rng = np.random.default_rng(np.random.SeedSequence([spec.seed, 1]))
         items = [d.prepare(horizon, self.dt, rng) for d in built.disturbances]
         if np.any(settings.inject_force_W) or np.any(settings.inject_torque_B):

@@ -24,6 +24,26 @@ Vec3 = tuple[float, float, float]
 #: Largest wind speed accepted, m/s (steady, gust peak, or turbulence 3 sigma): beyond any multirotor's
 #: flight envelope (the strongest small multirotors are rated to about 20 m/s).
 MAX_WIND_M_S = 50.0
+#: Lowest band edge of band-limited noise, Hz. The filter settles over ``4 / f_lo`` s of padding drawn at
+#: the plant rate (0.01 Hz: 400 s, 19 MB at 1 kHz; 1e-4 Hz needed 7.6 GB): a slower drift is a ramp or a
+#: sinusoid, not noise.
+MIN_NOISE_F_LO_HZ = 0.01
+
+
+def check_band(name: str, band: Any) -> tuple[float, float]:
+    """A noise band ``(f_lo, f_hi)`` in Hz: finite, ``MIN_NOISE_F_LO_HZ <= f_lo < f_hi`` (the upper
+    bound, below the plant's Nyquist frequency, is checked when the plant rate is known)."""
+    b = as_finite(name, band, (2,))
+    if b.shape != (2,):
+        raise InputError(f"{name} must be two frequencies (f_lo, f_hi) in Hz, got shape {b.shape}")
+    lo, hi = float(b[0]), float(b[1])
+    if not MIN_NOISE_F_LO_HZ <= lo < hi:
+        raise InputError(
+            f"{name} must satisfy {MIN_NOISE_F_LO_HZ:g} <= f_lo < f_hi Hz, got {lo:g}..{hi:g} (a drift slower than "
+            f"{MIN_NOISE_F_LO_HZ:g} Hz is a ramp or a sinusoid)"
+        )
+    return lo, hi
+
 
 Encoded = tuple[str, dict[str, Any], "np.ndarray | None"]
 
@@ -210,6 +230,7 @@ def band_limited_noise(
 ) -> np.ndarray:
     """Zero-mean Gaussian noise with unit standard deviation, band-passed to [f_lo, f_hi] Hz, ``(n, channels)``."""
     nyq = 0.5 / dt
+    f_lo, f_hi = check_band("noise band", (f_lo, f_hi))
     if not 0 < f_lo < f_hi < nyq:
         raise InputError(f"noise band must satisfy 0 < f_lo < f_hi < {nyq} Hz, got {f_lo}..{f_hi}")
     pad = int(4.0 / (f_lo * dt))  # let the filter settle
@@ -235,6 +256,9 @@ class BandLimitedNoise(Disturbance):
     def __post_init__(self) -> None:
         object.__setattr__(self, "force_rms_W", _vec("force_rms_W", self.force_rms_W))
         object.__setattr__(self, "torque_rms_B", _vec("torque_rms_B", self.torque_rms_B))
+        lo, hi = check_band("noise band (f_lo, f_hi)", (self.f_lo, self.f_hi))
+        object.__setattr__(self, "f_lo", lo)
+        object.__setattr__(self, "f_hi", hi)
 
     def prepare(self, t_end: float, dt: float, rng: np.random.Generator) -> BandLimitedNoise:
         n = int(np.ceil(t_end / dt)) + 2
@@ -291,7 +315,7 @@ class FanJet(Disturbance):
         positive("fan ref_distance", self.ref_distance)
         positive("fan width", self.width)
         positive("fan turbulence", self.turbulence, allow_zero=True)
-        object.__setattr__(self, "turbulence_band", tuple(float(b) for b in self.turbulence_band))
+        object.__setattr__(self, "turbulence_band", check_band("fan turbulence_band", self.turbulence_band))
 
     def starts_at(self) -> float:
         return float(self.t_on)
