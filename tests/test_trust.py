@@ -583,3 +583,25 @@ def test_a_controller_named_twice_on_the_command_line_is_refused(tmp_path, capsy
         assert main(cmd) == 2
         assert "given more than once" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_default_folders_never_mix_configurations(tmp_path, monkeypatch):
+    """``results/<scenario>`` holds the registered scenario only: a scenario file without a name (it takes
+    its base's) or sharing one with another file gets a folder of its own, a file equal to the registered
+    scenario shares its folder, and ``margins`` with a ``--set`` does not replace the plain report."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "heavier.toml").write_text('base = "case-a-payload"\n[payload]\nmass = 0.2\n')
+    (tmp_path / "lighter.toml").write_text('base = "case-a-payload"\n[payload]\nmass = 0.05\n')
+    (tmp_path / "same.toml").write_text('base = "case-a-payload"\n')
+    quick = ["--duration", "0.2", "--no-plots", "--quiet", "--controller", "pd"]
+    for name in ("case-a-payload", "heavier.toml", "lighter.toml", "same.toml"):
+        assert main(["run", name, *quick]) == 0
+    runs = sorted(p.name for p in (tmp_path / "results").iterdir())
+    assert len(runs) == 3 and "case-a-payload-v1+duration=0.2" in runs, runs
+    assert all(r.startswith("case-a-payload-v1+") for r in runs)
+    masses = {json.loads((tmp_path / "results" / r / "case-a-payload-v1.config.json").read_text())["scenario"]
+              ["payload"]["mass"] for r in runs}  # fmt: skip
+    assert masses == {0.11, 0.2, 0.05}
+    for extra in ([], ["--set", "payload.mass=0.2"]):
+        assert main(["margins", "case-a-payload", "--controllers", "pd", "--no-plots", "--quiet", *extra]) == 0
+    assert len([p for p in (tmp_path / "results").iterdir() if p.name.startswith("margins-")]) == 2

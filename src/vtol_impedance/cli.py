@@ -70,14 +70,14 @@ def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()
     import hashlib
     import re
 
-    parts = [*extra, *args.set]
-    if args.duration is not None:
+    parts = [*extra, *_file_tag(getattr(args, "scenario", None)), *args.set]
+    if getattr(args, "duration", None) is not None:
         parts.append(f"duration={args.duration:g}")
-    if args.seed is not None:
+    if getattr(args, "seed", None) is not None:
         parts.append(f"seed={args.seed}")
     if args.ideal:
         parts.append("ideal")
-    if args.plant == "mujoco":
+    if getattr(args, "plant", None) == "mujoco":
         parts.append("plant=mujoco")
     if not parts:
         return Path(DEFAULT_OUT) / name
@@ -85,6 +85,27 @@ def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()
     if len(slug) > 80:
         slug = slug[:60] + "-" + hashlib.sha256(slug.encode()).hexdigest()[:8]
     return Path(DEFAULT_OUT) / f"{name}+{slug}"
+
+
+def _file_tag(scenario: str | None) -> tuple[str, ...]:
+    """``("file=<hash>",)`` for a scenario file whose content is not the registered scenario of its name
+    (a file without ``name`` takes its base's, and two files may share one): its folder must not be the
+    registered scenario's or another file's. The hash is of the file's whole scenario."""
+    if not scenario or not str(scenario).endswith(".toml"):
+        return ()
+    import hashlib
+
+    from .errors import ScenarioError
+    from .scenarios import get, load_toml
+
+    spec = load_toml(scenario)
+    plain = json.dumps(spec.to_dict(), sort_keys=True, default=str)
+    try:
+        if json.dumps(get(spec.name).to_dict(), sort_keys=True, default=str) == plain:
+            return ()
+    except ScenarioError:
+        pass
+    return (f"file={hashlib.sha256(plain.encode()).hexdigest()[:8]}",)
 
 
 def _backend(args: argparse.Namespace) -> str:
@@ -287,7 +308,7 @@ def cmd_margins(args: argparse.Namespace) -> int:
     spec = _load_spec(args.scenario, args.set, None, args.ideal)
     variants = check_variants([c.strip() for c in args.controllers.split(",") if c.strip()], unique=True)
     check(spec, variants)
-    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"margins-{spec.name}"
+    out = _run_folder(args, f"margins-{spec.name}")
     with RunFolder(out) as folder:
         if not args.quiet:
             print(f"linearising {spec.name} for {', '.join(variants)} ...", file=sys.stderr)
