@@ -918,7 +918,8 @@ def build_parser() -> argparse.ArgumentParser:
             default=None,
             help=f"results folder, replaced as a whole by each run (default: {DEFAULT_OUT}/paper for 'paper', "
             f"{DEFAULT_OUT}/<scenario name> otherwise, with '+<what was overridden>' appended when --set, "
-            "--duration, --seed, --ideal or --plant change it)",
+            "--duration, --seed, --ideal or --plant change it, and '+file=<hash>' for a scenario file that is not "
+            "the registered scenario of its name)",
         )
         sp.add_argument(
             "--set",
