@@ -122,3 +122,20 @@ def test_commands_that_cannot_calibrate_the_rotors_say_what_the_fit_loses(tmp_pa
 
 def _columns(rows: list[list[str]]) -> dict[str, np.ndarray]:
     return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+
+
+def test_a_window_too_short_to_estimate_is_named(tmp_path, capsys):
+    """--start/--end keeping 0.3 s of the shipped sample: a clear refusal naming the span (it was an
+    IndexError inside the rotor calibration's half-second average)."""
+    from importlib import resources
+
+    from vtol_impedance.cli import main
+
+    path = str(resources.files("vtol_impedance.logs.samples") / "flight.csv")
+    t0 = float(open(path).readlines()[1].split(",")[0])
+    args = ["estimate", path, "--mass", "1.2", "--no-plots", "--quiet", "--out", str(tmp_path / "o")]
+    assert main([*args, "--start", str(t0), "--end", str(t0 + 0.3)]) == 2
+    err = capsys.readouterr().err
+    assert "holds 0.29 s of flight in the window --start/--end" in err and "at least 1 s" in err
+    assert "internal error" not in err and not (tmp_path / "o").exists()
+    assert main([*args, "--start", str(t0), "--end", str(t0 + 1.5)]) == 0

@@ -50,6 +50,8 @@ def _check_block(table: CsvTable) -> CsvTable:
 #: Fewest samples of a signal a log is estimated from: half a second at 100 Hz, five time constants of the
 #: default estimator (wn = 10 rad/s); fewer tell nothing, not even which conventions the file follows.
 MIN_LOG_SAMPLES = 50
+#: Shortest stretch of flight (after --start/--end) an estimate is made on, s.
+MIN_WINDOW_S = 1.0
 
 
 def _long_enough(raw: RawLog, path: Path) -> None:
@@ -237,6 +239,14 @@ def estimate_file(
     elif raw.rotor_speed is not None and thrust_from == "commands":
         raw.rotor_speed = None
     flight = resample(raw, rate_hz, max_gap_s, t_start, t_end)
+    span = float(flight.t[-1] - flight.t[0])
+    if span < MIN_WINDOW_S:
+        where = "" if t_start is None and t_end is None else " in the window --start/--end"
+        raise InputError(
+            f"the log holds {span:.3g} s of flight{where} ({len(flight.t)} samples on the grid); an estimate needs "
+            f"at least {MIN_WINDOW_S:g} s (the estimator settles in half a second, the thrust calibrations "
+            "average over half a second)"
+        )
     if estimate_options.get("rotor_geometry") is None and geometry is not None:
         estimate_options["rotor_geometry"] = geometry
     est = estimate(flight, m, I_B, params, **estimate_options)

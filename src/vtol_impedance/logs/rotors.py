@@ -119,6 +119,10 @@ def match_thrust_coefficient(
     asymmetric spin-up and spin-down does not bias the fit). The rotors then carry the commands'
     calibration without their lag, and no external force enters the fit."""
     n = max(1, int(round(0.5 * rate_hz)))
+    if len(thrust_N) < n:
+        raise InputError(
+            f"matching the rotor speeds to the thrust needs half a second ({n} samples), got {len(thrust_N)}"
+        )
     kern = np.ones(n) / n
     mean = np.convolve(thrust_N, kern, "same")
     spread = np.sqrt(np.maximum(np.convolve(thrust_N**2, kern, "same") - mean**2, 0.0))
