@@ -73,6 +73,12 @@ def reference(tmp_path_factory):
         ({"axes": {"seed": [1, 2]}}, "seed cannot be an axis"),
         ({"max_flights": 3}, "above max_flights = 3"),
         (
+            {"axes": {"payload.mass": [0.1, 0.2], "payload.mass,plant.rotor_drag": [[0.5, 0.1]]}},
+            r"axis 'payload.mass,plant.rotor_drag' sets 'payload.mass', which axis 'payload.mass' sets too",
+        ),
+        ({"set": {"payload": {"mass": 0.3}}}, r"axis 'payload.mass' sets 'payload.mass', which \[set\] sets too"),
+        ({"set": {"seed": 3}}, r"\[set\] seed: the sweep sets each flight's seed"),
+        (
             {
                 "axes": {
                     "payload.mass": {"min": 0.0, "max": 0.3, "n": 10000},
@@ -303,6 +309,13 @@ def test_tuning_population_is_the_same_for_every_trial():
     b = t.trial_sweep({"control.Kp": 20.0})
     assert a["axes"] == b["axes"] and len(a["axes"]["payload.mass"]) == 3
     assert "control.Kp = 20.0" in best_scenario_toml(t, {"control.Kp": 20.0})
+    search = {"control.Kp": {"min": 8.0, "max": 30.0}}
+    with pytest.raises(InputError, match=r"\[spread\] 'control.Kp' sets 'control.Kp', which \[search\]"):
+        tuning_from_dict({"name": "t", "base": "case-a-payload", "search": search, "spread": search})
+    with pytest.raises(InputError, match=r"estimator_order.*a \[search\] range draws real numbers"):
+        binomial = {"control": {"estimator_prototype": "binomial"}}
+        tuning_from_dict({"name": "t", "base": "case-a-payload", "set": binomial,
+                          "search": {"control.estimator_order": {"min": 2, "max": 4}}})  # fmt: skip
     with pytest.raises(InputError, match="one per tuning"):  # once "got [\"['pd', 'pdc']\"]"
         tuning_from_dict({"name": "t", "base": "case-a-payload", "controller": ["pd", "pdc"],
                           "search": {"control.Kp": {"min": 8.0, "max": 30.0}}})  # fmt: skip

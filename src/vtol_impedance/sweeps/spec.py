@@ -231,6 +231,8 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
     if not isinstance(fixed, dict):
         raise InputError(f"[set] must be a table of scenario values, got {fixed!r}")
     for key, value in _flatten(fixed).items():
+        if key == "seed":
+            raise InputError("[set] seed: the sweep sets each flight's seed itself (from 'seed' and 'seeds')")
         base = set_param(base, key, value)
     ctrls = data.get("controllers", ["pdc"])
     if isinstance(ctrls, str):
@@ -257,6 +259,7 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
     if not isinstance(raw_axes, dict) or not raw_axes:
         raise InputError("a sweep needs [axes]: at least one scenario value to vary")
     axes = [_axis(k, v, mode) for k, v in raw_axes.items()]
+    distinct_keys({"axis": axes}, fixed)
     for a in axes:
         if "seed" in (k.strip() for k in a.key.split(",")):
             raise InputError(
@@ -317,6 +320,24 @@ def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             out[f"{prefix}{k}"] = v
     return out
+
+
+def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
+    """Every scenario value set in one place only, among ``fixed`` (the ``[set]`` table) and the axes of
+    ``groups`` (joint axes count each of their keys): a second place would silently override the first
+    (two axes over one key label flights by values they never flew)."""
+    seen: dict[str, str] = {}
+    if isinstance(fixed, dict):
+        seen.update({k: "[set]" for k in _flatten(fixed)})
+    for group, axes in groups.items():
+        for a in axes:
+            for k in (x.strip() for x in a.key.split(",")):
+                if k in seen:
+                    raise InputError(
+                        f"{group} {a.key!r} sets {k!r}, which {seen[k]} sets too: set each value in one place "
+                        "(one would silently override the other)"
+                    )
+                seen[k] = f"{group} {a.key!r}"
 
 
 def load(path_or_name: str | Path) -> Sweep:

@@ -48,7 +48,7 @@ from ..errors import InputError, check_keys, scalar
 from ..robust.design import DesignError
 from ..scenarios.spec import _INDEXED, get_value
 from .run import METRICS, Executor, warm_up
-from .spec import Axis, _axis, _flatten, from_dict
+from .spec import Axis, _axis, _flatten, distinct_keys, from_dict
 
 KEYS = ("name", "description", "base", "controller", "trials", "seed", "population", "set", "search", "spread", "cost")
 COST_KEYS = ("metric", "saturation_weight", "failure_penalty", "min_phase_margin_deg", "margin_penalty")
@@ -59,7 +59,7 @@ def _optuna():
         import optuna
     except ImportError:
         raise InputError("tuning needs optuna: pip install 'vtol-impedance[tune]'") from None
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    optuna.logging.set_verbosity(optuna.logging.ERROR)  # a failed trial is reported once, by us, without a traceback
     return optuna
 
 
@@ -155,6 +155,7 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
     if not isinstance(spread_raw, dict):
         raise InputError(f"[spread] must be a table of ranges, got {spread_raw!r}")
     spread = [_axis(k, v, "random") for k, v in spread_raw.items()]
+    distinct_keys({"[search]": search, "[spread]": spread}, data.get("set", {}))
     cost = data.get("cost", {})
     check_keys("[cost]", cost, COST_KEYS)
     metric = cost.get("metric", "rms_ep_cm")
@@ -180,11 +181,20 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
     # that no attitude bandwidth keeps stable are valid input: such a trial fails and the search moves on)
     lo = {a.key: a.lo if a.values is None else a.values[0] for a in search}
     hi = {a.key: a.hi if a.values is None else a.values[-1] for a in search}
-    for point in [lo, hi, *({**lo, a.key: v} for a in search for v in a.values or ())]:
+    # and a point inside every range, which a key taking whole numbers refuses (a range draws real numbers)
+    inside = {a.key: (a.lo + 0.37 * (a.hi - a.lo) if a.values is None else a.values[0]) for a in search}
+    for point in [lo, hi, inside, *({**lo, a.key: v} for a in search for v in a.values or ())]:
         try:
             from_dict(t.trial_sweep(point), where)
         except DesignError:
             pass
+        except InputError as exc:
+            if point is not inside:
+                raise
+            raise InputError(
+                f"{exc} (a [search] range draws real numbers: give a key that takes whole numbers its values as a "
+                "list, values = [...])"
+            ) from None
     return t
 
 
