@@ -188,6 +188,22 @@ def test_a_rerun_killed_at_any_instant_leaves_one_complete_run(tmp_path):
     assert not [p for p in tmp_path.iterdir() if ".staging-" in p.name or ".old-" in p.name]
 
 
+def test_a_run_killed_between_the_fallbacks_renames_gets_its_previous_run_back(tmp_path):
+    """Where the atomic exchange is missing, the previous run is renamed aside before the new one is
+    renamed in; killed in between, the next run puts back the complete one renamed aside (not a
+    half-removed leftover of an earlier fallback) and clears the rest."""
+    out = tmp_path / "res"
+    assert main(["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.2", "--out", str(out)]) == 0
+    good = verify_run_folder(out)
+    leftover = tmp_path / ".res.old-zzzz"  # sorts last, holds no manifest: a partly removed old run
+    leftover.mkdir()
+    (leftover / "metrics.csv").write_text("half gone")
+    os.rename(out, tmp_path / ".res.old-aaaa")  # the kill: the previous run aside, no new one yet
+    with RunFolder(out):
+        assert verify_run_folder(out) == good
+    assert not [p for p in tmp_path.iterdir() if ".old-" in p.name or ".staging-" in p.name]
+
+
 def test_concurrent_runs_into_one_folder_never_interleave(tmp_path):
     out = tmp_path / "res"
     with RunFolder(out):  # a run in progress holds the folder

@@ -235,9 +235,11 @@ class RunFolder:
 
         parent, name = self.final.parent, self.final.name
         olds = sorted(parent.glob(f".{name}.old-*"))
-        if olds and not self.final.exists():  # died between the two renames of the fallback: put it back
-            os.rename(olds[-1], self.final)
-            olds = olds[:-1]
+        whole = [p for p in olds if (p / MANIFEST).is_file()]  # not a half-removed leftover
+        if whole and not self.final.exists():  # died between the two renames of the fallback: put it back
+            keep = max(whole, key=lambda p: p.stat().st_ctime_ns)  # the one renamed aside last
+            os.rename(keep, self.final)
+            olds = [p for p in olds if p != keep]
         for stale in [*olds, *parent.glob(f".{name}.staging-*")]:
             shutil.rmtree(stale, ignore_errors=True)
 
