@@ -29,6 +29,21 @@ def test_save_load_round_trip(short_result, tmp_path):
     assert not list(tmp_path.glob(".*tmp"))
 
 
+def test_metrics_and_failures_survive_the_round_trip(tmp_path):
+    """A ``log="metrics"`` result keeps its metrics and a result with a stopped vehicle keeps the time and
+    reason (hand-made values, compared field by field); a signal whose sample count is not ``len(t)`` is
+    refused on load."""
+    metrics = [{"controller": "pd", "rms_ep_cm": 1.25, "failure": None},
+               {"controller": "pdc", "rms_ep_cm": 0.5, "failure": {"time": 1.5, "reason": "tilt"}}]  # fmt: skip
+    failures = [None, {"time": 1.5, "reason": "tilt"}]
+    r = Result(np.arange(0.0, 0.3, 0.1), ["pd", "pdc"], {}, {"seed": 3}, failures, metrics)
+    back = Result.load(r.save(tmp_path / "m.npz"))
+    assert back.metrics == metrics and back.failures == failures and back.data == {}
+    bad = Result(np.arange(3.0), ["a"], {"p_W": np.zeros((1, 4, 3))}, {}, [None])
+    with pytest.raises(InputError, match=r"signal p_W has shape \(1, 4, 3\), expected \(1, 3, ...\)"):
+        Result.load(bad.save(tmp_path / "bad.npz"))
+
+
 def test_corrupt_and_foreign_files_are_refused(short_result, tmp_path):
     p = short_result.save(tmp_path / "r.npz")
     data = p.read_bytes()

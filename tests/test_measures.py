@@ -1,0 +1,85 @@
+"""The interaction scenarios' measures (``analysis.measures``, what ``run`` leads its table with), each
+on a result built by hand whose answer is known: a response of a known impedance integrated by SciPy,
+a wall held with a known force, a pendulum sagging by a known amount."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from vtol_impedance.analysis.measures import pendulum_measures, purpose_tables, push_measures, wall_measures
+from vtol_impedance.sim import Result
+
+DT = 0.01
+
+
+def _result(t: np.ndarray, labels: list[str], scenario: dict, window: list[float], **signals: np.ndarray) -> Result:
+    """A result with zero traces except ``signals`` (``(B, N, 3)`` each)."""
+    B, N = len(labels), len(t)
+    data = {k: np.zeros((B, N, 3)) for k in ("p_W", "v_W", "p_ref_W", "v_ref_W", "f_ext_W", "f_hat_W", "f_lumped_W")}
+    data.update(signals)
+    return Result(t, labels, data, {"scenario": scenario, "window": window}, [None] * B)
+
+
+def test_a_push_gives_back_the_impedance_that_answered_it():
+    """``M e'' + D e' + K e = f`` (M = 2 kg, D = 6 N s/m, K = 5 N/m, the comply defaults) under a 1 s
+    half-sine push of 4 N along +y, integrated by SciPy: the fit returns M, D, K; the peak and what is left
+    2 s after the push are read off the same curve."""
+    t = np.arange(0.0, 12.0, DT)
+    t_on, duration = 2.0, 1.0
+    s = (t - t_on) / duration
+    f = np.where((s >= 0) & (s <= 1), 4.0 * np.sin(np.pi * np.clip(s, 0, 1)), 0.0)
+    M, D, K = 2.0, 6.0, 5.0
+    _, e, x = scipy.signal.lsim(scipy.signal.StateSpace([[0, 1], [-K / M, -D / M]], [[0], [1 / M]], [[1, 0]], 0), f, t)
+    y = np.zeros((1, len(t), 3))
+    p, v, fl = y.copy(), y.copy(), y.copy()
+    p[0, :, 1], v[0, :, 1], fl[0, :, 1] = e, x[:, 1], f
+    scenario = {"disturbances": [{"kind": "push", "force_W": [0.0, 8.0, 0.0], "t_on": t_on, "duration": duration}]}
+    r = _result(t, ["comply"], scenario, [0.0, 12.0], p_W=p, v_W=v, f_lumped_W=fl)
+    head, rows = push_measures(r)
+    assert head[3:] == ["M [kg]", "D [N s/m]", "K [N/m]"]
+    (row,) = rows
+    during = (t >= t_on) & (t <= t_on + duration + 2.0)
+    after = (t >= t_on + duration + 2.0) & (t <= t_on + duration + 2.5)
+    assert float(row[1]) == pytest.approx(100 * np.abs(e[during]).max(), abs=0.01)
+    assert float(row[2]) == pytest.approx(100 * np.abs(e[after]).mean(), abs=0.01)
+    assert [float(v) for v in row[3:]] == pytest.approx([M, D, K], rel=0.03)
+
+
+def test_a_wall_held_with_a_known_force():
+    """A wall whose face sits 0.5 m along +x (its point at 0.8 m, a 0.3 m contact radius), a reference
+    0.8 m into it, comply's K = 5 N/m: commanded 5 (0.8 - 0.5) = 1.5 N; the wall pushing back 1.4 N over
+    the last 4 s is held at 1.400 N, 6.7 % short, estimated at 1.35 N; contact never lost."""
+    t = np.arange(0.0, 10.0, DT)
+    p = np.zeros((1, len(t), 3))
+    p[0, :, 0] = np.where(t > 1.0, 0.52, 0.0)  # touching from 1 s on
+    f_ext = np.zeros((1, len(t), 3))
+    f_ext[0, :, 0] = -1.4
+    f_hat = f_ext.copy()
+    f_hat[0, :, 0] = -1.35
+    wall = {"kind": "wall", "position_W": [0.8, 0.0, -1.0], "normal_W": [-1.0, 0.0, 0.0], "radius": 0.3}
+    scenario = {"disturbances": [wall], "trajectory": {"move_offset": [0.8, 0.0, 0.0]}, "interaction": {"K": 5.0}}
+    r = _result(t, ["comply"], scenario, [0.0, 10.0], p_W=p, f_ext_W=f_ext, f_hat_W=f_hat)
+    _, (row,) = wall_measures(r)
+    assert row == ["comply", "1.400", "1.500", "-6.7", "1.350", "no"]
+    p[0, t > 6.0, 0] = 0.3  # it bounces off and stays off
+    _, (row,) = wall_measures(_result(t, ["comply"], scenario, [0.0, 10.0], p_W=p, f_ext_W=f_ext, f_hat_W=f_hat))
+    assert row[-1] == "yes"
+
+
+def test_a_pendulum_sag_and_the_estimate_of_its_pull():
+    """2 cm below the reference (NED: +z) in the window is a 2.00 cm sag, against (0.1 + 0.2) g / 16;
+    the estimate 0.1 N off the link's pull along x at most, 0.05 RMS."""
+    t = np.arange(0.0, 6.0, DT)
+    p = np.zeros((1, len(t), 3))
+    p[0, :, 2] = 0.02
+    f_ext = np.zeros((1, len(t), 3))
+    f_hat = np.zeros((1, len(t), 3))
+    f_hat[0, :, 0] = np.where(np.arange(len(t)) % 2 == 0, 0.1, 0.0)  # |d| alternates 0.1, 0: RMS 0.0707
+    scenario = {"plant": {"pendulum_mass": 0.2}, "payload": {"mass": 0.1}, "control": {"Kp": 16.0}}
+    r = _result(t, ["pd"], scenario, [1.0, 5.0], p_W=p, f_ext_W=f_ext, f_hat_W=f_hat)
+    _, (row,) = pendulum_measures(r)
+    assert row[:4] == ["pd", "2.00", f"{100 * 0.3 * 9.81 / 16:.2f}", "2.00"]
+    assert row[4] == "0.100 / 0.071"
+    assert [title for title, _, _ in purpose_tables(r)] == ["Pendulum"]
