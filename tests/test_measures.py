@@ -83,3 +83,36 @@ def test_a_pendulum_sag_and_the_estimate_of_its_pull():
     assert row[:4] == ["pd", "2.00", f"{100 * 0.3 * 9.81 / 16:.2f}", "2.00"]
     assert row[4] == "0.100 / 0.071"
     assert [title for title, _, _ in purpose_tables(r)] == ["Pendulum"]
+
+
+def test_the_table_metrics_in_their_displayed_units():
+    """Constant errors in a hand-built result: a 3-4-0 cm position error is 5 cm RMS and max, 0.1 m/s of
+    velocity error is 10 cm/s, 0.002 N m of moment-estimate error is 2 mN m, 0.5 N of force-estimate error
+    is 0.5 N, saturated a quarter of the window is 25 %; an error of 1 m over the first 3 s of the window's
+    last 5 s (the documented steady tail) is a 60 cm steady error."""
+    from vtol_impedance.analysis import compute_metrics
+
+    t = np.arange(0.0, 20.0, DT)
+    n = len(t)
+    p = np.zeros((1, n, 3))
+    p[0, :, :2] = [0.03, 0.04]
+    v = np.zeros((1, n, 3))
+    v[0, :, 2] = 0.1
+    f_hat = np.zeros((1, n, 3))
+    f_hat[0, :, 1] = 0.5
+    tau_hat = np.zeros((1, n, 3))
+    tau_hat[0, :, 0] = 0.002
+    sat = np.zeros((1, n))
+    sat[0, t >= 15.0] = 1.0  # the last quarter of the window [0, 20)
+    r = _result(t, ["pd"], {}, [0.0, 20.0], p_W=p, v_W=v, f_hat_W=f_hat)
+    r.data.update(tau_hat_eta=tau_hat, tau_lumped_eta=np.zeros((1, n, 3)), saturated=sat)
+    (row,) = compute_metrics(r)
+    assert row["rms_ep_cm"] == pytest.approx(5.0) and row["max_ep_cm"] == pytest.approx(5.0)
+    assert row["rms_ev_cms"] == pytest.approx(10.0)
+    assert row["rms_tau_err_mNm"] == pytest.approx(2.0) and row["rms_f_err_N"] == pytest.approx(0.5)
+    assert row["sat_pct"] == pytest.approx(25.0, abs=0.1)
+    p[0] = 0.0
+    p[0, (t > 15.0 - DT / 2) & (t < 18.0 - DT / 2), 0] = 1.0  # 3 s of the 5 s tail
+    r.data["p_W"] = p
+    (row,) = compute_metrics(r)
+    assert row["ss_ep_cm"] == pytest.approx(60.0, abs=0.5)
