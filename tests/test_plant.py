@@ -315,3 +315,54 @@ def test_a_sensor_reads_the_state_of_the_plant_step_nearest_its_latency(delay, s
         suite.push(np.full(3, float(k)))
     mocap, imu = suite.delayed()
     assert mocap[0] == 39 - steps and imu[0] == 39
+
+
+def test_time_profiles_of_the_explicit_wrenches_in_both_backends():
+    """By hand: a ramp from 1 to 3 s is 0, 0.5, 1, 1 at 0, 2, 3, 10 s; a sinusoid of 0.5 Hz switched on at
+    0.3 s is 0 before and at 0.3 s and peaks 0.5 s later; a step from 1 to 2 s is on inside only. The
+    NumPy disturbances and the compiled kernel give these numbers."""
+    from vtol_impedance.compiled.plant import add_disturbances
+    from vtol_impedance.sim.disturbances import RampWrench, SinusoidWrench, StepWrench, pack_disturbances
+
+    cases = [
+        (RampWrench((2.0, 0.0, 0.0), (0.0, 0.0, 0.1), t_start=1.0, t_end=3.0),
+         {0.0: 0.0, 1.0: 0.0, 2.0: 0.5, 3.0: 1.0, 10.0: 1.0}),
+        (SinusoidWrench((2.0, 0.0, 0.0), (0.0, 0.0, 0.1), freq_hz=0.5, t_on=0.3),
+         {0.0: 0.0, 0.3: 0.0, 0.8: 1.0, 1.3: 0.0, 1.8: -1.0}),
+        (StepWrench((2.0, 0.0, 0.0), (0.0, 0.0, 0.1), t_on=1.0, t_off=2.0),
+         {0.5: 0.0, 1.0: 1.0, 1.5: 1.0, 2.0: 0.0, 3.0: 0.0}),
+    ]  # fmt: skip
+    R = tuple(np.eye(3).ravel())
+    for d, expect in cases:
+        d = d.prepare(11.0, 0.001, np.random.default_rng(0))
+        dists, series = pack_disturbances([d])
+        env = np.empty(6)
+        for t, k in expect.items():
+            f, tau = d(t, np.zeros(3), np.zeros(3), np.eye(3))
+            np.testing.assert_allclose(f, [2.0 * k, 0.0, 0.0], atol=1e-12, err_msg=f"{d.kind} at {t}")
+            np.testing.assert_allclose(tau, [0.0, 0.0, 0.1 * k], atol=1e-12)
+            add_disturbances(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, R, dists, series, env)
+            np.testing.assert_allclose(env, [2.0 * k, 0, 0, 0, 0, 0.1 * k], atol=1e-12, err_msg=f"{d.kind} at {t}")
+
+
+def test_each_random_disturbance_draws_its_own_series():
+    """Two noise disturbances of one run along x with the same band and RMS 0.3 N add as independent
+    draws (RMS 0.3 sqrt(2) N; one shared draw would give 0.6 N), a third along y is uncorrelated with
+    them, and a fan's turbulence has the RMS asked for (a fraction of its mean push)."""
+    from vtol_impedance.control import ControllerParams
+    from vtol_impedance.control.reference import Hold, Trajectory
+    from vtol_impedance.sim import SensorParams, run_closed_loop
+    from vtol_impedance.sim.disturbances import FanJet, from_dict
+
+    noise = [from_dict({"kind": "noise", "force_rms_W": rms, "f_lo": 0.5, "f_hi": 5.0})
+             for rms in ([0.3, 0.0, 0.0], [0.3, 0.0, 0.0], [0.0, 0.3, 0.0])]  # fmt: skip
+    r = run_closed_loop(PlantParams(VEH, ground=False), [ControllerParams.paper("pd")],
+                        Trajectory((Hold((0, 0, -1.0), 20.0),)), 20.0, noise, SensorParams.ideal(), seed=4)  # fmt: skip
+    f = r["f_ext_W"][0]
+    assert np.std(f[:, 0]) == pytest.approx(0.3 * np.sqrt(2), rel=0.1) and np.std(f[:, 1]) == pytest.approx(
+        0.3, rel=0.1
+    )
+    assert abs(np.corrcoef(f[:, 0], f[:, 1])[0, 1]) < 0.15
+    fan = FanJet(position_W=(2.0, 0.0, -1.0), direction_W=(-1.0, 0.0, 0.0), turbulence=0.2)
+    gust = fan.prepare(200.0, 0.01, np.random.default_rng(1))._gust
+    assert np.std(gust) == pytest.approx(0.2, rel=0.02) and abs(np.mean(gust)) < 0.02
