@@ -175,3 +175,44 @@ def test_one_component_of_a_vector_is_set_as_in_a_sweep():
     for bad in ("payload.offset_B[3]=1", "payload.mass[0]=1", "trajectory.land[0]=1"):
         with pytest.raises(ScenarioError, match="not a vector"):
             apply_overrides(get("case-a-payload"), [bad])
+
+
+def test_the_paper_cases_carry_the_documented_numbers():
+    """The numbers of the paper (Sec. VI) and of the attachment, written here rather than read back from
+    the registry: hover at 1 m, 0.110 kg payload, the fan 0.15 m from the vehicle pushing 0.7 N along +x
+    with 20 % turbulence in 0.5-5 Hz, the circle 1 m at 0.5 m/s twice, 100 Hz with Kp 16, Dp 12, Ki 0.5;
+    the gust scenario a 1 m/s breeze with a 5 m/s gust at 12 s over 2 s."""
+    from vtol_impedance.scenarios import build
+
+    a, b, c = (get(n) for n in ("case-a-payload", "case-b-fan", "case-c-circle"))
+    for s in (a, b, c):
+        assert s.payload.mass == 0.110 and s.trajectory.altitude == 1.0
+        assert (s.control.rate, s.control.Kp, s.control.Dp, s.control.Ki) == (100.0, 16.0, 12.0, 0.5)
+    (fan,) = b.disturbances
+    start = build(b).start_W
+    hover = np.array([0.0, 0.0, -1.0])
+    assert np.linalg.norm(np.asarray(fan["position_W"]) - hover) == pytest.approx(0.15) and start[2] == 0.0
+    assert tuple(fan["direction_W"]) == (1.0, 0.0, 0.0) and fan["mean_force"] == 0.7
+    assert fan["turbulence"] == 0.2 and tuple(fan["turbulence_band"]) == (0.5, 5.0)
+    t = c.trajectory
+    assert (t.kind, t.circle_radius, t.circle_speed, t.circle_laps) == ("circle", 1.0, 0.5, 2.0)
+    (gust,) = get("gust").disturbances
+    assert (gust["mean_speed"], gust["amplitude"], gust["start"], gust["length"]) == (1.0, 5.0, 12.0, 2.0)
+
+
+def test_scenario_controller_and_plant_values_reach_what_flies():
+    """``control.zeta_o`` sets the attitude damping ``Do = 2 zeta_o wn_o I`` (eq. (14) with the nominal
+    inertia), and ``plant.rotor_limits = false`` lifts the true rotors' limits (to 1e6 N) while the
+    controller keeps its own."""
+    from vtol_impedance.model import load_preset
+    from vtol_impedance.scenarios import build, controller_params
+
+    spec = apply_overrides(get("case-a-payload"), ["control.zeta_o=0.5", "control.wn_o=12", "control.wn_o_yaw=6"])
+    g = controller_params(spec, "pd").gains
+    I = np.diag(load_preset("pelican").inertia)  # noqa: E741
+    np.testing.assert_allclose(np.asarray(g.Do), 2 * 0.5 * np.array([12.0, 12.0, 6.0]) * I)  # per axis
+    np.testing.assert_allclose(np.asarray(g.Ko), np.array([12.0, 12.0, 6.0]) ** 2 * I)
+    free = build(apply_overrides(get("case-a-payload"), ["plant.rotor_limits=false"]))
+    assert np.all(free.plant.vehicle.geometry.f_max >= 1e6)
+    assert np.all(controller_params(spec, "pd").vehicle.geometry.f_max == 7.0)
+    assert np.all(build(get("case-a-payload")).plant.vehicle.geometry.f_max == 7.0)
