@@ -423,3 +423,46 @@ def test_tune_counts_gains_without_a_robust_design_as_failed_trials(tmp_path):
     assert by_dp[60.0]["cost"] == 777.0 and "Dp must come down" in by_dp[60.0]["no_design"]
     assert by_dp[12.0]["no_design"] == "" and by_dp[12.0]["cost"] < 777.0
     assert res["best"]["control.Dp"] == 12.0
+
+
+def test_axis_grids_draws_and_unit_seeds_follow_their_definitions():
+    """A log grid from 1 to 100 in three is 1, 10, 100 (linear: 0, 0.5, 1); log draws have the geometric
+    median sqrt(lo hi), linear ones the mean (lo + hi) / 2; a unit's seed depends on the sweep seed and its
+    own indices only, so adding points or repeats never changes another unit's noise."""
+    from vtol_impedance.sweeps.spec import _axis, unit_seed
+
+    assert _axis("control.Kp", {"min": 1.0, "max": 100.0, "n": 3, "log": True}, "grid").grid() == pytest.approx(
+        [1.0, 10.0, 100.0]
+    )
+    assert _axis("control.Kp", {"min": 0.0, "max": 1.0, "n": 3}, "grid").grid() == pytest.approx([0.0, 0.5, 1.0])
+    rng = np.random.default_rng(0)
+    logs = [_axis("control.Kp", {"min": 1.0, "max": 100.0, "log": True}, "random").draw(rng) for _ in range(4000)]
+    lins = [_axis("control.Kp", {"min": 1.0, "max": 100.0}, "random").draw(rng) for _ in range(4000)]
+    assert np.median(logs) == pytest.approx(10.0, rel=0.1) and min(logs) >= 1.0 and max(logs) <= 100.0
+    assert np.mean(lins) == pytest.approx(50.5, rel=0.03)
+    seeds = {(p, r): unit_seed(11, p, r) for p in range(4) for r in range(3)}
+    assert len(set(seeds.values())) == 12 and all(0 <= s < 2**63 for s in seeds.values())
+    assert all(unit_seed(11, p, r) == s for (p, r), s in seeds.items())  # no hidden state
+    assert unit_seed(12, 0, 0) != seeds[0, 0]
+    small = from_dict({**SMALL, "seeds": 1})
+    big = from_dict({**SMALL, "seeds": 2, "axes": {**SMALL["axes"], "payload.mass": [0.05, 0.15, 0.25]}})
+    assert [u.seed for u in small.units if u.repeat == 0][:2] == [u.seed for u in big.units if u.repeat == 0][:2]
+
+
+def test_a_trials_cost_from_hand_rows():
+    """Cost = mean over the population of (metric + saturation weight x saturation %) for members that flew,
+    the failure penalty for those that did not, plus the margin penalty for members short of the phase
+    margin; a best value at either end of its range gets a note, one inside none."""
+    from vtol_impedance.sweeps.tune import bound_notes, trial_cost
+
+    base = {"name": "t", "base": "case-a-payload", "search": {"control.Kp": {"min": 8.0, "max": 30.0}}}
+    t = tuning_from_dict({**base, "cost": {"saturation_weight": 0.1, "failure_penalty": 1000.0}})
+    rows = {"rms_ep_cm": [2.0, 4.0, 1.0], "sat_pct": [10.0, 0.0, 0.0], "diverged": [False, False, True]}
+    cost, parts = trial_cost(t, rows)
+    assert cost == pytest.approx((3.0 + 4.0 + 1000.0) / 3) and parts == {"metric_mean": 3.0, "failed": 1}
+    tm = tuning_from_dict({**base, "cost": {"min_phase_margin_deg": 30.0, "margin_penalty": 100.0}})
+    rows.update(margin_stable=[1.0, 1.0, 0.0], pm_min_deg=[40.0, 20.0, 50.0], diverged=[False, False, False])
+    cost, parts = trial_cost(tm, rows)
+    assert cost == pytest.approx((2.0 + 104.0 + 101.0) / 3) and parts["below_margin"] == 2
+    assert bound_notes(t, {"control.Kp": 30.0}) and bound_notes(t, {"control.Kp": 8.0})
+    assert not bound_notes(t, {"control.Kp": 19.0})
