@@ -163,3 +163,28 @@ def test_a_log_with_no_usable_segment_is_refused(fl, tmp_path, capsys):
                "1.2", "--out", str(tmp_path / "o")])  # fmt: skip
     err = capsys.readouterr().err
     assert rc == 2 and "error:" in err and "Traceback" not in err
+
+
+def test_cleaning_keeps_the_last_of_repeated_rows_and_drops_non_finite_ones():
+    """t = 0, 1, 1, 2 with values a, b, c, d keeps a, c, d (a logger re-sending a sample corrects it); a NaN
+    row goes with a note; time going backwards is refused naming the row."""
+    from vtol_impedance.logs.timeseries import clean
+
+    notes: list[str] = []
+    s = clean(Signal("velocity", "test", np.array([0.0, 1.0, 1.0, 2.0, 3.0]),
+                     np.array([[1.0], [2.0], [3.0], [4.0], [np.nan]])), notes)  # fmt: skip
+    np.testing.assert_array_equal(s.t, [0.0, 1.0, 2.0])
+    np.testing.assert_array_equal(s.values[:, 0], [1.0, 3.0, 4.0])
+    assert any("kept the last row" in n for n in notes) and any("NaN" in n for n in notes)
+    with pytest.raises(InputError, match="time goes backwards at row 2"):
+        clean(Signal("velocity", "test", np.array([0.0, 1.0, 0.5]), np.zeros((3, 1))), [])
+
+
+def test_airborne_samples_are_those_above_30_percent_of_the_usual_rotor_speed():
+    from vtol_impedance.logs.rotors import airborne_mask
+
+    sq = np.concatenate([np.full(20, 1.0), np.linspace(2.0, 100.0, 80)])  # idle on the ground, then flying
+    p95 = np.percentile(sq, 95)
+    np.testing.assert_array_equal(airborne_mask(sq), sq > 0.3 * p95)
+    assert airborne_mask(sq)[:20].sum() == 0 and airborne_mask(sq)[-1]
+    assert airborne_mask(sq).sum() == np.sum(np.linspace(2.0, 100.0, 80) > 0.3 * p95)
