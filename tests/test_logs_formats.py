@@ -331,3 +331,20 @@ def test_a_foreign_file_named_bin_gives_one_line_not_a_flood(tmp_path, capfd):
     assert main(["estimate", str(f), "--out", str(tmp_path / "o")]) == 2
     out, err = capfd.readouterr()
     assert out == "" and len(err.splitlines()) <= 3 and "no DataFlash messages" in err
+
+
+def test_a_csv_column_is_read_for_one_role_from_one_place(tmp_path):
+    """A header naming a used column twice, or one column mapped to two roles, is refused naming it (the
+    first was read quietly: a second vz of zeros, or vx read from the vy column)."""
+    from vtol_impedance.logs import read_any
+
+    fl = S.flight()
+    good = write_csv(tmp_path / "good.csv", csv_cols(fl))
+    lines = good.read_text().splitlines()
+    twice = tmp_path / "twice.csv"
+    twice.write_text("\n".join([lines[0] + ",vz"] + [row + ",0" for row in lines[1:]]) + "\n")
+    with pytest.raises(InputError, match="column 'vz' appears 2 times in the header"):
+        read_any(twice)
+    with pytest.raises(InputError, match=r"column 'vy' is mapped to more than one role \(vx, vy\)"):
+        read_any(good, columns={"vx": "vy"})
+    read_any(good, columns={"vx": "vx"})  # a mapping to its own column is no conflict

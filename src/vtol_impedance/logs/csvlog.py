@@ -137,6 +137,18 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
             raise InputError(f"unknown column role {k!r}; roles are {', '.join(COLUMNS)}")
         mapping[k] = v
     present = {role for role, col in mapping.items() if col in header}
+    shared: dict[str, list[str]] = {}
+    for role in sorted(present):
+        shared.setdefault(mapping[role], []).append(role)
+    for col, roles in shared.items():
+        if len(roles) > 1:
+            raise InputError(
+                f"{path}: column {col!r} is mapped to more than one role ({', '.join(roles)}); map each once"
+            )
+        if header.count(col) > 1:
+            raise InputError(
+                f"{path}: column {col!r} appears {header.count(col)} times in the header; which one is meant?"
+            )
 
     def need(group: tuple[str, ...], what: str) -> None:
         miss = [mapping[c] for c in group if c not in present]
