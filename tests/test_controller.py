@@ -327,3 +327,15 @@ def test_natural_frequency_and_damping_are_the_position_loops_roots(Kp, Dp):
     back = ImpedanceGains.from_natural(m, np.diag([3.4e-3, 3.4e-3, 4.7e-3]), wn, zeta, 8.0, 1.0)
     np.testing.assert_allclose(back.Kp, Kp, rtol=1e-12)
     np.testing.assert_allclose(back.Dp, Dp, rtol=1e-12)
+
+
+def test_the_papers_controller_takes_a_vehicle_by_name():
+    from vtol_impedance.model import load_preset
+
+    by_name = ControllerParams.paper("pdc", vehicle="hexarotor")
+    given = ControllerParams.paper("pdc", vehicle=load_preset("hexarotor"))
+    assert by_name.vehicle.n_rotors == 6 and by_name.vehicle.mass == given.vehicle.mass
+    np.testing.assert_array_equal(np.asarray(by_name.gains.Kp), np.asarray(given.gains.Kp))
+    for bad, match in ((3, "VehicleParams or a preset name, got int"), ("nope", "unknown vehicle preset 'nope'")):
+        with pytest.raises(InputError, match=match):  # an AttributeError once
+            ControllerParams.paper("pdc", vehicle=bad)

@@ -213,6 +213,8 @@ def test_online_estimator_backends_agree_with_delays_and_rotor_lag(rng):
         {"eta": [0, np.pi / 2, 0]},
         {"thrust_prev": "9.8"},
         {"thrust_prev": 1e300},
+        {"thrust_prev": -5.0},  # rotors push, never pull
+        {"thrust_prev": np.array([11.0, 11.0])},  # was a TypeError
         {"omega_B": None},
     ],
 )
@@ -227,6 +229,10 @@ def test_online_estimator_refuses_bad_samples(kw):
         Estimator(-1.0, [0.01, 0.01, 0.02], 0.01)
     with pytest.raises(InputError):
         Estimator(1.0, [0.01, -0.01, 0.02], 0.01)
+    with pytest.raises(InputError, match="triangle inequality"):  # as the CLI and the vehicle files refuse it
+        Estimator(1.0, [1.0, 1.0, 100.0], 0.01)
+    with pytest.raises(InputError, match="symmetric"):
+        Estimator(1.0, [[0.01, 0.001, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.02]], 0.01)
 
 
 def test_designs_are_kept_per_period_and_cannot_be_changed_by_a_caller():

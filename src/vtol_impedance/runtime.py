@@ -358,13 +358,9 @@ class Estimator:
         if backend not in ("compiled", "numpy"):
             raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
         self.mass = scalar("mass", mass, lo=0.0, lo_open=True)
-        I_B = as_finite("inertia_B", inertia_B)
-        if I_B.shape == (3,):
-            I_B = np.diag(I_B)
-        if I_B.shape != (3, 3) or np.any(np.linalg.eigvalsh(0.5 * (I_B + I_B.T)) <= 0):
-            raise InputError(
-                f"inertia_B must be 3 positive values or a positive definite 3x3 matrix, got {inertia_B!r}"
-            )
+        from .model.vehicle import check_inertia
+
+        I_B = check_inertia(inertia_B)  # symmetric, positive definite, a rigid body's
         self.I_B = np.ascontiguousarray(I_B, dtype=float)
         self.params = params or EstimatorParams()
         if not isinstance(self.params, EstimatorParams):
@@ -414,7 +410,7 @@ class Estimator:
         else:
             omega_B = _plausible("omega_B", as_finite("omega_B", omega_B, (3,)), 1e4)
             eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B)
-        u = float(_plausible("thrust_prev", as_finite("thrust_prev", thrust_prev, ()), 1e6))
+        u = scalar("thrust_prev (N)", thrust_prev, lo=0.0, hi=1e6)  # rotors push, never pull
         no_moment = tau_B_prev is None
         tau = np.zeros(3) if no_moment else _plausible("tau_B_prev", as_finite("tau_B_prev", tau_B_prev, (3,)), 1e6)
         if self.backend == "compiled":

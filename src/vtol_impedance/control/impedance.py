@@ -112,13 +112,19 @@ class ControllerParams:
             raise InputError("variant 'pid' needs Ki > 0 on at least one axis (the paper uses Ki = 0.5)")
 
     @classmethod
-    def paper(cls, variant: str = "pdc", vehicle: VehicleParams | None = None, **kw: object) -> ControllerParams:
-        """The paper's controller (Sec. VI.A-B) for the nominal Pelican or the given nominal vehicle.
+    def paper(cls, variant: str = "pdc", vehicle: VehicleParams | str | None = None, **kw: object) -> ControllerParams:
+        """The paper's controller (Sec. VI.A-B) for the nominal Pelican or the given nominal vehicle (a
+        :class:`VehicleParams`, or a preset name or vehicle file for :func:`load_preset`).
 
         For another vehicle the position gains keep the paper's ``Kp/m``, ``Dp/m`` and ``Ki/m`` (the same
         closed-loop poles) and the attitude gains its wn = 8 rad/s, zeta = 1 on that vehicle's inertia
-        (:meth:`ImpedanceGains.paper`).
+        (:meth:`ImpedanceGains.paper`). They know nothing of the vehicle's motors and latencies: check the
+        loop on your plant before flying (:func:`vtol_impedance.robust.linearize`, ``docs/guide/python-api.md``).
         """
+        if isinstance(vehicle, str):
+            vehicle = load_preset(vehicle)
+        elif vehicle is not None and not isinstance(vehicle, VehicleParams):
+            raise InputError(f"vehicle must be a VehicleParams or a preset name, got {type(vehicle).__name__}")
         vehicle = vehicle or load_preset("pelican")
         Ki = PAPER_KI if variant == "pid" else 0.0
         gains = ImpedanceGains.paper(vehicle.inertia, Ki=Ki, mass=vehicle.mass)
