@@ -366,3 +366,14 @@ def test_each_random_disturbance_draws_its_own_series():
     fan = FanJet(position_W=(2.0, 0.0, -1.0), direction_W=(-1.0, 0.0, 0.0), turbulence=0.2)
     gust = fan.prepare(200.0, 0.01, np.random.default_rng(1))._gust
     assert np.std(gust) == pytest.approx(0.2, rel=0.02) and abs(np.mean(gust)) < 0.02
+
+
+def test_a_sinusoid_faster_than_the_plant_steps_is_refused():
+    """At a 1 kHz plant a 1 kHz sinusoid is zero at every step (aliased): refused above 250 Hz, named."""
+    from vtol_impedance.errors import InputError
+    from vtol_impedance.sim.disturbances import SinusoidWrench
+
+    d = SinusoidWrench((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), freq_hz=1000.0)
+    with pytest.raises(InputError, match=r"freq_hz = 1000 Hz is above a quarter of the plant rate \(1000 Hz\)"):
+        d.prepare(1.0, 0.001, np.random.default_rng(0))
+    assert SinusoidWrench((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), freq_hz=200.0).prepare(1.0, 0.001, None).freq_hz == 200.0

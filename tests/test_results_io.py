@@ -112,3 +112,17 @@ def test_written_files_get_ordinary_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (p.stat().st_mode & 0o777) == (0o666 & ~mask)
+
+
+def test_a_reference_below_the_ground_is_refused_before_the_flight():
+    """With the ground on, a reference 0.5 m under it (NED z = +0.5) is refused naming the depth and the
+    time (it was flown and recorded as a crash); without a ground the same reference flies."""
+    from vtol_impedance.control.reference import MinJerk
+
+    traj = Trajectory((Hold((0.0, 0.0, -1.0), 0.5), MinJerk((0.0, 0.0, -1.0), (0.0, 0.0, 0.5), 0.5),
+                       Hold((0.0, 0.0, 0.5), 1.0)))  # fmt: skip
+    ctrl = [ControllerParams.paper("pd")]
+    with pytest.raises(InputError, match=r"goes 0.5 m below the ground \(NED z > 0\) at t = 1 s"):
+        run_closed_loop(PlantParams(load_preset(), ground=True), ctrl, traj, 2.0, start_W=np.array([0, 0, -1.0]))
+    r = run_closed_loop(PlantParams(load_preset(), ground=False), ctrl, traj, 1.5, start_W=np.array([0, 0, -1.0]))
+    assert r.failures == [None]

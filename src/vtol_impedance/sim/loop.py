@@ -395,6 +395,12 @@ def run_closed_loop(
         d.check_start(start)
     refs = trajectory.sample_many(np.append(t_grid, duration))  # the control ticks and the end
     lowest = float(np.max(refs[:, 2]))  # NED: largest z
+    if lowest > 1e-6 and any(p.ground for p in plants):
+        k = int(np.argmax(refs[:, 2]))
+        raise InputError(
+            f"the reference goes {lowest:.3g} m below the ground (NED z > 0) at t = {min(k * Ts, duration):.3g} s: "
+            "the vehicle would fly into it; raise the trajectory (or turn plant.ground off)"
+        )
     for p in [plant] if isinstance(plant, PlantParams) else plant:
         if p.pendulum_mass > 0 and lowest + p.pendulum_length >= 0.0:
             raise InputError(
