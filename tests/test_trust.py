@@ -621,3 +621,17 @@ def test_default_folders_never_mix_configurations(tmp_path, monkeypatch):
     for extra in ([], ["--set", "payload.mass=0.2"]):
         assert main(["margins", "case-a-payload", "--controllers", "pd", "--no-plots", "--quiet", *extra]) == 0
     assert len([p for p in (tmp_path / "results").iterdir() if p.name.startswith("margins-")]) == 2
+
+
+def test_output_paths_that_cannot_hold_results_are_named_before_any_work(capsys):
+    """An empty --out (it meant the default folder), the root (its advice was a system folder) and a bench
+    report into /proc (refused only after minutes of measuring) are refused up front."""
+    assert main(["run", "case-a-payload", "--out", ""]) == 2
+    assert "--out is empty" in capsys.readouterr().err
+    assert main(["run", "case-a-payload", "--duration", "0.2", "--out", "/"]) == 2
+    err = capsys.readouterr().err
+    assert "mount point" in err and "--out /run" not in err
+    t0 = time.perf_counter()
+    assert main(["bench", "--quick", "--quiet", "--out", "/proc/x.json"]) == 2
+    err = capsys.readouterr().err  # as root: the probe file fails; otherwise /proc is not writable
+    assert "/proc" in err and "write into" in err and time.perf_counter() - t0 < 10.0

@@ -314,6 +314,11 @@ def run(
         if parent.exists():
             if not parent.is_dir() or not os.access(parent, os.W_OK):
                 raise InputError(f"--out {out}: {parent} is not a folder this user can write into")
+            try:  # before minutes of measuring: a file can be made there (not /proc, a read-only mount)
+                with tempfile.NamedTemporaryFile(dir=parent, prefix=".bench-probe-"):
+                    pass
+            except OSError as exc:
+                raise InputError(f"--out {out}: cannot write into {parent} ({exc.strerror or exc})") from None
             break
     ys = _load_yardstick(yardstick) if yardstick is not None else None
     res: dict[str, Any] = {

@@ -1261,6 +1261,10 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"warning: {message}", file=sys.stderr)
 
             warnings.showwarning = show
+            if getattr(args, "out", None) is not None and not str(args.out).strip():
+                from .errors import InputError
+
+                raise InputError("--out is empty: give a folder (or leave --out out for the default)")
             return int(args.func(args))
     except VtolImpedanceError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -127,9 +127,14 @@ def check_output_folder(final: Path, swapped: bool = True) -> Path:
         os.path.ismount(final) or final.stat().st_dev != final.absolute().parent.stat().st_dev
     )
     if swapped and mounted:
+        inside = (
+            "a new folder inside it"
+            if final.absolute() == Path("/")
+            else f"a folder inside it, e.g. --out {final / 'run'}"
+        )
         raise InputError(
             f"output folder {final} is a mount point (a volume, a USB stick): a run replaces its folder as a "
-            f"whole, which a mount point cannot be; give a folder inside it, e.g. --out {final / 'run'}"
+            f"whole, which a mount point cannot be; give {inside}"
         )
     if final.exists() and any(final.iterdir()):
         if not (final / MANIFEST).exists():

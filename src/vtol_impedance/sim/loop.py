@@ -141,7 +141,7 @@ def check_limits(estimate: dict[str, float], limits: Limits) -> None:
     gb = estimate["memory_bytes"] / 1e9
     if gb > limits.max_memory_gb:
         raise InputError(
-            f"this run would need about {gb:.1f} GB of memory, above the limit of {limits.max_memory_gb:g} GB; "
+            f"this run would need about {gb:.3g} GB of memory, above the limit of {limits.max_memory_gb:g} GB; "
             "shorten it, log less (log='metrics' or 'decimate:K'), fly fewer vehicles, or raise the limit "
             "(VTOL_IMPEDANCE_MAX_MEMORY_GB or Limits(max_memory_gb=...))"
         )
