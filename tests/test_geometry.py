@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import scipy.optimize
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from vtol_impedance.errors import InputError
@@ -118,8 +118,17 @@ ALLOCATORS = {
 }
 
 
+_YAW_FITS_RP = (  # yaw is what lets the full roll/pitch fit (found by hypothesis in CI)
+    VehicleParams(1.2, [0.0034, 0.0034, 0.0047], arm_length=0.21, f_max=7.0, layout="x"),
+    0.125,
+    np.array([0.015625, 0.015625, -0.25]),
+    0.0,
+)
+
+
 @pytest.mark.parametrize("backend", sorted(ALLOCATORS))
 @given(req=requests())
+@example(req=_YAW_FITS_RP)
 def test_allocation_limits_bound_and_priorities(backend, req):
     v, u, tau, shift = req
     g = v.geometry
@@ -149,7 +158,15 @@ def test_allocation_limits_bound_and_priorities(backend, req):
         bounds=[(0.0, 1.0), (-shift * u_c, shift * u_c)], method="highs",
     )  # fmt: skip
     assert lp.status == 0  # compared as torques: with no roll/pitch requested any scale delivers it
-    assert a.rp_scale * np.hypot(*tau[:2]) == pytest.approx(lp.x[0] * np.hypot(*tau[:2]), abs=1e-6)
+    # ... unless yaw is what makes the full roll/pitch fit at the requested collective (a yaw scale in
+    # [0, 1] with every rotor in range: another LP), which the allocator uses first
+    f_rp0 = unmix(u, np.array([tau[0], tau[1], 0.0]), g.E_pinv)
+    y = g.E_pinv[:, 3] * tau[2]
+    tol = 1e-12 * np.maximum(np.abs(g.f_max), 1.0)
+    room = np.concatenate([g.f_max + tol - f_rp0, f_rp0 - g.f_min + tol])
+    with_yaw = scipy.optimize.linprog([0.0], A_ub=np.concatenate([y, -y])[:, None], b_ub=room, bounds=[(0.0, 1.0)])
+    best = 1.0 if with_yaw.status == 0 else lp.x[0]
+    assert a.rp_scale * np.hypot(*tau[:2]) == pytest.approx(best * np.hypot(*tau[:2]), abs=1e-6)
     # priority: if roll/pitch fit with no yaw at the requested collective, they are delivered in full
     f_rp = unmix(u, np.array([tau[0], tau[1], 0.0]), g.E_pinv)
     if np.all(f_rp >= g.f_min) and np.all(f_rp <= g.f_max):
