@@ -640,3 +640,40 @@ def test_estimate_rereads_the_recorded_tlog_and_finds_the_live_wrench(estimated,
         assert steady.sum() > 10 and before.sum() > 10
         np.testing.assert_allclose(f[steady].mean(0), estimated["F_W"], atol=0.04)
         np.testing.assert_allclose(f[before].mean(0), 0.0, atol=0.04)
+
+
+def test_the_live_estimator_uses_commands_sent_before_a_tick_and_restarts_where_streams_stop():
+    """Hand-timed samples (50 Hz ticks, 20 ms apart): a command stamped exactly at a tick is not yet
+    in force for it (it acts from then on); a gap in the attitude stream longer than max_gap_s restarts the
+    estimator once (the next segment); a command older than command_stale_s gives no tick and restarts."""
+    from vtol_impedance.live.estimator import EstimatorSettings
+    from vtol_impedance.live.streams import Sample
+
+    veh = load_preset("pelican")
+    sources = {"attitude": "ATTITUDE", "velocity": "LOCAL_POSITION_NED", "thrust": "ATTITUDE_TARGET"}
+    est = LiveEstimator(veh.mass, veh.inertia, ThrustMap.for_vehicle(veh, veh.mass, hover=0.5), sources, 4,
+                        EstimatorSettings(max_gap_s=0.1, command_stale_s=0.5))  # fmt: skip
+    assert est.period_us == 20_000
+    level, still = (np.zeros(3), np.zeros(3)), (np.array([0.0, 0.0, -1.0]), np.zeros(3))
+    ticks = []
+
+    def state(t_us: int) -> None:
+        ticks.extend(est.push(Sample("attitude", t_us, level)))
+        ticks.extend(est.push(Sample("velocity", t_us, still)))
+
+    est.push(Sample("thrust", 0, (0.5,)))  # hover: u = m g
+    est.push(Sample("thrust", 40_000, (0.6,)))  # stamped exactly at the tick of 40 ms
+    for t_us in range(0, 100_001, 10_000):
+        state(t_us)
+    by_t = {k.t_us: k for k in ticks}
+    assert by_t[40_000].thrust_N == pytest.approx(veh.mass * 9.81)  # the earlier command still held
+    assert by_t[60_000].thrust_N == pytest.approx(0.6 / 0.5 * veh.mass * 9.81)
+    assert est.counts["restarts"] == 0 and {k.segment for k in ticks} == {0}
+    for t_us in range(300_000, 400_001, 10_000):  # 200 ms without any sample: longer than max_gap_s
+        state(t_us)
+    assert est.counts["restarts"] == 1 and ticks[-1].segment == 1
+    n = len(ticks)
+    for t_us in range(400_000 + 10_000, 1_200_001, 10_000):  # the last command (at 40 ms) goes stale
+        state(t_us)
+    assert all(k.t_us - 40_000 <= 500_000 for k in ticks[n:])  # no tick with a command older than 0.5 s
+    assert any("older than 0.5 s" in text for _, text in est.events)

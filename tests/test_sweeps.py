@@ -466,3 +466,25 @@ def test_a_trials_cost_from_hand_rows():
     assert cost == pytest.approx((2.0 + 104.0 + 101.0) / 3) and parts["below_margin"] == 2
     assert bound_notes(t, {"control.Kp": 30.0}) and bound_notes(t, {"control.Kp": 8.0})
     assert not bound_notes(t, {"control.Kp": 19.0})
+
+
+def test_kept_traces_hold_the_force_the_model_misses_and_rows_count_repeats(tmp_path):
+    """A sweep keeping every 10th sample: in case A's hover the "true" force is the one the nominal model
+    misses, the payload's weight (0.110 kg x g, +z in NED; the explicit external force is zero there), and
+    the estimate follows it; the flight rows number each point's repeats 0..seeds-1."""
+    import pyarrow.parquet as pq
+
+    spec = {**SMALL, "controllers": ["pdc"], "seeds": 2, "traces": 10, "set": {"trajectory": {"hover_duration": 4.0}},
+            "axes": {"payload.mass": [0.11, 0.2]}}  # fmt: skip
+    out = tmp_path / "sweep"
+    run_sweep(from_dict(spec), out, show_progress=False)
+    rows = read_dataset(out).to_pydict()
+    assert rows["repeat"] == [0, 1, 0, 1] and rows["point"] == [0, 0, 1, 1]
+    tr = pq.read_table(sorted((out / "traces").glob("*.parquet"))).to_pydict()
+    t, unit = np.asarray(tr["t_s"]), np.asarray(tr["unit"])
+    assert np.allclose(np.diff(t[unit == 0]), 0.1)  # every 10th 100 Hz tick
+    hover = (t > 6.5) & (unit == 0)  # after the take-off (1 + 4 s) has settled
+    assert np.mean(np.asarray(tr["fz_true_N"])[hover]) == pytest.approx(0.110 * 9.81, rel=0.05)
+    assert np.mean(np.asarray(tr["fz_hat_N"])[hover]) == pytest.approx(0.110 * 9.81, rel=0.1)
+    heavy = (t > 6.5) & (unit == 2)
+    assert np.mean(np.asarray(tr["fz_true_N"])[heavy]) == pytest.approx(0.2 * 9.81, rel=0.05)

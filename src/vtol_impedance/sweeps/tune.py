@@ -123,12 +123,12 @@ class Tuning:
         """The sweep description flying ``params`` on the whole population (one point per member)."""
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(2**30,)))
         members = [{a.key: a.draw(rng) for a in self.spread} for _ in range(self.population)]
-        if self.spread:  # one point per member, one seed each
-            axes, seeds = {a.key: [m[a.key] for m in members] for a in self.spread}, 1
-        else:  # the members differ only by their noise: one point, a seed each (the axis changes nothing)
-            axes, seeds = {"duration": [self.base_spec().duration]}, self.population
         fixed = dict(_flatten(self.data.get("set", {})))
         fixed.update(params)
+        if self.spread:  # one point per member, one seed each
+            axes, seeds = {a.key: [m[a.key] for m in members] for a in self.spread}, 1
+        else:  # the members differ only by their noise: one point, a seed each (an axis of the one duration)
+            axes, seeds = {"duration": [fixed.pop("duration", self.base_spec().duration)]}, self.population
         return {
             "name": self.name, "base": self.data["base"], "controllers": [self.controller], "seeds": seeds,
             "seed": self.seed, "mode": "zip", "chunk": 1, "set": fixed, "axes": axes,
