@@ -188,3 +188,23 @@ def test_airborne_samples_are_those_above_30_percent_of_the_usual_rotor_speed():
     np.testing.assert_array_equal(airborne_mask(sq), sq > 0.3 * p95)
     assert airborne_mask(sq)[:20].sum() == 0 and airborne_mask(sq)[-1]
     assert airborne_mask(sq).sum() == np.sum(np.linspace(2.0, 100.0, 80) > 0.3 * p95)
+
+
+def test_the_physics_checks_averages_and_tilt_symptom():
+    """The centred moving average leaves a ramp unchanged inside (an odd window; ends shrink) and a
+    constant unchanged everywhere; the thrust-axis symptom appears beyond 20 degrees (0.35 rad) and names
+    the angle."""
+    from vtol_impedance.logs.checks import Evidence, _moving_average
+
+    ramp = np.arange(20.0)
+    for n in (3, 4, 5, 7):  # an even window is centred to within half a sample
+        np.testing.assert_allclose(_moving_average(ramp, n)[n:-n], ramp[n:-n] - (0.5 if n % 2 == 0 else 0.0))
+        np.testing.assert_allclose(_moving_average(np.ones((20, 2)), n), 1.0)
+    np.testing.assert_allclose(_moving_average(ramp, 3)[0], 0.5)  # the first sample averages itself and the next
+
+    def ev(tilt: float) -> Evidence:
+        return Evidence(0.1, np.ones(3), 1.0, 0.5, tilt, 1.0, np.zeros(2), np.ones(2), {"velocity": 50.0}, True)
+
+    assert not ev(0.30).symptoms()
+    (s,) = ev(0.40).symptoms()
+    assert "thrust axis is 23 deg away" in s
