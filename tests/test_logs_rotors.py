@@ -139,3 +139,27 @@ def test_a_window_too_short_to_estimate_is_named(tmp_path, capsys):
     assert "holds 0.29 s of flight in the window --start/--end" in err and "at least 1 s" in err
     assert "internal error" not in err and not (tmp_path / "o").exists()
     assert main([*args, "--start", str(t0), "--end", str(t0 + 1.5)]) == 0
+
+
+def test_two_logs_of_one_name_get_two_default_folders(tmp_path, monkeypatch):
+    """``results/estimate-flight`` holds the estimate of one ``flight.csv``; another file of that name from
+    another folder gets a folder of its own, and re-estimating the first replaces its own."""
+    import shutil
+    from importlib import resources
+
+    from vtol_impedance.cli import main
+
+    src = resources.files("vtol_impedance.logs.samples") / "flight.csv"
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        shutil.copy(src, tmp_path / d / "flight.csv")
+    monkeypatch.chdir(tmp_path)
+    args = ["--mass", "1.2", "--no-plots", "--quiet"]
+    for d in ("a", "b", "a"):
+        assert main(["estimate", f"{d}/flight.csv", *args]) == 0
+    folders = sorted(p.name for p in (tmp_path / "results").iterdir())
+    assert len(folders) == 2 and folders[0] == "estimate-flight" and folders[1].startswith("estimate-flight+")
+    import json
+
+    files = {json.loads((tmp_path / "results" / f / "estimate.json").read_text())["info"]["file"] for f in folders}
+    assert files == {"a/flight.csv", "b/flight.csv"}

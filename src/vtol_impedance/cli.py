@@ -556,7 +556,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         thrust_coefficient=args.thrust_coefficient,
         airframe=args.airframe,
     )  # fmt: skip
-    out = Path(args.out) if args.out else Path(DEFAULT_OUT) / f"estimate-{stem}"
+    out = Path(args.out) if args.out else _estimate_folder(stem, log)
     flight = est.flight
     with RunFolder(out) as folder:
         from .analysis.report import write_html
@@ -598,6 +598,22 @@ def cmd_estimate(args: argparse.Namespace) -> int:
             print("bias over the quiet segment [N]: " + " ".join(f"{v:+.4f}" for v in est.bias["f_W_N"]))
         print(f"results written to {final}", file=sys.stderr)
     return 0
+
+
+def _estimate_folder(stem: str, log: Path) -> Path:
+    """``results/estimate-<log name>``, or, when that folder holds the estimate of another file of the same
+    name, ``results/estimate-<log name>+<hash of this file's path>``: a log never replaces another's."""
+    import hashlib
+
+    base = Path(DEFAULT_OUT) / f"estimate-{stem}"
+    try:
+        other = json.loads((base / "estimate.json").read_text())["info"]["file"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return base  # no estimate there (or not ours: RunFolder refuses a foreign folder)
+    here = Path(log).resolve()
+    if Path(other).resolve() == here:
+        return base
+    return base.with_name(f"{base.name}+{hashlib.sha256(str(here).encode()).hexdigest()[:8]}")
 
 
 def _default_out(kind: str, name: str) -> Path:
