@@ -403,6 +403,8 @@ def test_pendulum_longer_than_the_altitude_is_refused(tmp_path, capsys):
         simulate(spec, ["pd"])
     rc = main(["run", "pendulum", "--set", "plant.pendulum_length=1.6", "--out", str(tmp_path / "o"), "--no-plots"])
     assert rc == 2 and "pendulum (1.6 m) is longer" in capsys.readouterr().err
+    with pytest.raises(InputError, match=r"pendulum \(1.5 m\) is longer"):  # exactly the 1.5 m altitude: on the ground
+        simulate(set_value(spec, "plant.pendulum_length", 1.5), ["pd"])
 
 
 def test_gust_turbulence_correlates_over_the_standard_length_in_metres():

@@ -635,3 +635,22 @@ def test_output_paths_that_cannot_hold_results_are_named_before_any_work(capsys)
     assert main(["bench", "--quick", "--quiet", "--out", "/proc/x.json"]) == 2
     err = capsys.readouterr().err  # as root: the probe file fails; otherwise /proc is not writable
     assert "/proc" in err and "write into" in err and time.perf_counter() - t0 < 10.0
+
+
+def test_a_lock_won_on_a_file_its_holder_removed_is_no_lock(tmp_path, monkeypatch):
+    """Run B opened the lock file while run A held it; A finished (its file removed, its lock released) and
+    run C took the lock on a new file at the same path. B's flock then succeeds on the removed file: it
+    must still be refused, or B and C would write into one folder at once."""
+    import vtol_impedance.io as vio
+
+    folder = tmp_path / "res"
+    a = vio.FolderLock(folder)
+    stale = open(a.path, "a+")  # noqa: SIM115 (B's handle, opened before A finished)
+    a.close()
+    c = vio.FolderLock(folder)
+    monkeypatch.setattr(vio, "open", lambda *args, **kw: stale, raising=False)
+    with pytest.raises(InputError, match="another run is writing"):
+        vio.FolderLock(folder)
+    monkeypatch.undo()
+    c.close()
+    vio.FolderLock(folder).close()  # free again once C is done
