@@ -281,6 +281,14 @@ def test_comply_fractions_from_another_simulators_frames_follow_its_axes():
         np.testing.assert_allclose(outs["enu"].f_rotor, outs["east"].f_rotor, rtol=1e-12)
         assert np.abs(outs["enu"].f_rotor - outs["north"].f_rotor).max() > 1e-3
     assert Reference.from_frames(p_enu, comply=0.5, world="enu").comply == 0.5  # one fraction: every axis
+    # a batch is reordered per row, and a NaN stays on its own (east) axis for the step to name
+    np.testing.assert_array_equal(
+        Reference.from_frames(p_enu, comply=[[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], world="enu").comply,
+        [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+    )
+    np.testing.assert_array_equal(
+        Reference.from_frames(p_enu, comply=[np.nan, 0.2, 0.3], world="enu").comply, [0.2, np.nan, 0.3]
+    )
 
 
 def test_inputs_in_a_wrong_frame_are_warned_about_through_the_estimate():

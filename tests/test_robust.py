@@ -333,9 +333,9 @@ def test_no_bandwidth_can_fly_it_names_the_limit(capsys, tmp_path):
 
 def test_a_loop_too_large_to_analyse_is_refused_before_any_work(capsys, tmp_path, monkeypatch):
     """Latencies of many control periods become delay lines of six states each: a 1 s latency at 100 Hz
-    (628 states) or the default 20 ms at 100 kHz is refused at once, naming the count and the latency, by
+    (622 states) or the default 20 ms at 100 kHz is refused at once, naming the count and the latency, by
     the design (the run stops with the hand-set alternative) and by the pre-flight check (the flight goes
-    on without margins when the bandwidths are set by hand)."""
+    on without margins when the bandwidths are set by hand). The count is the plant model's own size."""
     from vtol_impedance.robust import MAX_LOOP_STATES, LoopSizeError
     from vtol_impedance.sim import SensorParams
 
@@ -348,12 +348,20 @@ def test_a_loop_too_large_to_analyse_is_refused_before_any_work(capsys, tmp_path
 
     with monkeypatch.context() as m:
         m.setattr(lin, "_trim", no_trim)  # refused before the trim, which took minutes at 100 kHz
-        with pytest.raises(LoopSizeError, match=r"628 states, more than MAX_LOOP_STATES = 250: a 1000 ms position"):
+        with pytest.raises(LoopSizeError, match=r"622 states, more than MAX_LOOP_STATES = 250: a 1000 ms position"):
             linearize(ctrl, plant, SensorParams(mocap_delay=1.0))
         fast = dataclasses.replace(ctrl, Ts=1e-5)
-        with pytest.raises(LoopSizeError, match="2202 control periods at 100000 Hz"):
+        with pytest.raises(LoopSizeError, match="2200 control periods at 100000 Hz"):
             linearize(fast, plant, SensorParams(), plant_rate=1e5)
     assert MAX_LOOP_STATES >= 34 + 6 * 18  # the default loop, and 1 kHz with its 20 ms latency, fit
+    for sensors in (SensorParams(), SensorParams(mocap_delay=0.025), SensorParams(mocap_delay=0.02, imu_delay=0.0)):
+        n = linearize(ctrl, plant, sensors).plant.nstates  # what sampled_plant built
+        with monkeypatch.context() as m:
+            m.setattr(lin, "MAX_LOOP_STATES", n)
+            linearize(ctrl, plant, sensors)  # exactly at the bound: analysed
+            m.setattr(lin, "MAX_LOOP_STATES", n - 1)
+            with pytest.raises(LoopSizeError, match=f"have {n} states"):
+                linearize(ctrl, plant, sensors)
     by_hand = ["--set", "control.wn_o=17", "--set", "control.wn_o_yaw=7", "--set", "control.attitude_filter_wn=25",
                "--set", "control.estimator_wn=8"]  # fmt: skip
     base = ["run", "case-a-payload", "--set", "sensors.mocap_delay=1.0", "--duration", "0.3", "--no-plots", "--quiet"]

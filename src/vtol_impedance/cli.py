@@ -46,18 +46,21 @@ class _Progress:
 
 
 def _load_spec(name: str, sets: list[str], duration: float | None, ideal: bool):
+    """The scenario ``name`` (registered, or a ``.toml`` file) with the command line's overrides, and the
+    folder tag of a file (:func:`_file_tag`)."""
     from .errors import InputError
     from .scenarios import apply_overrides, get, load_toml, set_value
 
-    spec = load_toml(name) if name.endswith(".toml") else get(name)
-    spec = apply_overrides(spec, sets or [])
+    base = load_toml(name) if name.endswith(".toml") else get(name)
+    tag = _file_tag(base) if name.endswith(".toml") else ()
+    spec = apply_overrides(base, sets or [])
     if duration is not None:
         if not duration > 0 or duration != duration or duration == float("inf"):
             raise InputError(f"--duration must be a positive number of seconds, got {duration}")
         spec = set_value(spec, "duration", float(duration))
     if ideal:
         spec = set_value(spec, "ideal", True)
-    return spec
+    return spec, tag
 
 
 def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()) -> Path:
@@ -70,7 +73,7 @@ def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()
     import hashlib
     import re
 
-    parts = [*extra, *_file_tag(getattr(args, "scenario", None)), *args.set]
+    parts = [*extra, *args.set]
     if getattr(args, "duration", None) is not None:
         parts.append(f"duration={args.duration:g}")
     if getattr(args, "seed", None) is not None:
@@ -87,18 +90,15 @@ def _run_folder(args: argparse.Namespace, name: str, extra: tuple[str, ...] = ()
     return Path(DEFAULT_OUT) / f"{name}+{slug}"
 
 
-def _file_tag(scenario: str | None) -> tuple[str, ...]:
-    """``("file=<hash>",)`` for a scenario file whose content is not the registered scenario of its name
-    (a file without ``name`` takes its base's, and two files may share one): its folder must not be the
-    registered scenario's or another file's. The hash is of the file's whole scenario."""
-    if not scenario or not str(scenario).endswith(".toml"):
-        return ()
+def _file_tag(spec: Any) -> tuple[str, ...]:
+    """``("file=<hash>",)`` for a scenario read from a file whose content is not the registered scenario of
+    its name (a file without ``name`` takes its base's, and two files may share one): its folder must not
+    be the registered scenario's or another file's. The hash is of the file's whole scenario."""
     import hashlib
 
     from .errors import ScenarioError
-    from .scenarios import get, load_toml
+    from .scenarios import get
 
-    spec = load_toml(scenario)
     plain = json.dumps(spec.to_dict(), sort_keys=True, default=str)
     try:
         if json.dumps(get(spec.name).to_dict(), sort_keys=True, default=str) == plain:
@@ -305,10 +305,10 @@ def cmd_margins(args: argparse.Namespace) -> int:
     from .scenarios.margins import scenario_margins, warnings_of
     from .scenarios.spec import check_variants
 
-    spec = _load_spec(args.scenario, args.set, None, args.ideal)
+    spec, tag = _load_spec(args.scenario, args.set, None, args.ideal)
     variants = check_variants([c.strip() for c in args.controllers.split(",") if c.strip()], unique=True)
     check(spec, variants)
-    out = _run_folder(args, f"margins-{spec.name}")
+    out = _run_folder(args, f"margins-{spec.name}", tag)
     with RunFolder(out) as folder:
         if not args.quiet:
             print(f"linearising {spec.name} for {', '.join(variants)} ...", file=sys.stderr)
@@ -354,13 +354,13 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     from .scenarios import check
     from .scenarios.spec import check_variants
 
-    spec = _load_spec(args.scenario, args.set, args.duration, args.ideal)
+    spec, tag = _load_spec(args.scenario, args.set, args.duration, args.ideal)
     variants = check_variants(variants, unique=True)
     seed = _seed(args)
     check(spec, variants)
     backend = _backend(args)
     t0 = time.perf_counter()
-    with RunFolder(_run_folder(args, spec.name)) as folder:
+    with RunFolder(_run_folder(args, spec.name, tag)) as folder:
         margins = _preflight([spec], variants, args.quiet)
         _announce_compile(backend, args.quiet)
         result = _run_case(spec, variants, seed, args.quiet, backend)
@@ -392,7 +392,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
     tuning = [] if args.tuning == "design" else [f"{k}={json.dumps(v)}" for k, v in PAPER_CONTROL.items()]
-    specs = [_load_spec(n, tuning + args.set, args.duration, args.ideal) for n in PAPER_CASES]
+    specs = [_load_spec(n, tuning + args.set, args.duration, args.ideal)[0] for n in PAPER_CASES]
     variants = ["pd", "pid", "pdc"]
     seed = _seed(args)
     for spec in specs:
@@ -848,7 +848,7 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
 
     from .live.autopilot import Impairments, SimAutopilot, SimSettings
 
-    spec = _load_spec(args.scenario, args.set, None, args.ideal)
+    spec, _ = _load_spec(args.scenario, args.set, None, args.ideal)
     inject_at = _numbers(args.inject_at, "--inject-at", len(str(args.inject_at).split(","))) if args.inject_at else None
     if inject_at is not None and len(inject_at) not in (1, 2):
         from .errors import InputError

@@ -112,14 +112,12 @@ class Reference(NamedTuple):
         from ..errors import as_finite
         from ..model.frames import heading_rate_to_ned, heading_to_ned, world_axes_to_ned, world_vector_to_ned
 
-        c = np.asarray(comply, dtype=object)
-        if c.shape[-1:] in ((3,), (6,)):  # per axis: reorder the world axes (a bad value is named by step)
-            try:
-                c = np.array(comply, dtype=float)
-            except (TypeError, ValueError):
-                c = comply
-            else:
-                c[..., :3] = world_axes_to_ned(c[..., :3], world)
+        try:
+            c = np.array(comply, dtype=float)
+        except (TypeError, ValueError):
+            c = None  # not numbers: the controller's step names the value
+        if c is not None and c.shape[-1:] in ((3,), (6,)):  # per axis: the world axes reordered
+            c[..., :3] = world_axes_to_ned(c[..., :3], world)
         else:
             c = comply
         return cls(

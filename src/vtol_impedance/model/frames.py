@@ -48,8 +48,9 @@ def world_vector_to_ned(v: np.ndarray, world: str) -> np.ndarray:
 
 def world_axes_to_ned(c: np.ndarray, world: str) -> np.ndarray:
     """Per-axis values ``(..., 3)`` of the world axes (comply fractions, gains: magnitudes with no sign)
-    in NED order: ENU's ``[east, north, up]`` become ``[north, east, down]``, nothing flipped."""
-    return np.asarray(c, dtype=float) @ np.abs(world_matrix(world)).T
+    in NED order: ENU's ``[east, north, up]`` become ``[north, east, down]``, nothing flipped (a
+    permutation, so a non-finite entry stays on its axis)."""
+    return np.asarray(c, dtype=float)[..., np.argmax(np.abs(world_matrix(world)), axis=1)]
 
 
 def body_vector_to_frd(v: np.ndarray, body: str) -> np.ndarray:

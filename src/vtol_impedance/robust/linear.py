@@ -468,6 +468,20 @@ def _zoh(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray
     return E[:n, :n], E[:n, n:]
 
 
+def _delay_split(delay: float, Ts: float) -> tuple[int, float]:
+    """A latency as ``k`` whole periods and the rest ``0 <= frac < Ts`` (0 when within rounding)."""
+    k = int(np.floor(delay / Ts + 1e-9))
+    frac = delay - k * Ts
+    return k, (0.0 if frac <= 1e-12 * Ts else frac)
+
+
+def _modelled_delays(sensors: SensorParams, plant_rate: float) -> dict[str, float]:
+    """The latencies the simulator flies (:class:`~vtol_impedance.sim.sensors.SensorSuite`): rounded to
+    plant steps, s."""
+    dt = 1.0 / plant_rate
+    return {"position": round(sensors.mocap_delay / dt) * dt, "attitude": round(sensors.imu_delay / dt) * dt}
+
+
 def sampled_plant(
     A: np.ndarray, B: np.ndarray, C_groups: list[tuple[np.ndarray, float]], Ts: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -483,9 +497,8 @@ def sampled_plant(
     Phi, Gam = _zoh(A, B, Ts)
     reads = []
     for C, delay in C_groups:
-        k = int(np.floor(delay / Ts + 1e-9))
-        frac = delay - k * Ts
-        if frac <= 1e-12 * Ts:
+        k, frac = _delay_split(delay, Ts)
+        if frac == 0.0:
             reads.append((C, np.zeros((C.shape[0], nu)), k))
         else:
             P2, G2 = _zoh(A, B, Ts - frac)
@@ -601,21 +614,21 @@ class LinearLoop:
         return conns
 
 
-def _check_size(controller: ControllerParams, plant: PlantParams, sensors: SensorParams, plant_rate: float) -> None:
+def _check_size(controller: ControllerParams, plant: PlantParams, delays: dict[str, float]) -> None:
     """Refuse, before any work, a loop of more than :data:`MAX_LOOP_STATES` states: the plant's minimal
-    coordinates and the latencies' delay lines (six states per control period, rounded up)."""
+    coordinates and the latencies' delay lines (six states per control period, as :func:`sampled_plant`)."""
     if not isinstance(controller, ControllerParams) or not isinstance(plant, PlantParams):
         return  # named by _setup
-    Ts, dt = float(controller.Ts), 1.0 / plant_rate
-    delays = [round(d / dt) * dt for d in (sensors.mocap_delay, sensors.imu_delay)]
-    lines = sum(6 * (int(np.floor(d / Ts + 1e-9)) + 1) for d in delays if d > 0)
+    Ts = float(controller.Ts)
+    periods = [k + (frac > 0) for k, frac in (_delay_split(d, Ts) for d in delays.values())]
+    lines = 6 * sum(periods)
     n = 12 + plant.vehicle.n_rotors + (4 if plant.pendulum_mass > 0 else 0) + lines
     if n > MAX_LOOP_STATES:
         raise LoopSizeError(
             f"the linearised loop would have {n} states, more than MAX_LOOP_STATES = {MAX_LOOP_STATES}: a "
-            f"{1e3 * delays[0]:g} ms position and {1e3 * delays[1]:g} ms attitude latency are {lines // 6} control "
-            f"periods at {1.0 / Ts:g} Hz, each a line of six states; lower the latency or the control rate to "
-            "have margins computed"
+            f"{1e3 * delays['position']:g} ms position and {1e3 * delays['attitude']:g} ms attitude latency are "
+            f"{sum(periods)} control periods at {1.0 / Ts:g} Hz, each a line of six states; lower the latency or "
+            "the control rate to have margins computed"
         )
 
 
@@ -639,7 +652,8 @@ def linearize(
     if not isinstance(sensors, SensorParams):
         raise InputError(f"sensors must be a SensorParams, got {type(sensors).__name__}")
     plant_rate = scalar("plant_rate", plant_rate, lo=0.0, lo_open=True)
-    _check_size(controller, plant, sensors, plant_rate)
+    delays = _modelled_delays(sensors, plant_rate)
+    _check_size(controller, plant, delays)
     su = _setup(controller, plant, p_W, psi, comply)
     op, su, steady = _trim(su, force_W, torque_B)
     Ts = float(su.CA.Ts)
@@ -657,11 +671,6 @@ def linearize(
     A = jacobian(lambda X: _plant_rate(c, X, op.f_rotor, steady), xm, hx)
     B = jacobian(lambda F: _plant_rate(c, np.broadcast_to(xm, (len(F), xm.size)), F, steady), op.f_rotor, hx)
     Cs = jacobian(lambda X: _measure(su, c.full(X, np.broadcast_to(op.f_rotor, (len(X), n)))), xm, hx)
-    dt = 1.0 / plant_rate
-    delays = {
-        "position": round(sensors.mocap_delay / dt) * dt,
-        "attitude": round(sensors.imu_delay / dt) * dt,
-    }
     Ad, Bd, Cd = sampled_plant(A, B, [(Cs[:6], delays["position"]), (Cs[6:], delays["attitude"])], Ts)
     rotors = [f"f{i + 1}" for i in range(n)]
     plant_ss = ct.ss(Ad, Bd, Cd, 0.0, Ts, inputs=rotors, outputs=list(MEASUREMENTS), name="plant")
