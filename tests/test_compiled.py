@@ -85,6 +85,38 @@ def test_a_batch_equals_single_runs():
             np.testing.assert_array_equal(batch[k][i], one[k][0], err_msg=k)
 
 
+def test_no_more_threads_than_vehicles_and_the_setting_restored(monkeypatch):
+    """One vehicle flies on the calling thread (a second thread has nothing to do but must wake and join,
+    which on a busy machine cost milliseconds per block); a batch gets every thread; the caller's setting
+    comes back, also when the run fails."""
+    import numba
+
+    import vtol_impedance.compiled.engine as engine
+
+    seen = []
+    real = engine.run_block
+
+    def spy(*args):
+        seen.append(numba.get_num_threads())
+        return real(*args)
+
+    monkeypatch.setattr(engine, "run_block", spy)
+    plants, ctrls = _population(3)
+    traj = Trajectory((Hold((0, 0, -1.0), 0.2),))
+    before = numba.get_num_threads()
+    run_closed_loop(plants[0], ctrls[:1], traj, 0.2)
+    run_closed_loop(plants, ctrls, traj, 0.2)
+    assert seen == [1, min(3, before)] and numba.get_num_threads() == before
+
+    def fail(*args):
+        raise RuntimeError("in the kernel")
+
+    monkeypatch.setattr(engine, "run_block", fail)
+    with pytest.raises(RuntimeError):
+        run_closed_loop(plants[0], ctrls[:1], traj, 0.2)
+    assert numba.get_num_threads() == before
+
+
 def test_log_modes_agree():
     spec = apply_overrides(
         get("case-c-circle"), ["trajectory.hover_duration=1", "trajectory.circle_laps=0.25", "trajectory.land=false"]
