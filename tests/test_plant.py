@@ -307,10 +307,17 @@ def test_noise_bands_are_checked_when_the_disturbance_is_made():
 def test_a_sensor_reads_the_state_of_the_plant_step_nearest_its_latency(delay, steps):
     """Latencies are served at the plant's step (1 ms): the state pushed nearest ``delay`` ago (0.013 s
     is 12.999... steps in floating point, and must not become 12)."""
-    from vtol_impedance.sim.sensors import SensorParams, SensorSuite
+    import contextlib
+    import warnings
+
+    from vtol_impedance.sim.sensors import LatencyWarning, SensorParams, SensorSuite
 
     P = compile_plants(PlantParams(VEH))
-    suite = SensorSuite(SensorParams(mocap_delay=delay, imu_delay=0.0), P, 0.001)
+    whole = delay in (0.013, 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a whole number of steps flies as given, without a word
+        with contextlib.nullcontext() if whole else pytest.warns(LatencyWarning, match=f"flies as {steps / 1e3:g} s"):
+            suite = SensorSuite(SensorParams(mocap_delay=delay, imu_delay=0.0), P, 0.001)
     for k in range(40):
         suite.push(np.full(3, float(k)))
     mocap, imu = suite.delayed()
@@ -377,3 +384,16 @@ def test_a_sinusoid_faster_than_the_plant_steps_is_refused():
     with pytest.raises(InputError, match=r"freq_hz = 1000 Hz is above a quarter of the plant rate \(1000 Hz\)"):
         d.prepare(1.0, 0.001, np.random.default_rng(0))
     assert SinusoidWrench((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), freq_hz=200.0).prepare(1.0, 0.001, None).freq_hz == 200.0
+
+
+def test_a_latency_between_plant_steps_is_recorded_as_flown():
+    """12.6 ms at a 1 kHz plant flies as 13 ms: the run warns and its config says so; a whole number of
+    steps adds nothing."""
+    from vtol_impedance.scenarios import get, set_value, simulate
+    from vtol_impedance.sim.sensors import LatencyWarning
+
+    spec = set_value(get("case-a-payload"), "duration", 0.1)
+    assert "sensor_delays_flown_s" not in simulate(spec, ["pd"]).config
+    with pytest.warns(LatencyWarning, match="sensors.imu_delay = 0.0126 s flies as 0.013 s"):
+        r = simulate(set_value(spec, "sensors.imu_delay", 0.0126), ["pd"])
+    assert r.config["sensor_delays_flown_s"] == {"imu_delay": pytest.approx(0.013, abs=1e-15)}

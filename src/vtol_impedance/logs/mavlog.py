@@ -58,7 +58,7 @@ from ..errors import InputError
 from .airframe import classify
 from .frames import ROTOR_SPEED_UNITS, eta_ned_frd, euler_rotation, quaternion_rotation
 from .timeseries import RawLog, Signal, typical_period
-from .ulog import RATE_TIE, fastest, rotor_geometry, torque_per_unit, vehicle_from_params
+from .ulog import RATE_TIE, esc_gap_note, fastest, rotor_geometry, torque_per_unit, vehicle_from_params
 
 #: What to request from the vehicle when a tlog lacks a stream: role -> (messages, advice).
 STREAM_ADVICE = {
@@ -209,6 +209,7 @@ def _combine_escs(per: dict[int, tuple[np.ndarray, np.ndarray]], src: str, choic
         return None
     n = max(per) + 1
     if sorted(per) != list(range(n)):
+        choices.append(esc_gap_note(src, sorted(per)))
         return None
     t0 = per[0][0]
     lo = max(p[0][0] for p in per.values())

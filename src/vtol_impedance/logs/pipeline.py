@@ -40,7 +40,7 @@ def _check_block(table: CsvTable) -> CsvTable:
     if n <= CHECK_ROWS:
         return table
     v = np.column_stack([table.cols[k] for k in ("vx", "vy", "vz")])
-    starts = np.arange(0, n - CHECK_ROWS + 1, CHECK_ROWS // 4)
+    starts = np.append(np.arange(0, n - CHECK_ROWS, CHECK_ROWS // 4), n - CHECK_ROWS)  # the last rows too
     act = [float(np.nansum(np.nanstd(v[s : s + CHECK_ROWS], 0))) for s in starts]
     s = int(starts[int(np.argmax(act))])
     cols = {k: c[s : s + CHECK_ROWS] for k, c in table.cols.items()}

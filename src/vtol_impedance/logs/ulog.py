@@ -211,6 +211,16 @@ def pick_fastest(
     return fastest(role, found, choices)
 
 
+def esc_gap_note(src: str, live: list[int]) -> str:
+    """Why rotor speeds are not used: an ESC slot reports zero throughout between slots that report (a
+    stopped motor or a renumbered ESC), so which rotor each speed belongs to is not known."""
+    dead = sorted(set(range(max(live) + 1)) - set(live))
+    return (
+        f"rotor speeds: not used: {src} ESC {', '.join(map(str, dead))} reports zero throughout while ESC "
+        f"{max(live)} reports (a stopped motor or a missing slot: the rotors' order would be lost)"
+    )
+
+
 def fastest(
     role: str, found: list[tuple[str, np.ndarray, np.ndarray, float]], choices: list[str]
 ) -> tuple[str, np.ndarray, np.ndarray]:
@@ -337,10 +347,12 @@ def _from_ulog(path: Path, ulog: Any) -> RawLog:
     d = found.get("esc_status")
     if d is not None:
         n = int(np.max(d.data["esc_count"])) if "esc_count" in d.data else 0
-        fields = [f"esc[{i}].esc_rpm" for i in range(n) if f"esc[{i}].esc_rpm" in d.data]
-        fields = [f for f in fields if np.any(d.data[f] != 0)]  # ESC slots without a motor report zero
+        live = [i for i in range(n) if np.any(d.data.get(f"esc[{i}].esc_rpm", 0) != 0)]  # no motor: zero
+        fields = [f"esc[{i}].esc_rpm" for i in live]
         n = len(fields)
-        if n >= 3:
+        if live != list(range(n)):
+            choices.append(esc_gap_note("esc_status", live))
+        elif n >= 3:
             rpm = np.stack([d.data[f].astype(float) for f in fields], -1)
             kw["rotor_speed"] = Signal(
                 "rotor speeds", f"esc_status.esc[0..{n - 1}].esc_rpm", available["esc_status"][0],

@@ -72,7 +72,7 @@ from ..sim.plant import (
     initial_state,
     plant_derivative,
 )
-from ..sim.sensors import SensorParams, measurement
+from ..sim.sensors import SensorParams, latency_steps, measurement
 
 #: Names of the loops broken for margins: the four rotor-command channels (thrust and body torque, before
 #: the allocation) and the two attitude references (the desired roll and pitch between eq. (16) and the
@@ -479,7 +479,8 @@ def _modelled_delays(sensors: SensorParams, plant_rate: float) -> dict[str, floa
     """The latencies the simulator flies (:class:`~vtol_impedance.sim.sensors.SensorSuite`): rounded to
     plant steps, s."""
     dt = 1.0 / plant_rate
-    return {"position": round(sensors.mocap_delay / dt) * dt, "attitude": round(sensors.imu_delay / dt) * dt}
+    k_mocap, k_imu = latency_steps(sensors, dt)
+    return {"position": k_mocap * dt, "attitude": k_imu * dt}
 
 
 def sampled_plant(

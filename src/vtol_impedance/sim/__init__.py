@@ -17,7 +17,7 @@ from .disturbances import (
 from .loop import run_closed_loop
 from .plant import PlantParams, compile_plants, plant_derivative, rk4_step
 from .result import SIGNALS, Result
-from .sensors import SensorParams
+from .sensors import LatencyWarning, SensorParams
 
 __all__ = [
     "DISTURBANCE_KINDS",
@@ -26,6 +26,7 @@ __all__ = [
     "ConstantWrench",
     "Disturbance",
     "FanJet",
+    "LatencyWarning",
     "PlantParams",
     "Push",
     "RampWrench",

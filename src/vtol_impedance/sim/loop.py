@@ -72,7 +72,7 @@ from .plant import (
     rotor_wrench,
 )
 from .result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
-from .sensors import NoiseSource, SensorParams, SensorSuite
+from .sensors import NoiseSource, SensorParams, SensorSuite, latency_steps, rounded_latencies
 
 #: Bytes of random numbers per block (NumPy backend); the compiled one, which draws as it goes, returns
 #: to Python (progress, interruption) after as many vehicle-ticks as this many bytes of noise would hold.
@@ -375,7 +375,7 @@ def run_closed_loop(
     N = int(round(duration / Ts))
     if N < 1:
         raise InputError(f"duration {duration:g} s is shorter than one control period ({Ts:g} s)")
-    history = int(round(max(sensors.mocap_delay, sensors.imu_delay) / dt)) + 1
+    history = max(latency_steps(sensors, dt)) + 1
     n_rotors = controllers[0].vehicle.n_rotors
     check_limits(
         estimate_run(B, N, n_sub, n_rotors, dec, history, len(disturbances), backend),
@@ -457,6 +457,9 @@ def run_closed_loop(
     cfg.setdefault("window", list(setup.window[:2]))
     if np.any(lift > 0):
         cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
+    moved = rounded_latencies(sensors, dt)
+    if moved:
+        cfg["sensor_delays_flown_s"] = moved  # documented: latencies flown at the nearest plant step
     t_log = t_grid[::dec] if dec else t_grid[:0]
     data = rows_to_data(rows, PA.spins.shape[-1]) if dec else {}
     for i, m in enumerate(metrics):

@@ -1,12 +1,14 @@
 """Sensor models: motion capture (position, velocity) and IMU (attitude, body rates).
 
-Each sensor reads the true state some time ago (latency, an integer number of plant steps) and adds
+Each sensor reads the true state some time ago (latency, an integer number of plant steps: a latency
+between two steps flies rounded to the nearest, with a :class:`LatencyWarning`) and adds
 seeded Gaussian noise (:class:`NoiseSource`). The controller receives Euler rates computed from the measured gyro rate,
 ``eta_dot = Q(eta)^{-1} omega_B``, as on the real vehicle.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections import deque
 from dataclasses import dataclass
 
@@ -47,14 +49,41 @@ class SensorParams:
         return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
+class LatencyWarning(UserWarning):
+    """A sensor latency is not a whole number of plant steps: it flies rounded to the nearest step (the
+    plant's state exists only at its steps); the result's config records the values flown."""
+
+
+def latency_steps(params: SensorParams, dt_plant: float) -> tuple[int, int]:
+    """The motion-capture and IMU latencies in plant steps of ``dt_plant`` s, rounded to the nearest."""
+    return int(round(params.mocap_delay / dt_plant)), int(round(params.imu_delay / dt_plant))
+
+
+def rounded_latencies(params: SensorParams, dt_plant: float) -> dict[str, float]:
+    """The latencies that are not whole plant steps, by name, with the value they fly at (s)."""
+    out = {}
+    for name, k in zip(("mocap_delay", "imu_delay"), latency_steps(params, dt_plant), strict=True):
+        if abs(k * dt_plant - getattr(params, name)) > 1e-6 * dt_plant:
+            out[name] = k * dt_plant
+    return out
+
+
 class SensorSuite:
     """Keeps a short history of plant states to serve delayed, noisy measurements."""
 
     def __init__(self, params: SensorParams, plant: PlantArrays, dt_plant: float) -> None:
         self.params = params
         self.plant = plant
-        self.k_mocap = int(round(params.mocap_delay / dt_plant))
-        self.k_imu = int(round(params.imu_delay / dt_plant))
+        self.k_mocap, self.k_imu = latency_steps(params, dt_plant)
+        moved = rounded_latencies(params, dt_plant)
+        if moved:
+            warnings.warn(
+                LatencyWarning(
+                    ", ".join(f"sensors.{n} = {getattr(params, n):g} s flies as {v:g} s" for n, v in moved.items())
+                    + f": a latency is a whole number of plant steps ({dt_plant * 1e3:g} ms)"
+                ),
+                stacklevel=2,
+            )
         self.history: deque[np.ndarray] = deque(maxlen=max(self.k_mocap, self.k_imu) + 1)
 
     def push(self, x: np.ndarray) -> None:
