@@ -302,3 +302,17 @@ def test_a_dead_esc_between_live_ones_is_not_renumbered(tmp_path):
     choices: list[str] = []
     assert _combine_escs(per, "ESC_TELEMETRY_1_TO_4.rpm", choices) is None
     assert any("ESC 1 reports zero throughout" in c for c in choices)
+
+
+def test_a_time_stamp_jump_is_named_with_its_size_and_place_and_the_advice_works(tmp_path):
+    """Two logs joined (the clock jumps by 1e7 s after 10 s at 100 Hz): the refusal says by how much and
+    where, not just "implausible" (every signal runs at 100 Hz), and its advice, one part with the
+    conventions unchecked, gives an estimate."""
+    fl = S.flight(20.0, 100.0)
+    cols = csv_cols(fl)
+    cols["t_s"] = np.where(np.arange(len(cols["t_s"])) >= 1000, cols["t_s"] + 1e7, cols["t_s"])
+    path = write_csv(tmp_path / "joined.csv", cols)
+    with pytest.raises(InputError, match=r"jump by 1e\+07 s at t = 9\.99 s .*split the file there"):
+        estimate_file(path, mass=S.MASS, inertia=S.INERTIA)
+    est = estimate_file(path, mass=S.MASS, inertia=S.INERTIA, t_end=9.9, read_options={"conventions": "unchecked"})
+    assert est.t[-1] <= 9.9 and est.t[-1] - est.t[0] > 9.0

@@ -113,6 +113,8 @@ class Evidence:
     dyn_motion: np.ndarray
     rates_hz: dict[str, float]
     time_ok: bool
+    span_s: float = 0.0  # first to last time stamp of the signals
+    jump: tuple[float, float] = (0.0, 0.0)  # the longest step between two samples of a signal, and where, s
 
     @property
     def score(self) -> float:
@@ -135,7 +137,16 @@ class Evidence:
         out = []
         if not self.time_ok:
             rates = ", ".join(f"{k} {v:.3g} Hz" for k, v in self.rates_hz.items())
-            out.append(f"the time base is implausible for a flight log (signal rates {rates})")
+            if all(RATE_RANGE_HZ[0] <= r <= RATE_RANGE_HZ[1] for r in self.rates_hz.values()):
+                step, at = self.jump
+                out.append(
+                    f"the time stamps span {self.span_s:.3g} s ({self.span_s / 86400:.3g} days), no flight's length, "
+                    f"although the signals run at flight rates ({rates}): they jump by {step:.3g} s at "
+                    f"t = {at:.6g} s (a clock reset, or logs joined); split the file there (or estimate one part "
+                    "with --start/--end and --conventions unchecked, the conventions then unchecked)"
+                )
+            else:
+                out.append(f"the time base is implausible for a flight log (signal rates {rates})")
         if self.rate_rms < MIN_FLIGHT_RATE:
             out.append(
                 f"the body rates never exceed a few thousandths of a rad/s (RMS {self.rate_rms:.2g} rad/s): no flying "
@@ -207,6 +218,8 @@ def evidence(raw: RawLog) -> Evidence:
     sigs = [clean(s, notes) for s in (raw.velocity_W, raw.attitude, raw.omega_B, thrust_sig)]
     rates = {s.name: 1.0 / typical_period(s.t) for s in sigs}
     span = max(s.t[-1] for s in sigs) - min(s.t[0] for s in sigs)
+    steps = [(float(np.max(np.diff(s.t))), float(s.t[np.argmax(np.diff(s.t))])) for s in sigs if len(s.t) > 1]
+    jump = max(steps, default=(0.0, 0.0))
     time_ok = all(RATE_RANGE_HZ[0] <= r <= RATE_RANGE_HZ[1] for r in rates.values()) and span < 10 * 86400
     lo = max(s.t[0] for s in sigs)
     hi = min(s.t[-1] for s in sigs)
@@ -214,7 +227,9 @@ def evidence(raw: RawLog) -> Evidence:
     rate = float(min(EVAL_RATE_HZ, max(4.0 / slow, 5.0)))
     if not time_ok or not hi - lo > 10.0 / rate:
         nan = float("nan")
-        return Evidence(nan, np.full(3, nan), 0.0, 1.0, 0.0, 1.0, np.full(2, nan), np.zeros(2), rates, time_ok)
+        return Evidence(
+            nan, np.full(3, nan), 0.0, 1.0, 0.0, 1.0, np.full(2, nan), np.zeros(2), rates, time_ok, span, jump
+        )
     smooth = max(2, int(round(max(SMOOTH_S, 2.5 * slow) * rate)))
     hp = max(3, int(round(HP_WINDOW_S * rate)))
     w_att_all, w_log_all, ub_all, sf_all, a_hp_all, e_parts = [], [], [], [], [], []
@@ -264,7 +279,7 @@ def evidence(raw: RawLog) -> Evidence:
         a_i, m_i = a_hp[:, sl].ravel(), m_hp[:, sl].ravel()
         floor = ACCEL_FLOOR * np.sqrt(len(a_i))
         dyn[i] = 1.0 - float(a_i @ m_i) / (np.linalg.norm(a_i) * np.linalg.norm(m_i) + floor**2 / 4 + 1e-300)
-    return Evidence(kin, kin_gain, kin_motion, rms(w_log), tilt, k, dyn, dyn_motion, rates, time_ok)
+    return Evidence(kin, kin_gain, kin_motion, rms(w_log), tilt, k, dyn, dyn_motion, rates, time_ok, span, jump)
 
 
 def _strong_symptoms(ev: Evidence) -> bool:
