@@ -68,7 +68,8 @@ class Circle:
 
     The tangential speed ramps from 0 to ``speed`` in ``ramp`` seconds (minimum-jerk profile), holds,
     and ramps back to 0 so that exactly ``laps`` turns are flown. The centre is ``radius`` metres from
-    ``start_W`` along ``-x``; the circle is flown counter-clockwise seen from above (NED: x north, y east).
+    ``start_W`` along ``-x``; the circle is flown clockwise seen from above (NED: x north, y east; from the
+    start, north of the centre, towards the east: the sense of a positive NED yaw).
     """
 
     start_W: tuple[float, float, float]
