@@ -24,7 +24,7 @@ from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, 
 from .algebra import _Q9, _solve9
 from .controller import controller_step
 from .jit import kernel
-from .layouts import OUTPUT, STATE
+from .layouts import OUTPUT
 from .plant import (
     _origin,
     _R_of,
@@ -32,9 +32,8 @@ from .plant import (
     euler_of,
     lowest_contact_depth,
     lumped_wrench,
-    origin_acceleration,
-    plant_derivative,
     rk4_step,
+    truth_at,
 )
 
 _COS_TILT_MAX = math.cos(MAX_TILT_RAD)
@@ -153,7 +152,8 @@ def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, si
     ``xm``, ``xi`` they read, and twelve normals from ``gen`` in the order of ``NoiseSource.block``), the
     controller step (the rotor command in ``o``), the lumped wrench from the truth at ``t`` (the state ``x``,
     the body origin's acceleration ``a_o`` (world), ``w_dot`` (body) and ``env = [f_ext_W, tau_ext_B]``),
-    the window metrics and the log row. ``y``, ``noise``, ``f_l``, ``t_l``, ``tau_prev`` are scratch."""
+    the window metrics and the log row (the last three only where :func:`_truth_needed`). ``y``, ``noise``,
+    ``f_l``, ``t_l``, ``tau_prev`` are scratch."""
     for i in range(12):  # [position, velocity, attitude, gyro]
         noise[i] = gen.standard_normal()
     _measure(pp_b, xm, xi, sigma, noise, y)
@@ -161,6 +161,8 @@ def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, si
     for i in range(3):
         tau_prev[i] = s_b.tau_B_prev[i]
     controller_step(p_b, des, s_b, h_b, y, r, o)
+    if not _truth_needed(k, t, dec, win):
+        return
     R = _R_of(x.q_WB)
     eta = euler_of(R)
     lumped_wrench(a_o, x.omega_B, w_dot, R, eta, u_prev, tau_prev, p_b.mass, _nominal_inertia(p_b), f_l, t_l)
@@ -170,6 +172,14 @@ def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, si
         _accumulate(acc_b, t, win, p_o, v_o, r, o, f_l, t_l)
     if dec > 0 and k % dec == 0:
         _log(logs_b[k // dec], pp_b, x, r, y, o, env, eta, f_l, t_l, p_o, v_o)
+
+
+@kernel(inline="always")
+def _truth_needed(k, t, dec, win):
+    """Whether tick ``k`` (time ``t``) is logged or inside the metrics window: the truth (the lumped wrench,
+    the body origin's motion, the external wrench) is computed only then (a batch with ``log="metrics"``
+    skips it before its task window)."""
+    return (dec > 0 and k % dec == 0) or win[0] <= t <= win[1]
 
 
 @kernel(parallel=True)
@@ -196,8 +206,8 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
     x, pp_b, p_b, s_b, h_b, des = X[b], pp[b], p[b], S[b], EH[b], d[0]
     nr = pp_b.n_rotors
-    o_, xd_ = _scratch()
-    o, xd = o_[0], xd_[0]
+    o_ = _scratch()  # kept: the record below points into it
+    o = o_[0]
     y = np.empty(12)
     noise = np.empty(12)
     gen = gens[np.int64(b)]  # prange gives an unsigned index; the typed list takes a signed one
@@ -218,12 +228,14 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
         keep[js] = (k_mocap - ahead) % n_sub == 0 or (k_imu - ahead) % n_sub == 0
     for k in range(k0, k1):
         t = k * Ts
-        # the truth at t_k (the rotor-lag rate the derivative also gives is not used here)
-        if has_dists:
-            disturbance_at(pp_b, x, t, dists, series, dist)
-        plant_derivative(pp_b, x, x.f_rotor, dist, xd, env)
-        a_o = origin_acceleration(pp_b, x, xd, _R_of(x.q_WB))
-        w_dot = (xd.omega_B[0], xd.omega_B[1], xd.omega_B[2])
+        # the truth at t_k, where it is logged or measured (the rotor-lag rate is not used here)
+        a_o, w_dot = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        if _truth_needed(k, t, dec, win):
+            if has_dists:
+                disturbance_at(pp_b, x, t, dists, series, dist)
+            a_o, w_dot, e = truth_at(pp_b, x, dist)
+            for i in range(6):
+                env[i] = e[i]
         xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
         _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, refs[k], logs[b], dec,
                       acc[b], win, o, y, noise, f_l, t_l, tau_prev)  # fmt: skip
@@ -261,7 +273,7 @@ def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, gens, S, EH, p, d, p
     ``A_O (B, 3)`` the body origin's acceleration (world), ``W_DOT (B, 3)`` (body), ``ENV (B, 6)`` the external
     wrench ``[f_ext_W, tau_ext_B]``. Writes the rotor commands to ``F (B, n)``; logs and metrics as
     :func:`run_block`."""
-    o_, _ = _scratch()
+    o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
     y, noise, f_l, t_l, tau_prev = np.empty(12), np.empty(12), np.empty(3), np.empty(3), np.empty(3)
     for b in range(X.shape[0]):
@@ -302,8 +314,8 @@ def _typed_list(gens):
 
 @kernel()
 def _scratch():
-    """A zeroed output record and a state record (for the derivative)."""
-    return np.zeros(1, dtype=OUTPUT), np.zeros(1, dtype=STATE)
+    """A zeroed output record (in an array of one)."""
+    return np.zeros(1, dtype=OUTPUT)
 
 
 @kernel(inline="always")

@@ -294,20 +294,17 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
 
 
 @kernel(inline="always")
-def plant_derivative(pp, x, f_cmd, dist, xd, env):
-    """``x_dot`` of the true plant into the record ``xd`` (:func:`body_derivative` and the rotor lag) and
-    the external wrench into ``env``, for a state record ``x``."""
-    n = pp.n_rotors
-    if n == 4:  # a literal count lets the compiler unroll the quadrotor's sums
+def truth_at(pp, x, dist):
+    """What acts on the state ``x`` with its rotor forces and the disturbances ``dist``, as the NumPy loop's
+    truth (``sim.loop._BuiltinPlant.truth``): the body origin's acceleration (world),
+    ``w_dot`` (body) and the external wrench ``[f_ext_W, tau_ext_B]`` (:func:`body_derivative`)."""
+    if pp.n_rotors == 4:  # a literal count lets the compiler unroll the quadrotor's sums
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, 4)
     else:
-        u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, n)
-    s_dot, e = body_derivative(pp, _body_of(x), u, tm0, tm1, tm2, dist)
-    _set_body(xd, s_dot)
-    for i in range(n):
-        xd.f_rotor[i] = _lag(pp, _clipped(pp, f_cmd, i), x.f_rotor[i])
-    for i in range(6):
-        env[i] = e[i]
+        u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, pp.n_rotors)
+    s_dot, env = body_derivative(pp, _body_of(x), u, tm0, tm1, tm2, dist)
+    w_dot = (s_dot[10], s_dot[11], s_dot[12])
+    return origin_acceleration(pp, x, (s_dot[3], s_dot[4], s_dot[5]), w_dot, _R_of(x.q_WB)), w_dot, env
 
 
 @kernel()
@@ -421,20 +418,20 @@ def rk4_step(pp, x, f_cmd, dist, dt):
 
 
 @kernel(inline="always")
-def origin_acceleration(pp, x, xd, R):
-    """The body origin's acceleration (world) from the CoM's: ``a_com - R (w_dot x c + w x (w x c))``."""
-    c, w, wd = pp.c_B, x.omega_B, xd.omega_B
+def origin_acceleration(pp, x, a_com, wd, R):
+    """The body origin's acceleration (world) from the CoM's ``a_com`` (world) and ``wd = w_dot`` (body):
+    ``a_com - R (w_dot x c + w x (w x c))``."""
+    c, w = pp.c_B, x.omega_B
     w0, w1, w2 = w[0], w[1], w[2]
     a0, a1, a2 = wd[0], wd[1], wd[2]
     u0, u1, u2 = w1 * c[2] - w2 * c[1], w2 * c[0] - w0 * c[2], w0 * c[1] - w1 * c[0]
     s0 = (a1 * c[2] - a2 * c[1]) + (w1 * u2 - w2 * u1)
     s1 = (a2 * c[0] - a0 * c[2]) + (w2 * u0 - w0 * u2)
     s2 = (a0 * c[1] - a1 * c[0]) + (w0 * u1 - w1 * u0)
-    a = xd.v_com_W
     return (
-        a[0] - (R[0] * s0 + R[1] * s1 + R[2] * s2),
-        a[1] - (R[3] * s0 + R[4] * s1 + R[5] * s2),
-        a[2] - (R[6] * s0 + R[7] * s1 + R[8] * s2),
+        a_com[0] - (R[0] * s0 + R[1] * s1 + R[2] * s2),
+        a_com[1] - (R[3] * s0 + R[4] * s1 + R[5] * s2),
+        a_com[2] - (R[6] * s0 + R[7] * s1 + R[8] * s2),
     )
 
 
