@@ -20,6 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
+from test_physics import Q_num, R_of, eta_of  # SciPy's rotations and finite differences
 
 from vtol_impedance import Controller
 from vtol_impedance.control import (
@@ -44,32 +45,6 @@ from vtol_impedance.robust.margins import MarginReport
 
 G = 9.81
 E3 = np.array([0.0, 0.0, 1.0])
-
-
-# ----------------------------------------------------------------------------- independent kinematics (SciPy)
-
-
-def R_of(eta):
-    """``Rz(psi) Ry(theta) Rx(phi)``: SciPy's intrinsic ZYX with the angles in the order (psi, theta, phi)."""
-    phi, theta, psi = eta
-    return Rotation.from_euler("ZYX", [psi, theta, phi]).as_matrix()
-
-
-def eta_of(R):
-    psi, theta, phi = Rotation.from_matrix(R).as_euler("ZYX")
-    return np.array([phi, theta, psi])
-
-
-def Q_num(eta, h=1e-6):
-    """``omega_B = Q eta_dot`` from ``S(omega_B) = R^T R_dot`` by central differences of SciPy rotations."""
-    R = R_of(eta)
-    cols = []
-    for i in range(3):
-        e = np.zeros(3)
-        e[i] = h
-        S = R.T @ (R_of(eta + e) - R_of(eta - e)) / (2 * h)
-        cols.append([S[2, 1], S[0, 2], S[1, 0]])
-    return np.array(cols).T
 
 
 # ----------------------------------------------------------------------------- eq. (16) forward and inverse
