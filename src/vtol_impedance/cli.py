@@ -628,7 +628,12 @@ def _sweep_out(args: argparse.Namespace, name: str) -> Path:
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run or resume a sweep, then write its summary."""
     from .sweeps import load, run_sweep, write_report
+    from .sweeps.run import METRICS
 
+    if args.metric not in METRICS:  # checked before the flights, not after them in the report
+        from .errors import InputError
+
+        raise InputError(f"--metric must be one of {', '.join(METRICS)}, got {args.metric!r}")
     sweep = load(args.spec)
     where = Path(args.spec) if Path(args.spec).suffix else None
     if sweep.fast_estimator_points and not args.quiet:

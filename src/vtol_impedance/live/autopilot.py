@@ -137,6 +137,13 @@ class SimSettings:
             object.__setattr__(self, "duration", scalar("duration", self.duration, lo=0.0, lo_open=True))
         object.__setattr__(self, "plant_rate", scalar("plant rate", self.plant_rate, lo=10.0, hi=10000.0))
         object.__setattr__(self, "control_rate", scalar("control rate", self.control_rate, lo=10.0, hi=1000.0))
+        wall_s = None if self.duration is None else self.duration / self.speed
+        if wall_s is not None and self.impairments.latency_s >= wall_s:
+            raise InputError(
+                f"latency {self.impairments.latency_s:g} s is as long as the whole run ({self.duration:g} simulated s "
+                f"at speed {self.speed:g} = {wall_s:g} s of wall time): no packet would arrive; give a longer "
+                "--duration or a shorter --latency"
+            )
         ratio = self.plant_rate / self.control_rate
         if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
             raise InputError(

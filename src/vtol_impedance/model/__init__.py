@@ -17,9 +17,11 @@ from .kinematics import (
 )
 from .mixer import THRUST_SHIFT_MAX, Allocation, allocate, mix, unmix
 from .vehicle import (
+    FILE_DEFAULTS,
     LAYOUTS,
     Rotor,
     RotorGeometry,
+    VehicleDefaultWarning,
     VehicleParams,
     drag_factor_from_constants,
     effectiveness,
@@ -31,6 +33,7 @@ from .vehicle import (
 )
 
 __all__ = [
+    "FILE_DEFAULTS",
     "LAYOUTS",
     "THRUST_SHIFT_MAX",
     "Rotor",
@@ -42,6 +45,7 @@ __all__ = [
     "preset_names",
     "vehicle_from_dict",
     "Allocation",
+    "VehicleDefaultWarning",
     "VehicleParams",
     "allocate",
     "body_moment_from_euler",

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -31,6 +32,14 @@ from ..errors import InputError, as_finite, check_keys, scalar
 LAYOUTS = ("plus", "x", "hex")
 #: The most rotors a vehicle may have (the compiled kernels size their buffers by it).
 MAX_ROTORS = 12
+#: What a vehicle file that leaves a key out flies with (the Pelican of the paper, Sec. VI.A, and its rotors,
+#: DESIGN.md section 4); :func:`vehicle_from_dict` announces each one it fills in, except ``f_min`` = 0 (a
+#: rotor that can stop: the neutral assumption, not the Pelican's).
+FILE_DEFAULTS = {"layout": "plus", "arm_length": 0.21, "f_max": 7.0, "f_min": 0.0, "drag_factor": 0.016}
+
+
+class VehicleDefaultWarning(UserWarning):
+    """A vehicle file left out a key and the Pelican's value was filled in (see :data:`FILE_DEFAULTS`)."""
 
 
 def check_inertia(inertia: Any) -> np.ndarray:
@@ -335,7 +344,15 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
     """Build a vehicle from a parsed TOML table (see ``presets/*.toml`` and the README).
 
     Rotor limits may be given as ``f_max`` or as ``thrust_constant`` and ``max_speed`` (rad/s); the drag
-    factor as ``drag_factor`` or as ``torque_constant`` with ``thrust_constant``.
+    factor as ``drag_factor`` or as ``torque_constant`` with ``thrust_constant``. A key left out flies with
+    the Pelican's value (:data:`FILE_DEFAULTS`), announced once per key with a
+    :class:`VehicleDefaultWarning`; the resolved vehicle (``VehicleParams.to_dict``) is what a run records.
+
+    Warns
+    -----
+    VehicleDefaultWarning
+        For each of ``layout``, ``arm_length``, ``f_max`` (also per rotor) and ``drag_factor`` the table leaves
+        out.
     """
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a table, got {data!r}")
@@ -351,7 +368,9 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
     elif "torque_constant" in data and kf is not None:
         c = drag_factor_from_constants(data["torque_constant"], kf)
     else:
-        c = 0.016
+        c = FILE_DEFAULTS["drag_factor"]
+    from_constants = "torque_constant" in data and kf is not None
+    defaulted = [] if "drag_factor" in data or from_constants else ["drag_factor"]
 
     def limit(table: dict[str, Any], where: str) -> float | None:
         if "f_max" in table:
@@ -378,22 +397,38 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
                 if "position_B" not in r or "spin" not in r:
                     raise InputError(f"{where}: needs position_B and spin")
                 fmax = limit(r, where)
-                rotors.append(Rotor(r["position_B"], r["spin"], 7.0 if fmax is None else fmax, r.get("f_min", 0.0)))
-            return VehicleParams(mass, inertia, drag_factor=c, name=name, rotors=tuple(rotors))
-        return VehicleParams(
-            mass,
-            inertia,
-            arm_length=data.get("arm_length"),
-            drag_factor=c,
-            f_max=limit(data, source),
-            f_min=data.get("f_min"),
-            name=name,
-            layout=data.get("layout", "plus"),
-        )
+                if fmax is None and "rotors[].f_max" not in defaulted:
+                    defaulted.append("rotors[].f_max")
+                fmin = r.get("f_min", FILE_DEFAULTS["f_min"])
+                rotors.append(Rotor(r["position_B"], r["spin"], FILE_DEFAULTS["f_max"] if fmax is None else fmax, fmin))
+            vehicle = VehicleParams(mass, inertia, drag_factor=c, name=name, rotors=tuple(rotors))
+        else:
+            f_max = limit(data, source)
+            defaulted += [k for k in ("layout", "arm_length") if k not in data]
+            defaulted += ["f_max"] if f_max is None else []
+            vehicle = VehicleParams(
+                mass,
+                inertia,
+                arm_length=data.get("arm_length"),
+                drag_factor=c,
+                f_max=f_max,
+                f_min=data.get("f_min"),
+                name=name,
+                layout=data.get("layout", FILE_DEFAULTS["layout"]),
+            )
     except (TypeError, ValueError) as exc:
         if isinstance(exc, InputError):
             raise InputError(f"{source}: {exc}") from None
         raise InputError(f"{source}: malformed value ({exc})") from None
+    for key in defaulted:
+        value = FILE_DEFAULTS[key.removeprefix("rotors[].")]
+        warnings.warn(
+            f"{source}: no {key} given, flying the Pelican's {key.removeprefix('rotors[].')} = {value!r} "
+            "(give your vehicle's)",
+            VehicleDefaultWarning,
+            stacklevel=2,
+        )
+    return vehicle
 
 
 def preset_names() -> list[str]:
@@ -428,10 +463,12 @@ def _shipped_preset(name: str) -> VehicleParams:
 
 
 __all__ = [
+    "FILE_DEFAULTS",
     "LAYOUTS",
     "MAX_ROTORS",
     "Rotor",
     "RotorGeometry",
+    "VehicleDefaultWarning",
     "VehicleParams",
     "drag_factor_from_constants",
     "effectiveness",

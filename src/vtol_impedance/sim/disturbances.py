@@ -122,6 +122,9 @@ class ConstantWrench(Disturbance):
     def __post_init__(self) -> None:
         object.__setattr__(self, "force_W", _vec("force_W", self.force_W))
         object.__setattr__(self, "torque_B", _vec("torque_B", self.torque_B))
+        for key, t in self._timing().items():  # seconds from the flight's start: before it, nothing would act
+            if key.startswith("t_") and t != float("inf"):
+                scalar(f"{self.kind} {key} (s from the flight's start)", t, lo=0.0)
 
     def profile(self, t: float) -> float:
         """Scale of the wrench at time ``t``."""
@@ -145,6 +148,11 @@ class StepWrench(ConstantWrench):
     kind: ClassVar[str] = "step"
     t_on: float = 0.0
     t_off: float = float("inf")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.t_off > self.t_on:
+            raise InputError(f"step needs t_off > t_on, got t_on {self.t_on!r} s, t_off {self.t_off!r} s")
 
     def profile(self, t: float) -> float:
         return 1.0 if self.t_on <= t < self.t_off else 0.0
@@ -326,6 +334,7 @@ class FanJet(Disturbance):
         positive("fan width", self.width)
         positive("fan turbulence", self.turbulence, allow_zero=True)
         object.__setattr__(self, "turbulence_band", check_band("fan turbulence_band", self.turbulence_band))
+        scalar("fan t_on (s from the flight's start)", self.t_on, lo=0.0)
 
     def starts_at(self) -> float:
         return float(self.t_on)
