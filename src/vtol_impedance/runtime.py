@@ -103,6 +103,18 @@ def _describe(a: object) -> str:
     return f"{layout}{a.dtype} array of shape {a.shape}"
 
 
+def _plain(out: ControlOutput) -> ControlOutput:
+    """One vehicle's output with plain numbers where the batch has arrays of shape ``()``."""
+    return out._replace(
+        thrust=float(out.thrust),
+        thrust_request=float(out.thrust_request),
+        saturated=bool(out.saturated),
+        tilt_limited=bool(out.tilt_limited),
+        rp_scale=float(out.rp_scale),
+        yaw_scale=float(out.yaw_scale),
+    )
+
+
 class Controller:
     """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
@@ -233,7 +245,17 @@ class Controller:
     def step(self, meas: Measurement, ref: Reference) -> ControlOutput:
         """One control period (call it every ``Ts``): returns rotor forces, thrust, torque and the estimate."""
         bs = self.arrays.batch_shape
-        meas = self._measurement(meas, bs)
+        meas = self._measurement(meas, bs)  # sense: checked, the gyro's rates as Euler rates (1c)
+        ref = self._reference(ref, bs)
+        if self.backend == "numpy":  # estimate (6)-(13), control (14)-(20), allocate (4)
+            self.state, out = controller_step(self.arrays, self.state, meas, ref)
+        else:
+            out = self._step_compiled(meas, ref, bs)
+        self._warn_once(out)
+        return out if bs else _plain(out)
+
+    def _reference(self, ref: Reference, bs: tuple[int, ...]) -> Reference:
+        """``ref`` checked (finite, shaped for this batch, within any vehicle's reach) and as arrays."""
         if not isinstance(ref, Reference):
             raise InputError(f"step expects a Reference, got {type(ref).__name__}")
         ref = Reference(
@@ -251,21 +273,7 @@ class Controller:
             _plausible(name, v, lim)
         for name, v, lim in zip(("psi_d", "psi_dot_d", "psi_ddot_d"), ref[3:6], (1e3, 1e4, 1e5), strict=True):
             _plausible(name, v, lim)
-        if self.backend == "numpy":
-            self.state, out = controller_step(self.arrays, self.state, meas, ref)
-        else:
-            out = self._step_compiled(meas, ref, bs)
-        self._warn_once(out)
-        if not bs:  # one vehicle: plain numbers
-            out = out._replace(
-                thrust=float(out.thrust),
-                thrust_request=float(out.thrust_request),
-                saturated=bool(out.saturated),
-                tilt_limited=bool(out.tilt_limited),
-                rp_scale=float(out.rp_scale),
-                yaw_scale=float(out.yaw_scale),
-            )
-        return out
+        return ref
 
     def _warn_once(self, out: ControlOutput) -> None:
         causes = (

@@ -323,6 +323,40 @@ def run_closed_loop(
     Result
         Arrays ``(B, N, ...)`` on the control ticks, the failures and the configuration.
     """
+    controllers, plants, disturbances, sensors, labels, seeds, duration, plant_rate = _checked_inputs(
+        plant, controllers, trajectory, duration, disturbances, sensors, plant_rate, seed, labels, window, backend
+    )
+    setup, lift = _prepare(
+        controllers, plants, trajectory, duration, disturbances, sensors, plant_rate, seeds, start_W, backend,
+        _parse_log(log), window, limits,
+    )  # fmt: skip
+    rows, metrics, failures = _fly(setup, backend, plants, progress)
+    cfg = dict(config or {})
+    cfg.update({"seed": seeds[0] if len(set(seeds)) == 1 else seeds, "backend": backend, "log": log,
+                "duration": duration, "plant_rate": plant_rate, "control_period": setup.Ts,
+                "labels": labels})  # fmt: skip
+    with _collector_paused():
+        cfg.update(_run_config(controllers, plants, disturbances, sensors))
+    cfg.setdefault("window", list(setup.window[:2]))
+    if np.any(lift > 0):
+        cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
+    moved = rounded_latencies(sensors, setup.dt)
+    if moved:
+        cfg["sensor_delays_flown_s"] = moved  # documented: latencies flown at the nearest plant step
+    t_grid = np.arange(setup.N) * setup.Ts
+    t_log = t_grid[:: setup.dec] if setup.dec else t_grid[:0]
+    data = rows_to_data(rows, setup.PA.spins.shape[-1]) if setup.dec else {}
+    for i, m in enumerate(metrics):
+        m["controller"] = labels[i]
+    return Result(t_log, labels, data, cfg, failures, metrics if setup.dec == 0 else None)
+
+
+def _checked_inputs(
+    plant: Any, controllers: Any, trajectory: Any, duration: Any, disturbances: Any, sensors: Any, plant_rate: Any,
+    seed: Any, labels: Any, window: Any, backend: Any,
+) -> tuple[list[ControllerParams], list[PlantParams], list[Disturbance], SensorParams, list[str], list[int], float,
+           float]:  # fmt: skip
+    """The arguments of :func:`run_closed_loop`, checked before any work and normalised to one per vehicle."""
     if isinstance(controllers, ControllerParams):
         controllers = [controllers]
     controllers = list(controllers)
@@ -364,11 +398,20 @@ def run_closed_loop(
     duration = scalar("duration", duration, lo=0.0, lo_open=True)
     plant_rate = scalar("plant_rate", plant_rate, lo=0.0, lo_open=True)
     sensors = SensorParams() if sensors is None else sensors
-    dec = _parse_log(log)
+    return controllers, plants, disturbances, sensors, labels, seeds, duration, plant_rate
 
+
+def _prepare(
+    controllers: list[ControllerParams], plants: list[PlantParams], trajectory: Trajectory, duration: float,
+    disturbances: list[Disturbance], sensors: SensorParams, plant_rate: float, seeds: list[int],
+    start_W: Any, backend: str, dec: int, window: tuple[float, float] | None, limits: Limits | None,
+) -> tuple[_Setup, np.ndarray]:  # fmt: skip
+    """Everything a flight needs, built once: the packed controllers and plants, the timing, the drawn
+    disturbances, the reference on the control ticks and the initial state (lifted onto the ground where a
+    contact point started under it, by how much returned); the run's size checked against ``limits``."""
+    B = len(controllers)
     CA = compile_controllers(controllers)
-    Ts = CA.Ts
-    dt = 1.0 / plant_rate
+    Ts, dt = CA.Ts, 1.0 / plant_rate
     n_sub = int(round(Ts / dt))
     if n_sub < 1 or abs(n_sub * dt - Ts) > 1e-9 * Ts:
         raise InputError(f"plant_rate * Ts must be a whole number >= 1, got {plant_rate} Hz * {Ts} s")
@@ -382,7 +425,6 @@ def run_closed_loop(
         Limits.from_env() if limits is None else limits,
     )
     t_grid = np.arange(N) * Ts
-
     PA = compile_plants(plants)
     dseeds = [np.random.SeedSequence([seeds[0], 1 + i]) for i in range(len(disturbances))]
     dist = DisturbanceSet(
@@ -394,6 +436,18 @@ def run_closed_loop(
     for d in disturbances:
         d.check_start(start)
     refs = trajectory.sample_many(np.append(t_grid, duration))  # the control ticks and the end
+    _check_clearance(refs, plants, Ts, duration)
+    x0 = initial_state(PA, np.broadcast_to(start, (B, 3)), np.array([0.0, 0.0, trajectory.yaw0]))
+    # A vehicle set down with a contact point (a low-slung payload) under the ground is lifted onto it.
+    lift = np.where(PA.ground > 0, np.maximum(lowest_contact_depth(PA, x0), 0.0), 0.0)
+    x0[:, 2] -= lift
+    setup = _Setup(CA, PA, dist, sensors, NoiseSource(seeds), refs[:-1], x0, Ts, dt, n_sub, N, dec,
+                   _window(window, t_grid))  # fmt: skip
+    return setup, lift
+
+
+def _check_clearance(refs: np.ndarray, plants: list[PlantParams], Ts: float, duration: float) -> None:
+    """Refuse a reference under the ground (NED z > 0) and a pendulum longer than the lowest altitude."""
     lowest = float(np.max(refs[:, 2]))  # NED: largest z
     if lowest > 1e-6 and any(p.ground for p in plants):
         k = int(np.argmax(refs[:, 2]))
@@ -401,70 +455,28 @@ def run_closed_loop(
             f"the reference goes {lowest:.3g} m below the ground (NED z > 0) at t = {min(k * Ts, duration):.3g} s: "
             "the vehicle would fly into it; raise the trajectory (or turn plant.ground off)"
         )
-    for p in [plant] if isinstance(plant, PlantParams) else plant:
+    for p in {id(p): p for p in plants}.values():  # each distinct plant once
         if p.pendulum_mass > 0 and lowest + p.pendulum_length >= 0.0:
             raise InputError(
                 f"the pendulum ({p.pendulum_length} m) is longer than the flight's lowest altitude ({-lowest:.3g} m): "
                 "its bob would hit the ground; shorten it or fly higher (start_on_ground = false)"
             )
-    x0 = initial_state(PA, np.broadcast_to(start, (B, 3)), np.array([0.0, 0.0, trajectory.yaw0]))
-    # A vehicle set down with a contact point (a low-slung payload) under the ground is lifted onto it.
-    lift = np.where(PA.ground > 0, np.maximum(lowest_contact_depth(PA, x0), 0.0), 0.0)
-    x0[:, 2] -= lift
-    setup = _Setup(
-        CA,
-        PA,
-        dist,
-        sensors,
-        NoiseSource(seeds),
-        refs[:-1],
-        x0,
-        Ts,
-        dt,
-        n_sub,
-        N,
-        dec,
-        _window(window, t_grid),
-    )
+
+
+def _fly(setup: _Setup, backend: str, plants: list[PlantParams], progress: ProgressFn | None):
+    """The flight on ``backend``: per vehicle the log rows (or none), the window metrics and the failure."""
     if backend == "compiled":
-        rows, metrics, failures = _run_compiled(setup, progress)
-    elif backend.startswith("mujoco"):
+        return _run_compiled(setup, progress)
+    if backend.startswith("mujoco"):
         from .mjplant import MujocoPlant
 
-        mj_plant = MujocoPlant(plants, PA, dist, x0, dt, compiled=backend == "mujoco")
+        mj_plant = MujocoPlant(plants, setup.PA, setup.dist, setup.x0, setup.dt, compiled=backend == "mujoco")
         run = _run_mujoco if backend == "mujoco" else _run_numpy
         try:
-            rows, metrics, failures = run(setup, progress, mj_plant)
+            return run(setup, progress, mj_plant)
         finally:
             mj_plant.close()
-    else:
-        rows, metrics, failures = _run_numpy(setup, progress)
-
-    cfg = dict(config or {})
-    cfg.update(
-        {
-            "seed": seeds[0] if len(set(seeds)) == 1 else seeds,
-            "backend": backend,
-            "log": log,
-            "duration": duration,
-            "plant_rate": plant_rate,
-            "control_period": Ts,
-            "labels": labels,
-        }
-    )
-    with _collector_paused():
-        cfg.update(_run_config(controllers, plants, disturbances, sensors))
-    cfg.setdefault("window", list(setup.window[:2]))
-    if np.any(lift > 0):
-        cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
-    moved = rounded_latencies(sensors, dt)
-    if moved:
-        cfg["sensor_delays_flown_s"] = moved  # documented: latencies flown at the nearest plant step
-    t_log = t_grid[::dec] if dec else t_grid[:0]
-    data = rows_to_data(rows, PA.spins.shape[-1]) if dec else {}
-    for i, m in enumerate(metrics):
-        m["controller"] = labels[i]
-    return Result(t_log, labels, data, cfg, failures, metrics if dec == 0 else None)
+    return _run_numpy(setup, progress)
 
 
 @contextmanager
@@ -645,7 +657,9 @@ def _run_mujoco(s: _Setup, progress: ProgressFn | None, plant: Any):
 
 
 def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
-    """The NumPy controller flying the built-in plant, or ``plant`` (a :class:`.mjplant.MujocoPlant`)."""
+    """The NumPy controller flying the built-in plant, or ``plant`` (a :class:`.mjplant.MujocoPlant`). Each
+    control tick reads as its stages: sense, estimate and control (:func:`controller_step`), log the truth,
+    actuate and integrate (``plant.advance``), check."""
     CA, PA = s.CA, s.PA
     B = s.x0.shape[0]
     sens = SensorSuite(s.sensors, PA, s.dt)
@@ -654,7 +668,6 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     x_park = s.x0.copy()
     sens.push(plant.x)
     CS = initial_controller_state(CA)
-    n_rotors = PA.spins.shape[-1]
     logs = empty_log(B, s.N)
     alive = np.ones(B, dtype=bool)
     fail_code = np.zeros(B, dtype=np.int64)
@@ -664,56 +677,13 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
         if k % BLOCK_TICKS == 0:
             noise = s.noise.block(min(BLOCK_TICKS, s.N - k))
         t = k * s.Ts
-        meas = sens.measure(noise[:, k % BLOCK_TICKS])
-        r = s.refs[k]
-        ref = Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:18])
-        thrust_prev, tau_prev = CS.thrust_prev, CS.tau_B_prev
-        CS, out = controller_step(CA, CS, meas, ref)
-
-        x = plant.x
-        a_o, w_dot, f_env, tau_env = plant.truth(t, out.f_rotor)
-        R = quat_to_rotation(x[..., QUAT])
-        eta = euler_from_rotation(R)
-        f_lump, tau_lump = _lumped_wrench(PA, x, a_o, w_dot, R, eta, thrust_prev, tau_prev, CA.mass, CA.I_B)
-        p_o, v_o = origin_kinematics(PA, x, R)
-        row = {
-            "p_W": p_o,
-            "v_W": v_o,
-            "eta": eta,
-            "omega_B": x[..., OMEGA],
-            "p_ref_W": ref.p_W,
-            "v_ref_W": ref.v_W,
-            "psi_ref": ref.psi,
-            "p_meas_W": meas.p_W,
-            "v_meas_W": meas.v_W,
-            "eta_meas": meas.eta,
-            "eta_d": out.eta_d,
-            "thrust_request": out.thrust_request,
-            "tau_B_request": out.tau_B_request,
-            "thrust": out.thrust,
-            "tau_B": out.tau_B,
-            "f_rotor_cmd": out.f_rotor,
-            "f_rotor": x[..., ROTOR],
-            "saturated": out.saturated,
-            "tilt_limited": out.tilt_limited,
-            "rp_scale": out.rp_scale,
-            "yaw_scale": out.yaw_scale,
-            "f_ext_W": f_env,
-            "tau_ext_B": tau_env,
-            "tau_ext_eta": matvec(transpose(euler_rate_matrix_Q(eta)), tau_env),
-            "f_lumped_W": f_lump,
-            "tau_lumped_eta": tau_lump,
-            "f_hat_W": out.f_hat_W,
-            "tau_hat_eta": out.tau_hat_eta,
-            "tau_hat_B": out.tau_hat_B,
-        }
-        for name in SIGNALS:
-            field = logs[name][:, k, :n_rotors] if "rotors" in SIGNALS[name][0] else logs[name][:, k]
-            field[alive] = np.broadcast_to(np.asarray(row[name], dtype=float), field.shape)[alive]
-
-        plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)
-
-        _stop_failed(check_vehicles(PA, plant.x), t + s.Ts, alive, fail_code, fail_time, plant, x_park)
+        meas = sens.measure(noise[:, k % BLOCK_TICKS])  # sense
+        ref = _reference(s.refs[k])
+        held = (CS.thrust_prev, CS.tau_B_prev)  # the command the plant flew over the period that ends now
+        CS, out = controller_step(CA, CS, meas, ref)  # estimate, control, allocate
+        _log_tick(logs, k, alive, _truth_row(s, plant, t, held, meas, ref, out))  # log
+        plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)  # actuate, integrate
+        _stop_failed(check_vehicles(PA, plant.x), t + s.Ts, alive, fail_code, fail_time, plant, x_park)  # check
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
             progress((k + 1) / s.N)
 
@@ -721,10 +691,48 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     if s.dec == 0:
         from ..analysis.metrics import compute_metrics
 
-        data = rows_to_data(logs, n_rotors)
+        data = rows_to_data(logs, PA.spins.shape[-1])
         res = Result(np.arange(s.N) * s.Ts, [""] * B, data, {"window": list(s.window[:2])}, failures)
         return logs[:, :0], compute_metrics(res), failures
     return logs[:, :: s.dec], [], failures
+
+
+def _reference(r: np.ndarray) -> Reference:
+    """One row of :meth:`Trajectory.sample_many` as the controller's :class:`Reference`."""
+    return Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:18])
+
+
+def _truth_row(
+    s: _Setup, plant: Any, t: float, held: tuple[np.ndarray, np.ndarray], meas: Any, ref: Reference, out: Any
+) -> dict[str, Any]:
+    """Every logged signal at the tick: the true state and wrench (from the plant, at the start of the
+    period), what the sensors gave, the reference, and the controller's output and estimate."""
+    x = plant.x
+    a_o, w_dot, f_env, tau_env = plant.truth(t, out.f_rotor)
+    R = quat_to_rotation(x[..., QUAT])
+    eta = euler_from_rotation(R)
+    f_lump, tau_lump = _lumped_wrench(s.PA, x, a_o, w_dot, R, eta, *held, s.CA.mass, s.CA.I_B)
+    p_o, v_o = origin_kinematics(s.PA, x, R)
+    return {
+        "p_W": p_o, "v_W": v_o, "eta": eta, "omega_B": x[..., OMEGA],
+        "p_ref_W": ref.p_W, "v_ref_W": ref.v_W, "psi_ref": ref.psi,
+        "p_meas_W": meas.p_W, "v_meas_W": meas.v_W, "eta_meas": meas.eta,
+        "eta_d": out.eta_d, "thrust_request": out.thrust_request, "tau_B_request": out.tau_B_request,
+        "thrust": out.thrust, "tau_B": out.tau_B, "f_rotor_cmd": out.f_rotor, "f_rotor": x[..., ROTOR],
+        "saturated": out.saturated, "tilt_limited": out.tilt_limited, "rp_scale": out.rp_scale,
+        "yaw_scale": out.yaw_scale,
+        "f_ext_W": f_env, "tau_ext_B": tau_env, "tau_ext_eta": matvec(transpose(euler_rate_matrix_Q(eta)), tau_env),
+        "f_lumped_W": f_lump, "tau_lumped_eta": tau_lump,
+        "f_hat_W": out.f_hat_W, "tau_hat_eta": out.tau_hat_eta, "tau_hat_B": out.tau_hat_B,
+    }  # fmt: skip
+
+
+def _log_tick(logs: np.ndarray, k: int, alive: np.ndarray, row: dict[str, Any]) -> None:
+    """Write tick ``k`` of the vehicles still flying (a stopped vehicle's rows stay as they were: NaN)."""
+    n_rotors = row["f_rotor"].shape[-1]
+    for name in SIGNALS:
+        field = logs[name][:, k, :n_rotors] if "rotors" in SIGNALS[name][0] else logs[name][:, k]
+        field[alive] = np.broadcast_to(np.asarray(row[name], dtype=float), field.shape)[alive]
 
 
 def _stop_failed(
