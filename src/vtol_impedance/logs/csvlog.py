@@ -1,6 +1,8 @@
 """Flight logs as CSV: one header row, then one row per sample, comma separated.
 
-Columns (names as below, or mapped with ``columns={"vx": "my_vx", ...}``; extra columns are ignored):
+Columns (names as below, one of their :data:`ALIASES` such as ``time``, ``vel_x`` or ``p, q, r``, or
+mapped with ``columns={"vx": "my_vx", ...}``; extra columns are ignored; a missing column is reported with
+the ``--column`` mapping that most likely fixes it):
 
 ==================  ==========================================================================
 ``t_s``             time, in seconds unless ``time_unit`` says ``ms``, ``us`` or ``ns`` (or

@@ -6,14 +6,18 @@ position; the inertia only for the moment: the force channel of eq. (8) does not
 are converted to SI units here: normalised thrust by the hover map ``u_N = m g * u / u_hover`` with
 ``u_hover`` given, fitted on a hover segment, or from the log: an estimate logged over the flight
 (PX4's ``hover_thrust_estimate``, ArduPilot's ``CTUN.ThH``, a CSV ``hover_thrust`` column), used **per
-sample** (it follows the battery's sag), else a parameter (``MPC_THR_HOVER``, ``MOT_THST_HOVER``);
+sample** (it follows the battery's sag), else a parameter (``MPC_THR_HOVER``, ``MOT_THST_HOVER``) that
+does not hold its firmware default, else fitted on the hover windows found in the log
+(:func:`fit_hover_windows`; their spread becomes the uncertainty ``LogEstimate.fz_sd`` of the vertical
+force), else the parameter at its default with a warning, else refused;
 normalised torque by the rotor geometry (see :mod:`vtol_impedance.logs.ulog`). Measured rotor speeds
 give thrust and torque without the rotors' lag (:mod:`vtol_impedance.logs.rotors`).
 
 Before the estimate the converted thrust must carry the weight: over the airborne samples the vertical
 balance ``m (g - a_z) = r u cos(phi) cos(theta)`` gives the ratio ``r``; outside [0.5, 2] the log is
 refused (a wrong mass, hover thrust, thrust unit or rotor-speed unit), outside [0.8, 1.25] a warning
-names the mean vertical external force it implies.
+names the mean vertical external force it implies. A log on the ground (``on_ground``, a bench test) skips
+this check: its force is the ground reaction plus the external force.
 
 What the estimate contains: everything the nominal model misses. A thrust map or mass error shows up
 as a constant force along the thrust axis, a centre-of-mass offset as a constant moment. The bias

@@ -37,6 +37,8 @@ parameters      ``PARAM_VALUE`` (when the ground station downloaded them): ``MPC
                 ``MOT_THST_HOVER``, PX4's ``CA_ROTOR*`` and ``SIH_*``
 ==============  ==========================================================================================
 
+A tlog of several vehicles (MAVLink system ids) is read for one: ``sysid`` (:func:`read_tlog`); without it
+a tlog of two that could each be estimated is refused, naming them and their attitude message counts.
 A tlog without the streams the estimate needs is refused with the streams to request and their rates
 (:data:`STREAM_ADVICE`). A file cut short inside a message (a truncated download) loses that message,
 and the repair is reported; damaged bytes that ``pymavlink`` skips are counted and reported.
