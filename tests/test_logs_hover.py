@@ -232,6 +232,21 @@ def test_on_ground_with_normalised_thrust_needs_a_hover_thrust(tmp_path):
     assert est.f_W[sel, 2] == pytest.approx(-0.4 * MASS * G, abs=1e-3)
 
 
+def test_on_ground_on_a_log_that_flies_is_warned_about(hover_log):
+    """The flight of the hover tests with --on-ground: estimated, but the label is true only on the ground
+    (its first 2 s); its hover parameter, PX4's default, is used with a warning (no windows looked for)."""
+    est = estimate_file(hover_log, MASS, on_ground=True)
+    assert any("moves in this log" in w for w in est.warnings)
+    assert any("firmware default" in w for w in est.warnings) and est.info["hover_thrust"]["median"] == 0.5
+    est = estimate_file(hover_log, MASS, on_ground=True, hover_thrust=H_TRUE)
+    # on the ground, the thrust ramps 0.15..0.95 m g: f_z = -(m g - T), seen through G(s), which follows
+    # a ramp 2 zeta / wn = 0.2 s late; noise: the velocity's and the command's (0.1 N)
+    s = est.t - est.t[0]
+    still = (s > 0.8) & (s < 1.95)
+    T_late = MASS * G * (0.15 + 0.8 * (s[still] - 0.2) / 2.0)
+    assert est.f_W[still, 2] == pytest.approx(-(MASS * G - T_late), abs=0.15)
+
+
 # ----------------------------------------------------------------------------- two vehicles in a tlog
 
 

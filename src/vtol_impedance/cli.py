@@ -1076,8 +1076,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--thrust-coefficient", type=float, default=None, metavar="KT",
                    help="rotor thrust per speed squared, N/(rad/s)^2 (default: calibrated on the log)")  # fmt: skip
     g.add_argument("--hover-thrust", type=float, default=None,
-                   help="normalised hover thrust (0..1); default: the log's estimate, else fitted on the hover "
-                   "windows found in the log (their spread becomes the column fz_W_N_hover_sd)")  # fmt: skip
+                   help="normalised hover thrust (0..1); default: the log's estimate or its parameter (not at "
+                   "the firmware default), else fitted on the hover windows found in the log (their spread "
+                   "becomes the column fz_W_N_hover_sd), else refused (docs: 'The hover thrust')")  # fmt: skip
     g.add_argument("--hover-segment", default=None, metavar="T0,T1", help="fit the hover thrust on this hover")
     g.add_argument("--on-ground", action="store_true",
                    help="the vehicle stands on the ground (a bench test): the thrust is not checked against the "

@@ -959,7 +959,7 @@ def estimate(
     if on_ground:
         info["on_ground"] = True
         info["force_meaning"] = "ground reaction plus external force (--on-ground)"
-        if not _stationary_ground(flight, np.zeros(len(flight.t), bool), thrust):
+        if np.max(np.linalg.norm(flight.v_W, axis=-1)) >= 0.2 or np.max(np.abs(flight.omega_B)) >= 0.05:
             notes.append(
                 "WARNING: --on-ground, but the vehicle moves in this log (speed above 0.2 m/s or rates above "
                 "0.05 rad/s): the force is the ground reaction only while it stands on the ground"
