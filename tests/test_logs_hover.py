@@ -281,6 +281,9 @@ def test_a_tlog_of_two_vehicles_is_refused_and_sysid_picks_each(fl, tmp_path):
         assert raw.meta["other_systems"] == {str(3 - sysid): n_att}
     est = estimate_file(path, S.MASS, read_options={"sysid": 1})
     assert est.info["system_component"] == [1, 1]
+    out = tmp_path / "two"
+    assert main(["estimate", str(path), "--mass", str(S.MASS), "--sysid", "2", "--out", str(out), "--no-plots"]) == 0
+    assert json.loads((out / "estimate.json").read_text())["info"]["system_component"] == [2, 1]
     with pytest.raises(InputError, match="--sysid 7: no vehicle messages.*system 1"):
         read_any(path, sysid=7)
     with pytest.raises(InputError, match="--compid 5"):

@@ -140,18 +140,24 @@ def _stationary_ground(flight: FlightLog, sel: np.ndarray, u: np.ndarray) -> str
     return None
 
 
-def _balance_fit(flight: FlightLog, mass: float, sel: np.ndarray, u: np.ndarray) -> tuple[float, float, float]:
+def _balance_fit(
+    flight: FlightLog, mass: float, sel: np.ndarray, u: np.ndarray, a_z_all: np.ndarray | None = None
+) -> tuple[float, float, float]:
     """``(k, rms, rms of 0.25 s averages)`` of the least-squares vertical balance
-    ``k u cos(phi) cos(theta) = m (g - a_z)`` (NED, ``a_z`` from the velocity) over the samples ``sel``;
-    ``k`` in N per unit ``u``, residuals in N."""
-    a_z = np.gradient(flight.v_W[:, 2], flight.t)[sel]
+    ``k u cos(phi) cos(theta) = m (g - a_z)`` (NED, ``a_z`` from the velocity, or ``a_z_all`` computed once
+    for many fits) over the samples ``sel`` (a mask or sample indices); ``k`` in N per unit ``u``,
+    residuals in N."""
+    sel = np.flatnonzero(sel) if sel.dtype == bool else sel
+    if a_z_all is None:
+        a_z_all = np.gradient(flight.v_W[:, 2], flight.t)
+    a_z = a_z_all[sel]
     uc = u[sel] * np.cos(flight.eta[sel, 0]) * np.cos(flight.eta[sel, 1])
     rhs = mass * (G - a_z)
     k = float(np.dot(uc, rhs) / max(np.dot(uc, uc), 1e-300))
     res = float(np.sqrt(np.mean((k * uc - rhs) ** 2)))
     n = max(1, int(round(0.25 * flight.rate_hz)))
     kern = np.ones(n) / n
-    res_avg = float(np.sqrt(np.mean(np.convolve(k * uc - rhs, kern, "valid") ** 2))) if sel.sum() > n else res
+    res_avg = float(np.sqrt(np.mean(np.convolve(k * uc - rhs, kern, "valid") ** 2))) if len(sel) > n else res
     return k, res, res_avg
 
 
@@ -161,13 +167,13 @@ def _balance_fit(flight: FlightLog, mass: float, sel: np.ndarray, u: np.ndarray)
 HOVER_HALVES_SHARE = 0.03
 
 
-def _halves_change(flight: FlightLog, mass: float, sel: np.ndarray, u: np.ndarray) -> float:
-    """The hover thrust fitted on the first half of ``sel`` over the second's, minus 1."""
-    idx = np.flatnonzero(sel)
-    a, b = np.zeros_like(sel), np.zeros_like(sel)
-    a[idx[: len(idx) // 2]] = True
-    b[idx[len(idx) // 2 :]] = True
-    ka, kb = _balance_fit(flight, mass, a, u)[0], _balance_fit(flight, mass, b, u)[0]
+def _halves_change(
+    flight: FlightLog, mass: float, sel: np.ndarray, u: np.ndarray, a_z_all: np.ndarray | None = None
+) -> float:
+    """The hover thrust fitted on the first half of ``sel`` (a mask or indices) over the second's, minus 1."""
+    idx = np.flatnonzero(sel) if sel.dtype == bool else sel
+    ka = _balance_fit(flight, mass, idx[: len(idx) // 2], u, a_z_all)[0]
+    kb = _balance_fit(flight, mass, idx[len(idx) // 2 :], u, a_z_all)[0]
     return kb / ka - 1.0 if ka > 0 and kb > 0 else float("inf")
 
 
@@ -310,9 +316,10 @@ def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
     """
     weight = mass * G
     wins = []
+    a_z_all = np.gradient(flight.v_W[:, 2], flight.t)
     for t0, t1 in hover_windows(flight):
-        sel = (flight.t >= t0) & (flight.t <= t1)
-        k, _, res_avg = _balance_fit(flight, mass, sel, flight.thrust)
+        sel = np.arange(np.searchsorted(flight.t, t0), np.searchsorted(flight.t, t1, side="right"))
+        k, _, res_avg = _balance_fit(flight, mass, sel, flight.thrust, a_z_all)
         w: dict[str, Any] = {"t0_s": t0, "t1_s": t1, "hover": None, "rms_N": res_avg, "kept": False}
         if not k > 0:
             w["why"] = "no positive thrust"
@@ -322,7 +329,7 @@ def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
                 w["why"] = f"not a hover: the balance leaves {100 * res_avg / weight:.1f} % of the weight"
             elif not 0.02 < w["hover"] < 1.0:
                 w["why"] = "hover thrust outside (0.02, 1)"
-            elif abs(d := _halves_change(flight, mass, sel, flight.thrust)) > HOVER_HALVES_SHARE:
+            elif abs(d := _halves_change(flight, mass, sel, flight.thrust, a_z_all)) > HOVER_HALVES_SHARE:
                 w["why"] = (
                     f"not a hover: its halves differ by {100 * d:+.1f} % (the ground carrying part of the weight?)"
                 )
