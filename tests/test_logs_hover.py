@@ -50,20 +50,24 @@ def _velocity(t, cruise):
     return np.stack([vx, vy, vz], -1)
 
 
-def _f_ext(t):
-    """A horizontal gusty force, N (world NED): no vertical component."""
+PUSH = (22.0, 25.5, 1.0)  # a vertical push (N, NED: down) from 22 to 25.5 s, in one hover window only
+
+
+def _f_ext(t, push=False):
+    """A horizontal gusty force, N (world NED): no vertical component, unless ``push`` (:data:`PUSH`)."""
     t = np.asarray(t, float)
-    return np.stack([0.3 * np.sin(0.7 * t) + 0.1 * np.sin(2.3 * t), 0.2 * np.sin(0.45 * t), 0.0 * t], -1)
+    fz = PUSH[2] * ((t >= PUSH[0]) & (t < PUSH[1])) if push else 0.0 * t
+    return np.stack([0.3 * np.sin(0.7 * t) + 0.1 * np.sin(2.3 * t), 0.2 * np.sin(0.45 * t), fz], -1)
 
 
-def _flight(cruise=False, duration=30.0, h_true=H_TRUE, seed=1):
+def _flight(cruise=False, duration=30.0, h_true=H_TRUE, seed=1, push=False):
     """``(t, v_W, eta, omega_B, u)`` of a flight by construction (module docstring), with noise."""
     t = np.arange(0.0, duration, 1.0 / RATE)
     d = 1e-5
 
     def thrust_vec(tt):
         a = (_velocity(tt + d, cruise) - _velocity(tt - d, cruise)) / (2 * d)
-        return MASS * G * np.array([0, 0, 1.0]) - MASS * a + _f_ext(tt)
+        return MASS * G * np.array([0, 0, 1.0]) - MASS * a + _f_ext(tt, push)
 
     def eta_of(tt):
         F = thrust_vec(tt)
@@ -159,6 +163,22 @@ def test_a_hover_segment_with_gusts_is_fitted_and_a_take_off_refused(hover_log):
     assert h == pytest.approx(H_TRUE, rel=0.005)
     with pytest.raises(InputError, match="not a hover"):
         fit_hover_thrust(f, MASS, (t0 + 0.5, t0 + 5.0))
+
+
+def test_a_window_with_a_vertical_force_is_an_outlier_and_the_force_is_seen(tmp_path):
+    """A 1 N downward push (8.5 % of the weight) in one hover window: that window's fit is 8.5 % high, named
+    as an outlier; the hover thrust stays H_TRUE and the estimate shows the push."""
+    path = _px4_old(tmp_path / "push.ulg", _flight(push=True), {})
+    est = estimate_file(path, MASS)
+    h = est.info["hover_thrust"]
+    t0 = est.t[0]
+    out = [w for w in h["windows"] if not w["kept"]]
+    assert len(out) == 1 and "outlier" in out[0]["why"] and out[0]["hover"] / H_TRUE - 1 > 0.05
+    assert out[0]["t0_s"] - t0 < PUSH[1] and out[0]["t1_s"] - t0 > PUSH[0]
+    assert abs(h["median"] - H_TRUE) <= 3 * h["sd"] and any("outlier" in n for n in est.notes)
+    s = est.t - t0
+    assert est.f_W[(s > PUSH[0] + 1.0) & (s < PUSH[1]), 2].mean() == pytest.approx(PUSH[2], abs=0.05)
+    assert abs(est.f_W[(s > PUSH[1] + 1.0) & (s < 29.5), 2].mean()) < 0.05
 
 
 @pytest.mark.parametrize(

@@ -241,6 +241,8 @@ HOVER_PIECE_S = 5.0
 #: A window's hover thrust is an outlier (named, not used) when it is further from the median of the
 #: windows than 3 robust standard deviations (1.4826 MAD) or this share of the median, whichever is larger.
 HOVER_OUTLIER_SHARE = 0.02
+#: Hover windows whose fits spread by more than this share (one standard deviation) are warned about.
+HOVER_SPREAD_WARN = 0.03
 #: A log's hover-thrust parameter (used) further than this share from the hover windows' fit is explained
 #: in a note: a wrong parameter, or a payload carried in every hover.
 HOVER_PARAMETER_SHARE = 0.05
@@ -734,6 +736,12 @@ def _thrust_from_commands(
     info["thrust"] = f"normalised x m g / hover thrust ({src}; median {summ['median']:.4f}{per})"
     notes.append(f"hover thrust {summ['median']:.4f}{per}: {src}")
     notes.extend(describe_hover_windows(summ))
+    if summ["sd"] is not None and summ["sd_rel"] > HOVER_SPREAD_WARN:
+        notes.append(
+            f"WARNING: the hover windows' fits spread by {100 * summ['sd_rel']:.1f} % (one standard deviation): the "
+            f"vertical force is uncertain by about {weight * summ['sd_rel']:.3g} N at hover (column "
+            "fz_W_N_hover_sd). Give --hover-thrust, or --hover-segment on a hover you know was calm"
+        )
     if "ignored" in summ:
         notes.append(f"not used: {summ['ignored']} (never tuned?)")
     wf = summ.get("windows_fit")
