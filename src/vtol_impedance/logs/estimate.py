@@ -514,7 +514,8 @@ def describe_hover_windows(summ: dict[str, Any]) -> list[str]:
     out = []
     for w in summ.get("windows", []):
         h = "-" if w["hover"] is None else f"{w['hover']:.4f}"
-        state = "used" if w["kept"] else f"not used: {w['why']}"
+        kept = "used" if summ.get("sd") is not None else "consistent; compared with the parameter"
+        state = kept if w["kept"] else f"not used: {w['why']}"
         out.append(f"hover window {w['t0_s']:.2f}-{w['t1_s']:.2f} s: hover thrust {h} ({state})")
     return out
 
