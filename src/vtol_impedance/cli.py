@@ -527,6 +527,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     }  # fmt: skip
     given = {k: v for k, v in csv_flags.items() if v is not None}
     read_options: dict[str, Any] = {"conventions": args.conventions}
+    read_options.update({k: v for k, v in (("sysid", args.sysid), ("compid", args.compid)) if v is not None})
     if log_format(log) == "csv":
         read_options.update(given, columns=columns, rotor_speed_unit=args.rotor_speed_unit or "rpm")
     elif given or columns or args.rotor_speed_unit:
@@ -555,6 +556,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         thrust_from=args.thrust_from,
         thrust_coefficient=args.thrust_coefficient,
         airframe=args.airframe,
+        on_ground=args.on_ground,
     )  # fmt: skip
     out = Path(args.out) if args.out else _estimate_folder(stem, log)
     flight = est.flight
@@ -592,8 +594,13 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         bridged = sum(1 for g in flight.gaps if g["action"] == "bridged")
         print(f"{len(est.t)} samples at {flight.rate_hz:g} Hz, {est.info['segments']} segment(s) "
               f"({restarts} restart(s), {bridged} bridged dropout(s))")  # fmt: skip
-        print("force, world NED [N]  mean " + " ".join(f"{v:+.3f}" for v in st["mean"]) + "   max |.| "
+        what = "ground reaction + external force" if est.info.get("on_ground") else "force"
+        print(f"{what}, world NED [N]  mean " + " ".join(f"{v:+.3f}" for v in st["mean"]) + "   max |.| "
               + " ".join(f"{v:.3f}" for v in st["max_abs"]))  # fmt: skip
+        sd = (est.info.get("hover_thrust") or {}).get("fz_sd_at_hover_N")
+        if sd is not None:
+            print(f"vertical force uncertainty from the fitted hover thrust: {sd:.3f} N (1 sd at hover; per sample "
+                  "in the column fz_W_N_hover_sd)")  # fmt: skip
         if est.bias is not None:
             print("bias over the quiet segment [N]: " + " ".join(f"{v:+.4f}" for v in est.bias["f_W_N"]))
         print(f"results written to {final}", file=sys.stderr)
@@ -1037,7 +1044,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = sp.add_argument_group("conventions (CSV; checked against physics for every format)")
     g.add_argument("--conventions", default="check", choices=["check", "auto", "unchecked"],
                    help="check the declared conventions against physics (default), choose them from the data "
-                   "(auto), or skip the check")  # fmt: skip
+                   "(auto), or skip that check (only that one: a thrust that does not carry the weight is still "
+                   "refused; --on-ground for a log on the ground)")  # fmt: skip
     g.add_argument("--world", default=None, choices=["ned", "enu"], help="world frame of the attitude (and velocity)")
     g.add_argument("--velocity-world", default=None, choices=["ned", "enu"], help="world frame of the velocity")
     g.add_argument("--body", default=None, choices=["frd", "flu"], help="body frame of attitude, rates, torques")
@@ -1049,7 +1057,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="unit of the time column (default: s for t_s, us for timestamp_us)")  # fmt: skip
     g.add_argument("--rotor-speed-unit", default=None, choices=["rpm", "rad/s"], help="CSV rpm1..rpmN (default rpm)")
     g.add_argument("--column", action="append", default=[], metavar="ROLE=NAME",
-                   help="read role ROLE (e.g. vx) from column NAME (repeatable)")  # fmt: skip
+                   help="read role ROLE (e.g. vx) from column NAME (repeatable); common other names (time, vel_x, "
+                   "p/q/r...) are accepted without it (docs: 'CSV columns')")  # fmt: skip
+    g = sp.add_argument_group("vehicle of a telemetry log (.tlog)")
+    g.add_argument("--sysid", type=int, default=None, metavar="N",
+                   help="MAVLink system id of the vehicle to estimate (needed when a tlog holds several)")  # fmt: skip
+    g.add_argument("--compid", type=int, default=None, metavar="C",
+                   help="its component id (default: the one that sent the most attitude messages)")  # fmt: skip
     g = sp.add_argument_group("time base")
     g.add_argument("--rate", type=float, default=100.0, help="resampling rate, Hz (default 100)")
     g.add_argument("--max-gap", type=float, default=None, metavar="S",
@@ -1066,8 +1080,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "them at 20 Hz or more")  # fmt: skip
     g.add_argument("--thrust-coefficient", type=float, default=None, metavar="KT",
                    help="rotor thrust per speed squared, N/(rad/s)^2 (default: calibrated on the log)")  # fmt: skip
-    g.add_argument("--hover-thrust", type=float, default=None, help="normalised hover thrust (0..1)")
+    g.add_argument("--hover-thrust", type=float, default=None,
+                   help="normalised hover thrust (0..1); default: the log's estimate or its parameter (not at "
+                   "the firmware default), else fitted on the hover windows found in the log (their spread "
+                   "becomes the column fz_W_N_hover_sd), else refused (docs: 'The hover thrust')")  # fmt: skip
     g.add_argument("--hover-segment", default=None, metavar="T0,T1", help="fit the hover thrust on this hover")
+    g.add_argument("--on-ground", action="store_true",
+                   help="the vehicle stands on the ground (a bench test): the thrust is not checked against the "
+                   "weight and the force is the ground reaction plus the external force")  # fmt: skip
     g.add_argument("--torque-scale", default=None, metavar="KX,KY,KZ",
                    help="N m per unit normalised torque (else from the log's rotor geometry)")  # fmt: skip
     g = sp.add_argument_group("estimator")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .checks import ConventionReport, check_conventions, evidence
 from .csvlog import read_csv, read_csv_table, table_to_raw
-from .estimate import LogEstimate, check_inertia, commands_in_si, estimate, fit_hover_thrust
+from .estimate import LogEstimate, check_inertia, commands_in_si, estimate, fit_hover_thrust, fit_hover_windows
 from .frames import Conventions
 from .pipeline import estimate_file, log_format, read_any
 from .timeseries import DEFAULT_RATE_HZ, FlightLog, RawLog, Signal, default_max_gap, resample
@@ -43,6 +43,7 @@ __all__ = [
     "estimate_file",
     "evidence",
     "fit_hover_thrust",
+    "fit_hover_windows",
     "log_format",
     "read_any",
     "read_csv",

@@ -1,6 +1,8 @@
 """Flight logs as CSV: one header row, then one row per sample, comma separated.
 
-Columns (names as below, or mapped with ``columns={"vx": "my_vx", ...}``; extra columns are ignored):
+Columns (names as below, one of their :data:`ALIASES` such as ``time``, ``vel_x`` or ``p, q, r``, or
+mapped with ``columns={"vx": "my_vx", ...}``; extra columns are ignored; a missing column is reported with
+the ``--column`` mapping that most likely fixes it):
 
 ==================  ==========================================================================
 ``t_s``             time, in seconds unless ``time_unit`` says ``ms``, ``us`` or ``ns`` (or
@@ -33,6 +35,7 @@ that signal only, so each signal keeps its own clock.
 from __future__ import annotations
 
 import csv
+import difflib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,7 +54,34 @@ COLUMNS = (
     *(f"rpm{i}" for i in range(1, MAX_ROTORS + 1)),
 )  # fmt: skip
 
-__all__ = ["ANGLE_UNITS", "COLUMNS", "CsvTable", "read_csv", "read_csv_table", "table_to_raw"]
+#: Other names real exporters write for each role (PX4's ulog2csv, MAVLink and ROS exports, spreadsheets),
+#: matched without regard to case when the file has no column of the role's own name; two columns that
+#: both match one role are refused (which is meant?). ``vn, ve, vd`` name north, east, down: a file with
+#: them is in NED (the default ``--world``). A name that would fit two roles (``thrust``: newtons or
+#: normalised?) is nobody's alias.
+ALIASES: dict[str, tuple[str, ...]] = {
+    "t_s": ("t", "time", "time_s", "times", "sec", "seconds", "elapsed_s"),
+    "timestamp_us": ("timestamp", "time_us", "time_usec", "timeus", "t_us"),
+    "vx": ("vel_x", "v_x", "velocity_x", "vel.x", "vn", "v_n", "vel_n", "vel_north"),
+    "vy": ("vel_y", "v_y", "velocity_y", "vel.y", "ve", "v_e", "vel_e", "vel_east"),
+    "vz": ("vel_z", "v_z", "velocity_z", "vel.z", "vd", "v_d", "vel_d", "vel_down"),
+    "roll": ("roll_rad", "phi", "attitude_roll"),
+    "pitch": ("pitch_rad", "theta", "attitude_pitch"),
+    "yaw": ("yaw_rad", "psi", "heading_rad", "attitude_yaw"),
+    **{f"q{i}": (f"q[{i}]", f"q_{i}", f"q.{i}", f"quat_{i}", f"quat[{i}]") for i in range(4)},
+    "wx": ("p", "rollspeed", "roll_rate", "rollrate", "gyro_x", "xgyro", "omega_x", "w_x", "rate_x", "p_rad_s"),
+    "wy": ("q", "pitchspeed", "pitch_rate", "pitchrate", "gyro_y", "ygyro", "omega_y", "w_y", "rate_y", "q_rad_s"),
+    "wz": ("r", "yawspeed", "yaw_rate", "yawrate", "gyro_z", "zgyro", "omega_z", "w_z", "rate_z", "r_rad_s"),
+    "thrust_n": ("thrust_newton", "thrust_newtons", "collective_thrust_n", "thrust_total_n"),
+    "thrust_norm": ("throttle", "thrust_normalized", "thrust_normalised", "collective_thrust_norm"),
+    "hover_thrust": ("hover_throttle", "thr_hover", "hover_thrust_norm"),
+    "tx": ("tau_x", "torque_x", "mx", "moment_x"),
+    "ty": ("tau_y", "torque_y", "my", "moment_y"),
+    "tz": ("tau_z", "torque_z", "mz", "moment_z"),
+    **{f"rpm{i}": (f"rpm_{i}", f"motor{i}_rpm", f"esc{i}_rpm", f"rpm[{i}]") for i in range(1, MAX_ROTORS + 1)},
+}
+
+__all__ = ["ALIASES", "ANGLE_UNITS", "COLUMNS", "CsvTable", "read_csv", "read_csv_table", "table_to_raw"]
 
 
 @dataclass
@@ -134,8 +164,28 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
     mapping = {k: k for k in COLUMNS}
     for k, v in (columns or {}).items():
         if k not in COLUMNS:
-            raise InputError(f"unknown column role {k!r}; roles are {', '.join(COLUMNS)}")
+            close = difflib.get_close_matches(k, COLUMNS, 3, 0.5)
+            hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+            raise InputError(f"unknown column role {k!r}{hint}; roles are {', '.join(COLUMNS)}")
+        if v not in header:
+            raise InputError(
+                f"{path}: --column {k}={v}: the file has no column {v!r}{_close_hint(v, header)}; it has: "
+                f"{', '.join(header)}"
+            )
         mapping[k] = v
+    for role in COLUMNS:
+        if role in (columns or {}) or role in header:
+            continue
+        names = {role.lower(), *(a.lower() for a in ALIASES.get(role, ()))}
+        hits = [h for h in header if h.lower() in names]
+        if len(hits) > 1:
+            raise InputError(
+                f"{path}: columns {' and '.join(repr(h) for h in hits)} both name the role {role} (accepted aliases); "
+                f"which one is meant? choose with --column {role}={hits[0]}"
+            )
+        if hits:
+            mapping[role] = hits[0]
+            notes.append(f"column {hits[0]!r} read as {role} (an accepted alias)")
     present = {role for role, col in mapping.items() if col in header}
     shared: dict[str, list[str]] = {}
     for role in sorted(present):
@@ -150,10 +200,26 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
                 f"{path}: column {col!r} appears {header.count(col)} times in the header; which one is meant?"
             )
 
+    used = {mapping[r] for r in present}
+
     def need(group: tuple[str, ...], what: str) -> None:
-        miss = [mapping[c] for c in group if c not in present]
+        miss = [c for c in group if c not in present]
         if miss:
-            raise InputError(f"{path}: {what} needs column(s) {', '.join(miss)}; the file has: {', '.join(header)}")
+            free = [h for h in header if h not in used]
+            fixes = []
+            for role in miss:
+                cands = _candidates(role, free)
+                if cands:
+                    fixes.append(f"--column {role}={cands[0]}" + (f" (or {', '.join(cands[1:])})" if cands[1:] else ""))
+            advice = (
+                "; if the file names them otherwise, map them: " + ", ".join(fixes)
+                if fixes
+                else "; map a column of another name with --column ROLE=NAME"
+            )
+            raise InputError(
+                f"{path}: {what} needs column(s) {', '.join(mapping[c] for c in miss)}; the file has: "
+                f"{', '.join(header)}{advice}"
+            )
 
     if "t_s" in present:
         time_role = "t_s"
@@ -174,6 +240,22 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
         for r in ("roll", "pitch", "yaw"):
             cols.pop(r, None)
     return CsvTable(path, header, cols, time_role, notes)
+
+
+def _close_hint(name: str, header: list[str]) -> str:
+    close = difflib.get_close_matches(name, header, 3, 0.6)
+    return f" (close: {', '.join(close)})" if close else ""
+
+
+def _candidates(role: str, free: list[str], n: int = 3) -> list[str]:
+    """The file's unmapped columns most like the role's name or one of its aliases (difflib), best first."""
+    lower = {h.lower(): h for h in free}
+    score: dict[str, float] = {}
+    for name in (role, *ALIASES.get(role, ())):
+        for m in difflib.get_close_matches(name.lower(), list(lower), n, 0.6):
+            r = difflib.SequenceMatcher(None, name.lower(), m).ratio()
+            score[lower[m]] = max(score.get(lower[m], 0.0), r)
+    return sorted(score, key=lambda h: -score[h])[:n]
 
 
 def _signal(name: str, source: str, t: np.ndarray, cols: list[np.ndarray], hold: bool = False) -> Signal:

@@ -37,6 +37,8 @@ parameters      ``PARAM_VALUE`` (when the ground station downloaded them): ``MPC
                 ``MOT_THST_HOVER``, PX4's ``CA_ROTOR*`` and ``SIH_*``
 ==============  ==========================================================================================
 
+A tlog of several vehicles (MAVLink system ids) is read for one: ``sysid`` (:func:`read_tlog`); without it
+a tlog of two that could each be estimated is refused, naming them and their attitude message counts.
 A tlog without the streams the estimate needs is refused with the streams to request and their rates
 (:data:`STREAM_ADVICE`). A file cut short inside a message (a truncated download) loses that message,
 and the repair is reported; damaged bytes that ``pymavlink`` skips are counted and reported.
@@ -422,8 +424,21 @@ TLOG_TYPES = [
 ]  # fmt: skip
 
 
-def read_tlog(path: str | os.PathLike[str]) -> RawLog:
-    """Read a MAVLink telemetry log ``.tlog`` (module docstring) into NED/FRD signals."""
+#: A second vehicle in a tlog that sent at least this many attitude messages could be estimated on its
+#: own (pipeline.MIN_LOG_SAMPLES): without ``sysid`` the log is then refused rather than one of them taken.
+MIN_VEHICLE_MESSAGES = 50
+
+
+def read_tlog(path: str | os.PathLike[str], sysid: int | None = None, compid: int | None = None) -> RawLog:
+    """Read a MAVLink telemetry log ``.tlog`` (module docstring) into NED/FRD signals.
+
+    A tlog may hold several vehicles (MAVLink system ids), each perhaps from several components. The
+    vehicle is ``sysid`` (and its component ``compid``; default: the component that sent the most
+    attitude messages). Without ``sysid``, a tlog whose systems include two that each sent at least
+    :data:`MIN_VEHICLE_MESSAGES` attitude messages is refused, naming them and their counts; one with a
+    single such system takes it, and names any other system heard (with its count) in a warning and in
+    ``meta["other_systems"]``.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
@@ -436,9 +451,9 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
     except Exception as exc:
         raise InputError(f"{path} is not a readable tlog ({type(exc).__name__}: {exc})") from None
     raw_rows: dict[tuple[int, int], dict[str, list]] = defaultdict(lambda: defaultdict(list))
-    params: dict[str, float] = {}
+    params_of: dict[int, dict[str, float]] = defaultdict(dict)  # per system id
+    autopilots: dict[int, int] = {}
     bad = 0
-    autopilot = None
     mav_types: dict[tuple[int, int], int] = {}  # each source's HEARTBEAT.type (MAV_TYPE)
     order = 0
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
@@ -460,12 +475,11 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
                 src = (m.get_srcSystem(), m.get_srcComponent())
                 if typ == "PARAM_VALUE":
                     pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
-                    params[pid.rstrip("\x00")] = float(m.param_value)
+                    params_of[src[0]][pid.rstrip("\x00")] = float(m.param_value)
                     continue
                 if typ == "HEARTBEAT":
                     if getattr(m, "autopilot", 8) != 8:  # 8: MAV_AUTOPILOT_INVALID (a GCS)
-                        if autopilot is None:
-                            autopilot = int(m.autopilot)
+                        autopilots.setdefault(src[0], int(m.autopilot))
                         mav_types.setdefault(src, int(getattr(m, "type", 0)))
                     continue
                 m._order = order = order + 1  # its place in the file: the order the vehicle sent it in
@@ -474,12 +488,10 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
             _close(conn)
     if not raw_rows:
         raise InputError(f"{path}: no vehicle messages of interest (it has {n_frames} MAVLink frames)")
-    # the autopilot: the source sending the most attitude messages
-    src = max(
-        raw_rows, key=lambda s: len(raw_rows[s].get("ATTITUDE", [])) + len(raw_rows[s].get("ATTITUDE_QUATERNION", []))
-    )
+    src, notes, others = _choose_source(path, raw_rows, sysid, compid)
     msgs = raw_rows[src]
-    notes: list[str] = []
+    params = params_of.get(src[0], {})
+    autopilot = autopilots.get(src[0])
     if tail:
         notes.append(tail)
     if bad:
@@ -577,6 +589,8 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
         "autopilot": {3: "ArduPilot", 12: "PX4"}.get(autopilot, f"MAV_AUTOPILOT {autopilot}"),
         "system_component": list(src),
     }
+    if others:
+        meta["other_systems"] = others
     if src in mav_types:
         meta["mav_type"] = mav_types[src]
     if rotor is not None:
@@ -593,6 +607,58 @@ def read_tlog(path: str | os.PathLike[str]) -> RawLog:
         meta=meta,
         **kw,
     )
+
+
+def _attitude_count(rows: dict[str, list]) -> int:
+    return len(rows.get("ATTITUDE", [])) + len(rows.get("ATTITUDE_QUATERNION", []))
+
+
+def _choose_source(
+    path: Path, raw_rows: dict[tuple[int, int], dict[str, list]], sysid: int | None, compid: int | None
+) -> tuple[tuple[int, int], list[str], dict[str, int]]:
+    """``((system, component), notes, other systems' attitude counts)``: the vehicle of :func:`read_tlog`."""
+    per_sys: dict[int, int] = defaultdict(int)
+    for (sy, _), rows in raw_rows.items():
+        per_sys[sy] += _attitude_count(rows)
+    listing = ", ".join(f"system {sy}: {n} attitude message(s)" for sy, n in sorted(per_sys.items()))
+    notes: list[str] = []
+    if sysid is not None:
+        if sysid not in per_sys:
+            raise InputError(f"{path}: --sysid {sysid}: no vehicle messages from that system; the tlog has {listing}")
+        chosen = sysid
+    else:
+        vehicles = sorted((sy for sy, n in per_sys.items() if n >= MIN_VEHICLE_MESSAGES), key=lambda sy: -per_sys[sy])
+        if len(vehicles) > 1:
+            raise InputError(
+                f"{path} holds {len(vehicles)} vehicles ({listing}): choose one with --sysid "
+                + " or --sysid ".join(str(sy) for sy in vehicles)
+            )
+        chosen = vehicles[0] if vehicles else max(per_sys, key=lambda sy: per_sys[sy])
+    others = {str(sy): n for sy, n in sorted(per_sys.items()) if sy != chosen}
+    if any(others.values()) and sysid is None:
+        notes.append(
+            f"WARNING: the tlog also holds messages from other MAVLink systems ({listing}): system {chosen} is "
+            "estimated, the others (too few attitude messages to estimate) ignored; --sysid chooses"
+        )
+    elif others:
+        notes.append(f"system {chosen} estimated{' (--sysid)' if sysid is not None else ''}; in the tlog: {listing}")
+    comps = {c: _attitude_count(rows) for (sy, c), rows in raw_rows.items() if sy == chosen}
+    if compid is not None:
+        if compid not in comps:
+            raise InputError(
+                f"{path}: --compid {compid}: system {chosen} sent nothing from that component; its components: "
+                + ", ".join(f"{c} ({n} attitude message(s))" for c, n in sorted(comps.items()))
+            )
+        comp = compid
+    else:
+        comp = max(comps, key=lambda c: comps[c])
+        if sum(1 for n in comps.values() if n > 0) > 1:
+            notes.append(
+                f"system {chosen}: component {comp} taken (the most attitude messages; "
+                + ", ".join(f"component {c}: {n}" for c, n in sorted(comps.items()))
+                + "); --compid chooses"
+            )
+    return (chosen, comp), notes, others
 
 
 def _fields(m: Any) -> dict[str, float]:

@@ -78,13 +78,23 @@ def read_any(
     velocity_world: str | None = None,
     columns: dict[str, str] | None = None,
     rotor_speed_unit: str = "rpm",
+    sysid: int | None = None,
+    compid: int | None = None,
 ) -> tuple[RawLog, ConventionReport]:
     """Read a log of any supported format and check it (module docstring). The frame and unit arguments
-    are a CSV file's declared conventions; ``conventions`` is ``"check"``, ``"auto"`` or ``"unchecked"``."""
+    are a CSV file's declared conventions; ``conventions`` is ``"check"``, ``"auto"`` or ``"unchecked"``
+    (which skips only the conventions' check against physics: the thrust-carries-the-weight check of the
+    estimate still runs). ``sysid``/``compid``: the vehicle of a tlog with several
+    (:func:`~vtol_impedance.logs.mavlog.read_tlog`)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
     fmt = log_format(path)
+    for name, val in (("sysid", sysid), ("compid", compid)):
+        if val is not None and fmt != "tlog":
+            raise InputError(f"--{name} chooses a vehicle of a MAVLink telemetry log (.tlog); {path} is {fmt}")
+        if val is not None and not (isinstance(val, int | np.integer) and 0 <= val <= 255):
+            raise InputError(f"--{name} must be a MAVLink id, an integer 0..255, got {val!r}")
     if fmt != "csv":
         if fmt == "ulog":
             from .ulog import read_ulog
@@ -97,7 +107,7 @@ def read_any(
         else:
             from .mavlog import read_tlog
 
-            raw = read_tlog(path)
+            raw = read_tlog(path, sysid, compid)
         _long_enough(raw, path)
         if raw.thrust is not None:
             raw.thrust = check_thrust_signal(raw.thrust, raw.notes)

@@ -201,17 +201,21 @@ def tlog_bytes(
 ) -> bytes:
     """A tlog: ``messages = [(receive time in s, MAVLink message name, fields)]`` packed as MAVLink 2 (or 1,
     ``protocol``; ardupilotmega dialect) in time order, each after its receive time in big-endian
-    microseconds."""
+    microseconds. A message may carry a fourth element ``(system, component)``: its sender (default
+    ``system``, ``component``), for a tlog of several vehicles."""
     if protocol == 1:
         from pymavlink.dialects.v10 import ardupilotmega as dialect
     else:
         from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-    mav = dialect.MAVLink(None, srcSystem=system, srcComponent=component)
+    senders: dict[tuple[int, int], Any] = {}
     out = bytearray()
-    for t, name, fields in sorted(messages, key=lambda m: m[0]):
+    for t, name, fields, *src in sorted(messages, key=lambda m: m[0]):
+        key = tuple(src[0]) if src else (system, component)
+        if key not in senders:  # one sender per source: each keeps its own sequence numbers
+            senders[key] = dialect.MAVLink(None, srcSystem=key[0], srcComponent=key[1])
         cls = getattr(dialect, f"MAVLink_{name.lower()}_message")
-        out += struct.pack(">Q", int(round(t * 1e6))) + cls(**fields).pack(mav)
+        out += struct.pack(">Q", int(round(t * 1e6))) + cls(**fields).pack(senders[key])
     return bytes(out)
 
 
