@@ -32,6 +32,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # MathJax 3 copied into _static: maths render offline, no CDN
     "sphinx.ext.viewcode",
     "numpydoc",
     "myst_parser",
@@ -43,6 +44,9 @@ root_doc = "index"
 exclude_patterns = ["_build", "_gallery_src", "gallery", "README.md", "**/GALLERY_HEADER.rst"]
 templates_path = ["_templates"]
 
+# Maths: MathJax from the package sphinx-mathjax-offline, which copies it into _static/mathjax and points
+# mathjax_path there (no page loads anything from the network; sphinxext.check_built_html fails the build
+# on one that does, and tests/test_docs_offline.py builds a page with these settings).
 # Markdown pages (MyST): $...$ maths, ::: fences for notes, heading anchors for links between pages.
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
@@ -97,3 +101,6 @@ html_show_sourcelink = False
 def setup(app):
     app.connect("autodoc-process-docstring", sphinxext.fill_data_docstrings)
     app.connect("autodoc-skip-member", sphinxext.skip_namedtuple_aliases)
+    app.add_role("source", sphinxext.source_role)
+    app.connect("html-page-context", sphinxext.fix_viewcode_backlinks)
+    app.connect("build-finished", sphinxext.check_built_html, priority=900)  # after the assets are copied

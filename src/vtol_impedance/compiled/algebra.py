@@ -25,7 +25,7 @@ def mod_2pi(w):
 @kernel(inline="always")
 def _Q9(f, t):
     cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
-    return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)
+    return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)  # eq. (1c)
 
 
 @kernel(inline="always")
@@ -105,8 +105,8 @@ def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
     The products use the zeros of ``Q`` and ``Q_dot`` (:func:`_Q9`, :func:`_Qd9`): about half the
     arithmetic of dense 3x3 products."""
     cf, sf, ct, st = math.cos(e0), math.sin(e0), math.cos(e1), math.sin(e1)
-    Q = _Q9(e0, e1)
-    M = _QtA(_AQ(I, cf, sf, ct, st), cf, sf, ct, st)
+    Q = _Q9(e0, e1)  # eq. (1c)
+    M = _QtA(_AQ(I, cf, sf, ct, st), cf, sf, ct, st)  # eq. (3b)
     w0, w1, w2 = d0 - st * d2, cf * d1 + sf * ct * d2, -sf * d1 + cf * ct * d2  # Q eta_dot
     h0, h1, h2 = _mv9(I, w0, w1, w2)
     S = _AQ((0.0, h2, -h1, -h2, 0.0, h0, h1, -h0, 0.0), cf, sf, ct, st)  # S(h)^T Q
@@ -118,7 +118,7 @@ def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
         0.0, I[4] * q4 + I[5] * q7, I[3] * q2 + I[4] * q5 + I[5] * q8,
         0.0, I[7] * q4 + I[8] * q7, I[6] * q2 + I[7] * q5 + I[8] * q8,
     )  # fmt: skip
-    C = _QtA(
+    C = _QtA(  # C of eq. (3b), satisfying (7)
         (S[0] + IQd[0], S[1] + IQd[1], S[2] + IQd[2], S[3] + IQd[3], S[4] + IQd[4], S[5] + IQd[5], S[6] + IQd[6],
          S[7] + IQd[7], S[8] + IQd[8]),
         cf, sf, ct, st,
@@ -131,7 +131,7 @@ def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
     """Angular part of eq. (8): ``Q^T tau_B + C^T eta_dot``."""
     a = _mv9(_t9(Q), t0, t1, t2)
     b = _mv9(_t9(C), d0, d1, d2)
-    return a[0] + b[0], a[1] + b[1], a[2] + b[2]
+    return a[0] + b[0], a[1] + b[1], a[2] + b[2]  # eq. (8), angular part
 
 
 @kernel(inline="always")
@@ -140,4 +140,4 @@ def _beta_lin(e0, e1, e2, u, m):
     cf, sf = math.cos(e0), math.sin(e0)
     ct, st = math.cos(e1), math.sin(e1)
     cp, sp = math.cos(e2), math.sin(e2)
-    return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G
+    return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G  # eq. (8), linear part

@@ -58,10 +58,10 @@ def thrust_and_attitude(mu_bar, psi, m, tilt_max, min_lift):
     scale = h_max / max(h_norm, 1e-300) if h_norm > h_max else 1.0
     m1 = mu_bar[0] * scale
     m2 = mu_bar[1] * scale
-    a = math.sqrt(m1 * m1 + m2 * m2 + vert_c * vert_c)
+    a = math.sqrt(m1 * m1 + m2 * m2 + vert_c * vert_c)  # eq. (20a): u = m a
     cp, sp = math.cos(psi), math.sin(psi)
-    phi = math.asin(min(max((m2 * cp - m1 * sp) / a, -1.0), 1.0))
-    theta = math.atan2(-(m1 * cp + m2 * sp), vert_c)
+    phi = math.asin(min(max((m2 * cp - m1 * sp) / a, -1.0), 1.0))  # eq. (20b)
+    theta = math.atan2(-(m1 * cp + m2 * sp), vert_c)  # eq. (20c)
     return m * a, phi, theta, (vert < min_lift) or (scale < 1.0)
 
 
@@ -154,7 +154,7 @@ def _mix_row(p, f, row):
     """Row ``row`` of ``E f``, eq. (4): the thrust (0) or a body moment (1-3) of the rotor forces ``f``."""
     acc = 0.0
     for i in range(p.n_rotors):
-        acc += p.E[row, i] * f[i]
+        acc += p.E[row, i] * f[i]  # eq. (4)
     return acc
 
 
@@ -169,8 +169,8 @@ def _impedance_axis(p, s, r, i, m, e, ev, fh, fl, fdot, lead):
     md, dd, kd = p.Md[i], p.Dd[i], p.Kd[i]
     kp = (1.0 - lam) * p.Kp[i] + lam * m * kd / md
     dp = (1.0 - lam) * p.Dp[i] + lam * m * dd / md
-    ff = (1.0 - lam) * p.compensate * fh + lam * (1.0 - m / md) * fl
-    mu = r[6 + i] - (dp * ev + kp * e + (1.0 - lam) * p.Ki[i] * s.integral[i]) / m - ff / m
+    ff = (1.0 - lam) * p.compensate * fh + lam * (1.0 - m / md) * fl  # f_hat of eq. (16)
+    mu = r[6 + i] - (dp * ev + kp * e + (1.0 - lam) * p.Ki[i] * s.integral[i]) / m - ff / m  # eqs. (18a), (16)
     acc = (fl - dd * ev - kd * e) / md
     rate = -dd * acc / md + (1.0 / md - 1.0 / m) * fdot
     return mu + lam * lead * rate
@@ -222,10 +222,11 @@ def controller_step(p, d, s, h, y, r, o):
     # position impedance (18a), compensation, eq. (16); per axis, "comply" blends the rejecting law
     # (lam = 0) with M_d e'' + D_d e' + K_d e = f_ext (lam = 1)
     ep0, ep1, ep2 = p0 - r[0], p1 - r[1], p2 - r[2]
-    mb0 = _impedance_axis(p, s, r, 0, m, ep0, v0 - r[3], fh0, fl0, rd[0], lead)
+    mb0 = _impedance_axis(p, s, r, 0, m, ep0, v0 - r[3], fh0, fl0, rd[0], lead)  # eqs. (18a), (16)
     mb1 = _impedance_axis(p, s, r, 1, m, ep1, v1 - r[4], fh1, fl1, rd[1], lead)
     mb2 = _impedance_axis(p, s, r, 2, m, ep2, v2 - r[5], fh2, fl2, rd[2], lead)
     psi_d = r[9]
+    # eqs. (16), (20)
     thrust_req, phi_d, theta_d, tilt_lim = thrust_and_attitude((mb0, mb1, mb2), psi_d, m, p.tilt_max, p.min_lift_accel)
 
     # attitude filter on (phi_d, theta_d): value, rate and acceleration of the filtered attitude
@@ -245,11 +246,11 @@ def controller_step(p, d, s, h, y, r, o):
     ee0, ee1, ee2 = _wrap(e0 - ed0), _wrap(e1 - ed1), _wrap(e2 - psi_d)
     de0, de1, de2 = d0 - edd0, d1 - edd1, d2 - r[10]
     ce = _mv9(C, de0, de1, de2)
-    k0 = ce[0] + p.Do[0] * de0 + p.Ko[0] * ee0
+    k0 = ce[0] + p.Do[0] * de0 + p.Ko[0] * ee0  # eq. (18b): (D_o + C) e' + K_o e
     k1 = ce[1] + p.Do[1] * de1 + p.Ko[1] * ee1
     k2 = ce[2] + p.Do[2] * de2 + p.Ko[2] * ee2
     s0, s1, s2 = _solve9(M, k0, k1, k2)
-    tb0, tb1, tb2 = eddd0 - s0, eddd1 - s1, r[11] - s2
+    tb0, tb1, tb2 = eddd0 - s0, eddd1 - s1, r[11] - s2  # eq. (18b)
     tc0, tc1, tc2 = th0, th1, th2  # the moment (14) cancels
     if p.comply_enable > 0.5 and r.shape[0] >= 18:  # per Euler angle, "comply" blends in its own law
         tb0, tc0 = _attitude_axis(p, d, s, r, 0, tb0, eddd0, de0, ee0, th0, la)
@@ -257,9 +258,9 @@ def controller_step(p, d, s, h, y, r, o):
         tb2, tc2 = _attitude_axis(p, d, s, r, 2, tb2, r[11], de2, ee2, th2, la)
     QT = _t9(Q)
     cd = _mv9(C, d0, d1, d2)
-    g0, g1, g2 = _solve9(QT, cd[0] - comp * tc0, cd[1] - comp * tc1, cd[2] - comp * tc2)
+    g0, g1, g2 = _solve9(QT, cd[0] - comp * tc0, cd[1] - comp * tc1, cd[2] - comp * tc2)  # eq. (14)
     iq = _mv9(_mm9(I, Q), tb0, tb1, tb2)
-    tr0, tr1, tr2 = iq[0] + g0, iq[1] + g1, iq[2] + g2
+    tr0, tr1, tr2 = iq[0] + g0, iq[1] + g1, iq[2] + g2  # eq. (14)
     hb0, hb1, hb2 = _solve9(QT, th0, th1, th2)
 
     sat, rp_scale, yaw_scale = _allocate(p, thrust_req, tr0, tr1, tr2, o.f_rotor)

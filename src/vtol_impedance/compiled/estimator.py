@@ -91,6 +91,7 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
         u_w = _hist_at(h, 0, d.dv)
         t0, t1, t2 = _hist_at(h, 1, d.da), _hist_at(h, 2, d.da), _hist_at(h, 3, d.da)
         da = d.d_att
+        # eq. (8) at both ends of the period
         la = _beta_lin(_angle_at(h, 0, da + 1.0), _angle_at(h, 1, da + 1.0), _angle_at(h, 2, da + 1.0), u_w, m)
         lb = _beta_lin(_angle_at(h, 0, da), _angle_at(h, 1, da), _angle_at(h, 2, da), u_w, m)
         dp = s.eta_dot_prev
@@ -98,12 +99,12 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
         ab = _beta_ang(Q, C, t0, t1, t2, de0, de1, de2)
         beta = (la[0] + lb[0], la[1] + lb[1], la[2] + lb[2], aa[0] + ab[0], aa[1] + ab[1], aa[2] + ab[2])
         for ch in range(6):  # eq. (11), discretised: the filter G driven by the momentum residual
-            w_bar = (q[ch] - s.q_prev[ch]) / d.Ts - 0.5 * beta[ch]
+            w_bar = (q[ch] - s.q_prev[ch]) / d.Ts - 0.5 * beta[ch]  # eq. (8) over the period
             x = s.x[ch]
             for i in range(n):
                 acc = d.Bd[ch, i] * w_bar
                 for j in range(n):
-                    acc += d.Ad[ch, i, j] * x[j]
+                    acc += d.Ad[ch, i, j] * x[j]  # eqs. (11), (12): G(s), exact ZOH
                 s.x_new[i] = acc
             r = 0.0
             rate = d.CB[ch] * w_bar
@@ -111,7 +112,7 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
                 x[i] = s.x_new[i]
                 r += d.C[ch, i] * x[i]
                 rate += d.CA[ch, i] * x[i]
-            s.w_hat[ch] = r
+            s.w_hat[ch] = r  # eq. (11): the estimate
             s.r_dot[ch] = rate
     else:  # the histories start filled with the present
         for j in range(d.H):

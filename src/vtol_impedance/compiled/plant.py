@@ -252,7 +252,7 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
         te1 += m1
         te2 += m2
     im = pp.inv_mass
-    F0 = -u * R[2] + fe0
+    F0 = -u * R[2] + fe0  # eq. (5a): -u R e3 + f_ext
     F1 = -u * R[5] + fe1
     F2 = -u * R[8] + fe2
     # the pendulum, jointed at the CoM (sim.plant.link_force): tension from the link constraint
@@ -277,12 +277,12 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     h0 = I[0, 0] * w0 + I[0, 1] * w1 + I[0, 2] * w2
     h1 = I[1, 0] * w0 + I[1, 1] * w1 + I[1, 2] * w2
     h2 = I[2, 0] * w0 + I[2, 1] * w1 + I[2, 2] * w2
-    m0 = tm0 + te0 - (c[1] * B2 - c[2] * B1) - (w1 * h2 - w2 * h1)
+    m0 = tm0 + te0 - (c[1] * B2 - c[2] * B1) - (w1 * h2 - w2 * h1)  # eq. (2b)
     m1 = tm1 + te1 - (c[2] * B0 - c[0] * B2) - (w2 * h0 - w0 * h2)
     m2 = tm2 + te2 - (c[0] * B1 - c[1] * B0) - (w0 * h1 - w1 * h0)
     x_dot = (
         v0, v1, v2,
-        (F0 + lk0) * im, (F1 + lk1) * im, G + (F2 + lk2) * im,
+        (F0 + lk0) * im, (F1 + lk1) * im, G + (F2 + lk2) * im,  # eqs. (3a), (5a)
         0.5 * (-qx * w0 - qy * w1 - qz * w2), 0.5 * (qw * w0 + qy * w2 - qz * w1),
         0.5 * (qw * w1 - qx * w2 + qz * w0), 0.5 * (qw * w2 + qx * w1 - qy * w0),
         Ii[0, 0] * m0 + Ii[0, 1] * m1 + Ii[0, 2] * m2,
@@ -442,7 +442,7 @@ def lumped_wrench(a_o, omega, w_dot, R, eta, u_prev, tau_prev, m_nom, I_nom, f, 
     the body origin's acceleration ``a_o`` (world), the body rate ``omega`` and ``w_dot`` (body), whichever
     plant computed them."""
     for i in range(3):
-        f[i] = m_nom * (a_o[i] - (G if i == 2 else 0.0)) + u_prev * R[3 * i + 2]
+        f[i] = m_nom * (a_o[i] - (G if i == 2 else 0.0)) + u_prev * R[3 * i + 2]  # eq. (5a) solved for f_ext
     Q = _Q9(eta[0], eta[1])
     d0, d1, d2 = _solve9(Q, omega[0], omega[1], omega[2])
     qd = _mv9(_Qd9(eta[0], eta[1], d0, d1), d0, d1, d2)
@@ -452,4 +452,4 @@ def lumped_wrench(a_o, omega, w_dot, R, eta, u_prev, tau_prev, m_nom, I_nom, f, 
     ce = _mv9(C, d0, d1, d2)
     qt = _mv9(_t9(Q), tau_prev[0], tau_prev[1], tau_prev[2])
     for i in range(3):
-        tau_eta[i] = me[i] + ce[i] - qt[i]
+        tau_eta[i] = me[i] + ce[i] - qt[i]  # eq. (5b) solved for tau_ext

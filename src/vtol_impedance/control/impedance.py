@@ -311,6 +311,7 @@ def position_step(P: ControllerArrays, S: ControllerState, meas: Measurement, re
     m3 = m[..., None]
     comp = P.compensate[..., None]
 
+    # eqs. (6)-(13): the estimate r of eq. (11)
     est, w_hat = estimator_step(P.est, S.est, meas.eta, meas.eta_dot, meas.v_W, S.thrust_prev, S.tau_B_prev, m, P.I_B)
     f_hat_W = w_hat[..., :3]
 
@@ -327,8 +328,8 @@ def position_step(P: ControllerArrays, S: ControllerState, meas: Measurement, re
     f_lead = f_hat_W + P.est.lead[:3] * est.r_dot[..., :3]
     e_p = meas.p_W - ref.p_W
     e_v = meas.v_W - ref.v_W
-    mu = ref.a_W - (Dp * e_v + Kp * e_p + (1.0 - lam) * P.Ki * S.integral) / m3
-    mu_bar = mu - ((1.0 - lam) * comp * f_hat_W + lam * (1.0 - m3 / P.Md) * f_lead) / m3
+    mu = ref.a_W - (Dp * e_v + Kp * e_p + (1.0 - lam) * P.Ki * S.integral) / m3  # eq. (18a)
+    mu_bar = mu - ((1.0 - lam) * comp * f_hat_W + lam * (1.0 - m3 / P.Md) * f_lead) / m3  # eq. (16): mu - f_hat/m
     # The force follows the command only as fast as the attitude does, about the attitude filter's
     # delay 2 zeta / wn later; comply leads the inertial and force terms of its law by that much:
     # D_d times the impedance's own acceleration, and the force estimate's rate. (Measured on the
@@ -338,6 +339,7 @@ def position_step(P: ControllerArrays, S: ControllerState, meas: Measurement, re
     acc = (f_lead - P.Dd * e_v - P.Kd * e_p) / P.Md
     rate = -P.Dd * acc / P.Md + (1.0 / P.Md - 1.0 / m3) * est.r_dot[..., :3]
     mu_bar = mu_bar + lam * lead * rate
+    # eqs. (16), (20)
     thrust_req, phi_d, theta_d, tilt_limited = thrust_and_attitude(mu_bar, ref.psi, m, P.tilt_max, P.min_lift_accel)
     return PositionStage(
         est, f_hat_W, w_hat[..., 3:], thrust_req, np.stack([phi_d, theta_d], -1), tilt_limited, mu_bar, lam_o
@@ -362,13 +364,13 @@ def attitude_step(
 
     # Attitude impedance (18b) and torque (14).
     eta, eta_dot = meas.eta, meas.eta_dot
-    M = inertia_matrix_M(eta, P.I_B)
-    C = coriolis_matrix_C(eta, eta_dot, P.I_B)
-    Q = euler_rate_matrix_Q(eta)
+    M = inertia_matrix_M(eta, P.I_B)  # eq. (3b)
+    C = coriolis_matrix_C(eta, eta_dot, P.I_B)  # eqs. (3b), (7)
+    Q = euler_rate_matrix_Q(eta)  # eq. (1c)
     e_eta = wrap_angle(eta - eta_d)
     e_eta_dot = eta_dot - eta_d_dot
-    damp = P.Do * e_eta_dot + matvec(C, e_eta_dot) + P.Ko * e_eta
-    tau_bar = eta_d_ddot - np.linalg.solve(M, damp[..., None])[..., 0]
+    damp = P.Do * e_eta_dot + matvec(C, e_eta_dot) + P.Ko * e_eta  # eq. (18b)
+    tau_bar = eta_d_ddot - np.linalg.solve(M, damp[..., None])[..., 0]  # eq. (18b)
     # Per Euler angle, "comply" blends in M_o e'' + D_o e' + K_o e = tau_ext_eta: with (14) cancelling
     # the moment, eta'' = tau_bar, so tau_bar is that law's acceleration. Both use the estimate advanced
     # by G's delay (measured: with the plain estimate in (14) a 0.01 kg m^2 yaw inertia came out at 0.003).
@@ -377,7 +379,7 @@ def attitude_step(
     tau_bar = (1.0 - lam_o) * tau_bar + lam_o * tau_bar_comply
     tau_comp = tau_hat_eta + lam_o * (tau_lead - tau_hat_eta)
     QT = transpose(Q)
-    tau_B_req = (
+    tau_B_req = (  # eq. (14)
         matvec(P.I_B @ Q, tau_bar) + np.linalg.solve(QT, (matvec(C, eta_dot) - comp * tau_comp)[..., None])[..., 0]
     )
     tau_hat_B = np.linalg.solve(QT, tau_hat_eta[..., None])[..., 0]

@@ -70,10 +70,10 @@ def thrust_and_attitude(
     scale = np.where(h_norm > h_max, h_max / np.maximum(h_norm, 1e-300), 1.0)
     m1 = horiz[..., 0] * scale
     m2 = horiz[..., 1] * scale
-    a = np.sqrt(m1 * m1 + m2 * m2 + vert_c * vert_c)
+    a = np.sqrt(m1 * m1 + m2 * m2 + vert_c * vert_c)  # eq. (20a): u = m a
     cp, sp = np.cos(psi_d), np.sin(psi_d)
-    phi_d = np.arcsin(np.clip((m2 * cp - m1 * sp) / a, -1.0, 1.0))
-    theta_d = np.arctan2(-(m1 * cp + m2 * sp), vert_c)
+    phi_d = np.arcsin(np.clip((m2 * cp - m1 * sp) / a, -1.0, 1.0))  # eq. (20b)
+    theta_d = np.arctan2(-(m1 * cp + m2 * sp), vert_c)  # eq. (20c)
     limited = (vert < min_lift_accel) | (scale < 1.0)
     return np.asarray(mass) * a, phi_d, theta_d, limited
 

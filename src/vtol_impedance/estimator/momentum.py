@@ -149,18 +149,18 @@ class EstimatorParams:
         """From the gains of eq. (11) via eq. (13): ``k1 k2 = wn^2``, ``k1 = 2 zeta wn``."""
         k1 = _six("K1", K1)
         k2 = _six("K2", K2)
-        wn = np.sqrt(k1 * k2)
-        return cls(wn=wn, zeta=k1 / (2.0 * wn), order=2, prototype="zeta")
+        wn = np.sqrt(k1 * k2)  # eq. (13a)
+        return cls(wn=wn, zeta=k1 / (2.0 * wn), order=2, prototype="zeta")  # eq. (13b)
 
     @property
     def K1(self) -> np.ndarray:
         """Diagonal of ``K1`` in eq. (11) (order 2): ``2 zeta wn``."""
-        return 2.0 * self.zeta * self.wn
+        return 2.0 * self.zeta * self.wn  # eq. (13b)
 
     @property
     def K2(self) -> np.ndarray:
         """Diagonal of ``K2`` in eq. (11) (order 2): ``wn / (2 zeta)``."""
-        return self.wn / (2.0 * self.zeta)
+        return self.wn / (2.0 * self.zeta)  # eqs. (13a), (13b)
 
     def channel_poles(self) -> np.ndarray:
         """Continuous-time poles, shape ``(6, order)``."""
@@ -171,7 +171,7 @@ class EstimatorParams:
         if self.prototype == "zeta":
             z = self.zeta[:, None].astype(complex)
             root = np.sqrt(z * z - 1.0)
-            return np.concatenate([wn * (-z + root), wn * (-z - root)], -1)
+            return np.concatenate([wn * (-z + root), wn * (-z - root)], -1)  # the poles of eq. (10)
         if self.prototype == "binomial":
             return -wn * np.ones((6, n))
         k = np.arange(1, n + 1)
@@ -240,7 +240,7 @@ def _channel(poles: tuple[complex, ...], Ts: float) -> tuple[np.ndarray, np.ndar
     aug = np.zeros((n + 1, n + 1))
     aug[:n, :n] = A * Ts
     aug[n - 1, n] = Ts
-    E = scipy.linalg.expm(aug)
+    E = scipy.linalg.expm(aug)  # eq. (12) over one period, input held
     C = np.zeros(n)
     C[0] = coeffs[-1]
     out = E[:n, :n], E[:n, n], C, C @ A
@@ -391,7 +391,7 @@ def estimator_step(
     ----------
     Ruggiero et al. 2014, eqs. (6)-(13).
     """
-    q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)
+    q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)  # eq. (6)
     cmd = np.concatenate([np.asarray(thrust_prev, dtype=float)[..., None], np.asarray(tau_B_prev, dtype=float)], -1)
     if not state.started:  # the history starts filled with the present
         act_hist = np.broadcast_to(cmd[..., None, :], cmd.shape[:-1] + (des.H, 4)).copy()
@@ -408,13 +408,14 @@ def estimator_step(
     u_w = history_at(act_hist, des.dv)[..., 0]
     eta_a = history_at(eta_hist, des.d_att + 1.0, angles=True)
     eta_b = history_at(eta_hist, des.d_att, angles=True)
-    beta_lin = momentum_rate_linear(eta_a, u_w, mass) + momentum_rate_linear(eta_b, u_w, mass)
+    beta_lin = momentum_rate_linear(eta_a, u_w, mass) + momentum_rate_linear(eta_b, u_w, mass)  # eq. (8), both ends
+    # eq. (8), both ends of the period
     beta_ang = momentum_rate_angular(state.eta_prev, state.eta_dot_prev, tau_w, I_B) + momentum_rate_angular(
         eta, eta_dot, tau_w, I_B
     )
-    w_bar = (q - state.q_prev) / des.Ts - 0.5 * np.concatenate([beta_lin, beta_ang], -1)
-    x = np.einsum("cij,...cj->...ci", des.Ad, state.x) + des.Bd * w_bar[..., None]
-    r = np.einsum("ci,...ci->...c", des.C, x)
+    w_bar = (q - state.q_prev) / des.Ts - 0.5 * np.concatenate([beta_lin, beta_ang], -1)  # eq. (8) over the period
+    x = np.einsum("cij,...cj->...ci", des.Ad, state.x) + des.Bd * w_bar[..., None]  # eqs. (11), (12): G(s)
+    r = np.einsum("ci,...ci->...c", des.C, x)  # eq. (11): r = [f_hat_ext_W; tau_hat_ext_eta]
     r_dot = np.einsum("ci,...ci->...c", des.CA, x) + des.CB * w_bar
     return EstimatorState(x, q, eta, eta_dot, True, r_dot, act, act_hist, eta_hist), r
 

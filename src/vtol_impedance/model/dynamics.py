@@ -33,7 +33,7 @@ def transpose(A: np.ndarray) -> np.ndarray:
 def inertia_matrix_M(eta: np.ndarray, I_B: np.ndarray) -> np.ndarray:
     """``M(eta) = Q^T I_B Q``, eq. (3b); symmetric positive definite away from theta = +-pi/2."""
     Q = euler_rate_matrix_Q(eta)
-    return transpose(Q) @ np.asarray(I_B, dtype=float) @ Q
+    return transpose(Q) @ np.asarray(I_B, dtype=float) @ Q  # eq. (3b)
 
 
 def coriolis_matrix_C(eta: np.ndarray, eta_dot: np.ndarray, I_B: np.ndarray) -> np.ndarray:
@@ -53,7 +53,7 @@ def coriolis_matrix_C(eta: np.ndarray, eta_dot: np.ndarray, I_B: np.ndarray) -> 
     I_B = np.asarray(I_B, dtype=float)
     QT = transpose(Q)
     h_B = matvec(I_B, matvec(Q, eta_dot))  # body angular momentum
-    return QT @ transpose(skew(h_B)) @ Q + QT @ I_B @ Qd
+    return QT @ transpose(skew(h_B)) @ Q + QT @ I_B @ Qd  # C of eq. (3b), satisfying (7)
 
 
 def generalized_momentum(
@@ -62,7 +62,7 @@ def generalized_momentum(
     """``q = [m p_dot; M(eta) eta_dot]``, eq. (6); returns ``(..., 6)``."""
     lin = np.asarray(mass, dtype=float)[..., None] * np.asarray(v_W, dtype=float)
     ang = matvec(inertia_matrix_M(eta, I_B), eta_dot)
-    return np.concatenate([lin, ang], -1)
+    return np.concatenate([lin, ang], -1)  # eq. (6)
 
 
 def momentum_rate_known(
@@ -77,7 +77,7 @@ def momentum_rate_known(
 
     ``beta = [-u R(eta) e3 + m g_W;  Q^T tau_B + C^T eta_dot]``, so that ``q_dot = beta + [f_ext_W; tau_ext_eta]``.
     """
-    return np.concatenate(
+    return np.concatenate(  # eq. (8)
         [momentum_rate_linear(eta, thrust, mass), momentum_rate_angular(eta, eta_dot, tau_B, I_B)], -1
     )
 
@@ -85,6 +85,7 @@ def momentum_rate_known(
 def momentum_rate_linear(eta: np.ndarray, thrust: np.ndarray, mass: np.ndarray) -> np.ndarray:
     """The linear part of ``beta`` in eq. (8): ``-u R(eta) e3 + m g_W`` (world NED, N)."""
     R = rotation_zyx(eta)
+    # eq. (8), linear part
     return -np.asarray(thrust, dtype=float)[..., None] * R[..., :, 2] + np.asarray(mass)[..., None] * GRAVITY_W
 
 
@@ -92,7 +93,7 @@ def momentum_rate_angular(eta: np.ndarray, eta_dot: np.ndarray, tau_B: np.ndarra
     """The angular part of ``beta`` in eq. (8): ``Q^T tau_B + C^T eta_dot`` (Euler coordinates, N m)."""
     Q = euler_rate_matrix_Q(eta)
     C = coriolis_matrix_C(eta, eta_dot, I_B)
-    return matvec(transpose(Q), tau_B) + matvec(transpose(C), eta_dot)
+    return matvec(transpose(Q), tau_B) + matvec(transpose(C), eta_dot)  # eq. (8), angular part
 
 
 def euler_moment_from_body(tau_B: np.ndarray, eta: np.ndarray) -> np.ndarray:

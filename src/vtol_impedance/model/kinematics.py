@@ -47,7 +47,7 @@ def rotation_zyx(eta: np.ndarray) -> np.ndarray:
     s = np.sin(eta)
     cf, ct, cp = c[..., 0], c[..., 1], c[..., 2]
     sf, st, sp = s[..., 0], s[..., 1], s[..., 2]
-    return np.stack(
+    return np.stack(  # eq. (1a): R_WB
         [
             np.stack([cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf], -1),
             np.stack([sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf], -1),
@@ -76,7 +76,7 @@ def euler_rate_matrix_T(eta: np.ndarray) -> np.ndarray:
     z, o = np.zeros_like(ct), np.ones_like(ct)
     return np.stack(
         [
-            np.stack([cp * ct, -sp, z], -1),
+            np.stack([cp * ct, -sp, z], -1),  # eq. (1b): T(eta)
             np.stack([sp * ct, cp, z], -1),
             np.stack([-st, z, o], -1),
         ],
@@ -92,7 +92,7 @@ def euler_rate_matrix_Q(eta: np.ndarray) -> np.ndarray:
     z, o = np.zeros_like(cf), np.ones_like(cf)
     return np.stack(
         [
-            np.stack([o, z, -st], -1),
+            np.stack([o, z, -st], -1),  # eq. (1c): Q(eta)
             np.stack([z, cf, sf * ct], -1),
             np.stack([z, -sf, cf * ct], -1),
         ],
@@ -110,7 +110,7 @@ def euler_rate_matrix_Q_dot(eta: np.ndarray, eta_dot: np.ndarray) -> np.ndarray:
     z = np.zeros_like(cf)
     return np.stack(
         [
-            np.stack([z, z, -ct * dt], -1),
+            np.stack([z, z, -ct * dt], -1),  # d/dt of eq. (1c)
             np.stack([z, -sf * df, cf * ct * df - sf * st * dt], -1),
             np.stack([z, -cf * df, -sf * ct * df - cf * st * dt], -1),
         ],

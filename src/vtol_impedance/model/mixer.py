@@ -20,7 +20,7 @@ THRUST_SHIFT_MAX = 0.25
 def mix(f: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (4): rotor forces ``f (..., n)`` to total thrust ``u (...)`` and body torque ``tau_B (..., 3)``."""
     w = np.einsum("...ij,...j->...i", np.asarray(E, dtype=float), np.asarray(f, dtype=float))
-    return w[..., 0], w[..., 1:]
+    return w[..., 0], w[..., 1:]  # eq. (4)
 
 
 def unmix(thrust: np.ndarray, tau_B: np.ndarray, E_pinv: np.ndarray) -> np.ndarray:
@@ -135,9 +135,9 @@ def allocate(
     ys = np.where(keep, np.clip(hi_keep, 0.0, 1.0), ys)
     delta = np.where(keep, u - u_c, delta)
     base = np.where(keep[..., None], base_keep, base)
-    f = np.clip(base + ys[..., None] * yw, fmin, fmax)
+    f = np.clip(base + ys[..., None] * yw, fmin, fmax)  # eq. (4) inverted within the limits
 
-    u_out, tau_out = mix(f, E)
+    u_out, tau_out = mix(f, E)  # eq. (4)
     shift = u_c + delta - u
     saturated = (k < 1.0 - 1e-9) | (ys < 1.0 - 1e-9) | (np.abs(shift) > 1e-9 * np.maximum(np.abs(u), 1.0))
     return Allocation(f, u_out, tau_out, saturated, ys, k, shift)

@@ -155,7 +155,7 @@ def effectiveness(positions_B: np.ndarray, spins: np.ndarray, drag_factor: float
     """
     r = np.asarray(positions_B, dtype=float)
     s = np.asarray(spins, dtype=float) * np.asarray(drag_factor, dtype=float)[..., None]
-    return np.stack([np.ones(r.shape[:-1]), -r[..., 1], r[..., 0], s], axis=-2)
+    return np.stack([np.ones(r.shape[:-1]), -r[..., 1], r[..., 0], s], axis=-2)  # eq. (4) for any layout
 
 
 @dataclass(frozen=True, eq=False)
