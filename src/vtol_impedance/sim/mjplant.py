@@ -116,33 +116,30 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
     ``payload`` (welded, a point mass at ``payload_offset_B``), ``bob`` (ball joint at the composite
     centre of mass). Sites ``rotor<i>`` carry the actuators ``rotor<i>``.
     """
-    v = P.vehicle
-    m_b, m_p, m_l = v.mass, float(P.payload_mass), float(P.pendulum_mass)
-    r_p = np.asarray(P.payload_offset_B, dtype=float)
-    c_B = m_p * r_p / (m_b + m_p)
-    scale = np.broadcast_to(np.asarray(P.inertia_scale, dtype=float), (3,))
-    I_frd = v.inertia * np.sqrt(np.outer(scale, scale))
-    I_flu = T_FRD_FLU @ I_frd @ T_FRD_FLU
-    m_all = m_b + m_p + m_l
-    r0 = CONTACT_RADIUS_M
     if len(walls) > MAX_WALLS:
         raise InputError(f"the MuJoCo plant takes at most {MAX_WALLS} walls, got {len(walls)}")
-    g = v.geometry
-    pos = g.positions_B * P.arm_length_scale
-    cq = v.drag_factor * P.drag_factor_scale
-    lag = P.rotor_tau_up > 0 or P.rotor_tau_down > 0
+    m_all = P.vehicle.mass + float(P.payload_mass) + float(P.pendulum_mass)
     out = [
         '<mujoco model="vtol-impedance">',
         '  <compiler angle="radian" autolimits="true"/>',
         f'  <option timestep="{_f(timestep)}" gravity="0 0 {-G}" integrator="RK4" density="0" viscosity="0"/>',
         "  <worldbody>",
     ]
+    surfaces, bumpers = _mjcf_surfaces(P, walls, m_all)
+    out += surfaces + _mjcf_vehicle(P, bumpers) + ["  </worldbody>", "  <actuator>"] + _mjcf_actuators(P)
+    out += ["  </actuator>", "</mujoco>"]
+    return "\n".join(out) + "\n"
+
+
+def _mjcf_surfaces(P: PlantParams, walls: Sequence[Wall], m_all: float) -> tuple[list[str], list[str]]:
+    """The ground and the walls (world geoms), and the vehicle's bumper geom for each wall."""
+    r0 = CONTACT_RADIUS_M
+    out, bumpers = [], []
     if P.ground:
         out.append(
             f'    <geom name="ground" type="plane" size="0 0 1" pos="0 0 {-r0}" contype="0" conaffinity="1" '
             f'friction="1 0.005 0.0001" {_contact_attrs(P.ground_stiffness, P.ground_damping, m_all)}/>'
         )
-    bumpers = []
     for i, w in enumerate(walls):
         # wall i collides only with bumper i: a sphere of the wall's radius around the body origin (as
         # in the built-in wall), or of CONTACT_RADIUS_M with the plane moved to keep the contact point
@@ -159,7 +156,19 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
             f'      <geom name="bumper{i}" type="sphere" size="{_f(radius)}" mass="0" contype="{bit}" '
             'conaffinity="0" rgba="0.9 0.6 0.2 0.3"/>'
         )
-    out += [
+    return out, bumpers
+
+
+def _mjcf_vehicle(P: PlantParams, bumpers: list[str]) -> list[str]:
+    """The vehicle body (true mass and inertia, FLU), its rotor sites, the welded payload and the pendulum."""
+    v = P.vehicle
+    m_b, m_p, m_l = v.mass, float(P.payload_mass), float(P.pendulum_mass)
+    r_p = np.asarray(P.payload_offset_B, dtype=float)
+    c_B = m_p * r_p / (m_b + m_p)
+    scale = np.broadcast_to(np.asarray(P.inertia_scale, dtype=float), (3,))
+    I_flu = T_FRD_FLU @ (v.inertia * np.sqrt(np.outer(scale, scale))) @ T_FRD_FLU
+    r0 = CONTACT_RADIUS_M
+    out = [
         '    <body name="vehicle">',
         '      <freejoint name="vehicle"/>',
         f'      <inertial pos="0 0 0" mass="{_f(m_b)}" fullinertia="{_f(I_flu[0, 0])} {_f(I_flu[1, 1])} '
@@ -168,7 +177,7 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
         '      <site name="origin" pos="0 0 0" size="0.01"/>',
         *bumpers,
     ]
-    for i, r_i in enumerate(pos):
+    for i, r_i in enumerate(v.geometry.positions_B * P.arm_length_scale):
         out.append(f'      <site name="rotor{i}" pos="{_v(_flu(r_i))}" size="0.02"/>')
     if m_p > 0:
         out += [
@@ -188,7 +197,16 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
             'contype="0" conaffinity="0"/>',
             "      </body>",
         ]
-    out += ["    </body>", "  </worldbody>", "  <actuator>"]
+    return out + ["    </body>"]
+
+
+def _mjcf_actuators(P: PlantParams) -> list[str]:
+    """One actuator per rotor (thrust along the site's z, its drag moment, the lag as MuJoCo's filter) and
+    three body-frame moment motors for the disturbances."""
+    g = P.vehicle.geometry
+    cq = P.vehicle.drag_factor * P.drag_factor_scale
+    lag = P.rotor_tau_up > 0 or P.rotor_tau_down > 0
+    out = []
     for i, s_i in enumerate(g.spins):
         dyn = f'dyntype="filter" dynprm="{_f(max(P.rotor_tau_up, P.rotor_tau_down))}"' if lag else 'dyntype="none"'
         out.append(
@@ -197,8 +215,7 @@ def mjcf(P: PlantParams, walls: Sequence[Wall] = (), timestep: float = 0.001) ->
         )
     for axis, gear in zip("xyz", np.eye(3), strict=True):  # disturbance moments, held in the body frame
         out.append(f'    <motor name="moment_{axis}" site="origin" gear="0 0 0 {_v(gear)}" ctrllimited="false"/>')
-    out += ["  </actuator>", "</mujoco>"]
-    return "\n".join(out) + "\n"
+    return out
 
 
 def scene_mjcf(P: PlantParams, disturbances: Sequence[Any] = (), timestep: float = 0.001) -> str:
@@ -480,10 +497,32 @@ class MujocoPlant:
             push(self.x)
 
     def _advance_rollout(self, t: float, f_cmd: np.ndarray, n_sub: int, dt: float, push: Any) -> None:
-        from mujoco import rollout
-
         mj = self.mj
         active = [b for b in range(len(self.datas)) if not (self.failed[b] or self.frozen[b])]
+        inputs, state0 = self._rollout_inputs(active, t, f_cmd, n_sub, dt)
+        states = np.empty((len(active), n_sub, state0.shape[1]))
+        if active:
+            from mujoco import rollout
+
+            if self._pool is None:  # one thread pool for the whole run (a pool per call costs its threads)
+                self._pool = rollout.Rollout(nthread=len(self._threads) if len(self._threads) > 1 else 0)
+            # the arrays are made here with the sizes MuJoCo asks for: its argument checks are skipped
+            self._pool.rollout([self.models[b] for b in active], self._threads, state0, inputs,
+                               control_spec=int(self._inputs), nstep=n_sub, state=states, skip_checks=True)  # fmt: skip
+        converted = self._rollout_states(active, states, n_sub)
+        for i, b in enumerate(active):  # the vehicles' data end at the period's final state
+            mj.mj_setState(self.models[b], self.datas[b], states[i, n_sub - 1], self._full)
+        self.x = converted[n_sub - 1]
+        # every step is pushed, in order; a state no sensor reads stands in as the period's last
+        for j in range(n_sub):
+            push(converted.get(j, self.x))
+
+    def _rollout_inputs(
+        self, active: list[int], t: float, f_cmd: np.ndarray, n_sub: int, dt: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The rollout's per-step inputs (rotor commands, disturbance moments and forces) and initial states
+        of the ``active`` vehicles."""
+        mj = self.mj
         # the rotor commands, lags and the first step's forces; then each step's forces (time alone)
         f_W, tau_B, _ = self._apply(t, f_cmd)
         if self.forces.items:
@@ -506,15 +545,14 @@ class MujocoPlant:
             inputs[:, 1:] = inputs[:, :1]
         for i, b in enumerate(active):
             mj.mj_getState(self.models[b], self.datas[b], state0[i], self._full)
-        states = np.empty((len(active), n_sub, state0.shape[1]))
-        if active:
-            if self._pool is None:  # one thread pool for the whole run (a pool per call costs its threads)
-                self._pool = rollout.Rollout(nthread=len(self._threads) if len(self._threads) > 1 else 0)
-            # the arrays are made here with the sizes MuJoCo asks for: its argument checks are skipped
-            self._pool.rollout([self.models[b] for b in active], self._threads, state0, inputs,
-                               control_spec=int(self._inputs), nstep=n_sub, state=states, skip_checks=True)  # fmt: skip
+        return inputs, state0
+
+    def _rollout_states(self, active: list[int], states: np.ndarray, n_sub: int) -> dict[int, np.ndarray]:
+        """The plant states (this package's layout, NED/FRD) of the steps a sensor reads, every vehicle; a
+        vehicle that no longer steps keeps its state, a diverged one is NaN."""
         js = self._steps_read(n_sub)
         oq, ov, oa = self._offsets
+        m0 = self.models[0]
         nq, nv, na = m0.nq, m0.nv, m0.na
         every = len(active) == len(self.datas)  # every vehicle stepped: no state to keep
         if active:
@@ -536,13 +574,7 @@ class MujocoPlant:
         if self.failed.any():
             xs = xs.copy()
             xs[:, self.failed] = np.nan
-        converted = dict(zip(js, xs, strict=True))
-        for i, b in enumerate(active):  # the vehicles' data end at the period's final state
-            mj.mj_setState(self.models[b], self.datas[b], states[i, n_sub - 1], self._full)
-        self.x = converted[n_sub - 1]
-        # every step is pushed, in order; a state no sensor reads stands in as the period's last
-        for j in range(n_sub):
-            push(converted.get(j, self.x))
+        return dict(zip(js, xs, strict=True))
 
     def _steps_read(self, n_sub: int) -> list[int]:
         """The steps of a period whose states are converted: those a sensor reads (:attr:`sensor_ages`) and
