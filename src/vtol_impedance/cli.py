@@ -323,7 +323,7 @@ def _preflight(
                          "the thresholds; every finding: report.html, section 'Stability margins'"
                          + ("" if verbose else ", or --verbose"))  # fmt: skip
         else:
-            lines.append("  every finding: the report's section 'Stability margins', or 'vtol-impedance margins'")
+            lines.append("  every finding: the margins in the results folder, or 'vtol-impedance margins'")
         print(
             f"warning: stability margins below the thresholds ({t.phase_deg:g} deg phase, {t.gain_db:g} dB gain, "
             f"damping {t.damping:g}) at the operating point:\n" + "\n".join(lines),
@@ -488,10 +488,11 @@ def _margin_findings(margins: dict[str, Any], tuning: str) -> list[str]:
 
     found = [f"{case}, {w}" for case, reports in margins.items() for w in warnings_of(reports)]
     if found and tuning == "paper":
-        found.append(
-            "Expected for the paper's printed gains (attitude 8 rad/s, estimator 10 rad/s, the estimate read at "
-            "face value) on a plant with sensor latency and rotor lag: 'vtol-impedance paper --tuning design' "
-            "flies gains designed to meet the thresholds, with the same position impedance."
+        found.insert(
+            0,
+            "As expected, the paper's printed gains (attitude 8 rad/s, estimator 10 rad/s, the estimate read at "
+            "face value) fall short on a plant with sensor latency and rotor lag; 'vtol-impedance paper --tuning "
+            "design' flies gains designed to meet the thresholds, with the same position impedance. Every finding:",
         )
     return found
 

@@ -133,9 +133,10 @@ COLUMNS = {
     "verdict": "ok, or every threshold the controller falls short of",
     "loop": "the loop broken (the others closed): a force or torque input, or a position or attitude reference",
     "phase margin [deg]": "distance from -180 deg of the loop's phase where its gain crosses 1",
-    "gain margin up [dB]": "how much the loop's gain may rise before the closed loop goes unstable",
+    "gain margin up [dB]": "how much the loop's gain may rise before the closed loop goes unstable (none: no "
+    "rise does)",
     "gain margin down [dB]": "how much it may fall (a loop around a double integrator also destabilises when "
-    "its gain falls)",
+    "its gain falls; none: no fall does)",
     "delay margin [ms]": "the extra delay the loop tolerates: phase margin over crossover frequency",
     "crossover [rad/s]": "where the loop's gain crosses 1",
     "sensitivity peak": "the largest |1/(1 + L)|: how much the loop amplifies a disturbance at its worst frequency",
@@ -181,11 +182,12 @@ def paper_figure(path: Path) -> str:
     return ""
 
 
-def _paper_order(path: Path) -> tuple[int, str]:
-    """Figures in the paper's order within a case (:data:`PAPER_FIGURES`), the others after them."""
+def _paper_order(path: Path) -> int:
+    """Figures in the paper's order within a case (:data:`PAPER_FIGURES`), the others after them (a stable
+    sort keeps their order)."""
     kind = _paper_kind(path)
     order = list(PAPER_FIGURES[kind[0]]) if kind else []
-    return (order.index(kind[1]) if kind and kind[1] in order else len(order)), Path(path).stem
+    return order.index(kind[1]) if kind and kind[1] in order else len(order)
 
 
 def _img(path: Path) -> str:
@@ -196,9 +198,14 @@ def _img(path: Path) -> str:
     return f"<figure><img src='data:{mime};base64,{data}' alt='{name}'><figcaption>{cap}</figcaption></figure>"
 
 
+def _cell(text: str) -> str:
+    """A table cell: numbers right-aligned, prose (a verdict, a reason) left."""
+    return f"<td class='text'>{text}</td>" if len(text) > 24 else f"<td>{text}</td>"
+
+
 def html_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     out = ["<table><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>"]
-    out += ["<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows]
+    out += ["<tr>" + "".join(_cell(html.escape(str(c))) for c in r) + "</tr>" for r in rows]
     return "\n".join(out) + "</table>"
 
 
@@ -294,7 +301,7 @@ def write_html(
             "Versions and seed",
             tables=[("", ["package", "version"], [[k, v] for k, v in versions.items()] + [["seed", str(seed)]])],
             anchor="versions",
-        ),  # fmt: skip
+        ),
     ]
     if config is not None:
         text = json.dumps(config, indent=1, default=str)[:500000]
@@ -305,15 +312,16 @@ def write_html(
         f"<title>{html.escape(title)}</title>",
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto;padding:0 1em}"
         "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;"
-        "text-align:right}td:first-child,th:first-child{text-align:left;white-space:nowrap}img{max-width:100%}figure{margin:1em 0}figcaption{color:#555;font-size:90%}"
+        "text-align:right}td:first-child,th:first-child{text-align:left;white-space:nowrap}td.text{text-align:left}"
+        "img{max-width:100%}figure{margin:1em 0}figcaption{color:#555;font-size:90%}"
         ".legend{color:#555;font-size:85%;margin-top:0}nav ul{margin:0.2em 0}"
         "pre{background:#f6f6f6;padding:0.5em;overflow:auto;max-height:30em}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
         *(f"<p class='note'>{html.escape(n)}</p>" for n in notes),
         f"<nav id='contents'><b>Contents</b><ul>{''.join(toc)}</ul></nav>",
         *body,
+        "</body></html>",
     ]
-    parts.append("</body></html>")
     return write_text(folder / "report.html", "\n".join(parts))
 
 
