@@ -155,6 +155,17 @@ def test_report_opens_with_the_table_then_figures_then_margins(page):
     assert any("_margins_bode" in c for c in fig[len(flight) :])
 
 
+def test_the_report_holds_every_margin_finding_in_full(paper):
+    text = (paper["out"] / "report.html").read_text(encoding="utf-8")
+    margins = text[text.index("<h2 id='margins'>") :]
+    assert "As expected, the paper&#x27;s printed gains" in margins and "--tuning design" in margins
+    for case in CASES:
+        # the terminal's one line per case, in full here: each controller, its loop and its margins
+        for who in ("PD", "PID", "PD+C"):
+            assert f"<li>{case}, {who}: " in margins, (case, who)
+    assert margins.count(RISK) >= len(CASES) and "delay margin" in margins
+
+
 def test_captions_cite_the_paper_figure_each_figure_mirrors(page):
     """Ruggiero et al. 2014, Sec. VI.B: Fig. 4 (a) position and (b) velocity error norms and (d) inputs of
     case A, Fig. 5 its estimated wrench; Figs. 6 and 7 case B's errors and wrench; Fig. 8 (a) the x-y

@@ -333,12 +333,14 @@ def flight_sections(
     descriptions: dict[str, str] | None = None,
     margin_tables: Sequence[tuple[str, Sequence[str], Sequence[Sequence[str]]]] = (),
     margin_notes: Sequence[str] = (),
+    margin_findings: Sequence[str] = (),
 ) -> list[Section]:
     """The sections of a flight's report (``paper``, ``run``, ``compare``), ordered for a reader: the
-    ``tables`` with their ``notes``; each case's figures (``figures``, by case) in the paper's order, captions
-    citing the paper's figure (:data:`PAPER_FIGURES`); then the stability margins: ``margin_notes``, and per
-    case its tables (those whose caption starts with ``"<case>:"``) and margin figures (``*_margins_*``).
-    ``descriptions``: a heading per case (default: the case's name)."""
+    ``tables`` with their ``notes``; each case's figures (``figures``, by case) in the paper's order,
+    captions citing the paper's figure (:data:`PAPER_FIGURES`); then the stability margins:
+    ``margin_notes`` (paragraphs), ``margin_findings`` (a list), and per case its tables (those whose
+    caption starts with ``"<case>:"``) and margin figures (``*_margins_*``). ``descriptions``: a heading
+    per case (default: the case's name)."""
     desc = descriptions or {}
     heading = {c: f"{desc[c].rstrip('.')}; scenario {c}" if desc.get(c) else c for c in figures}
     flights = {
@@ -351,7 +353,7 @@ def flight_sections(
     cases = {c: ([t for t in margin_tables if t[0].startswith(f"{c}:")],
                  [p for p in figures[c] if "_margins_" in Path(p).stem]) for c in figures}  # fmt: skip
     rest = [t for t in margin_tables if not any(t in ts for ts, _ in cases.values())]
-    if margin_notes or margin_tables:
+    if margin_notes or margin_findings or margin_tables:
         from ..robust import Thresholds
 
         t = Thresholds()
@@ -363,7 +365,8 @@ def flight_sections(
             f"at a time, the others closed; thresholds: {t.phase_deg:g} deg phase, {t.gain_db:g} dB gain up and "
             f"down, damping {t.damping:g} ('vtol-impedance margins' for one scenario; the guide's 'Stability "
             "margins' for why).",
+            *margin_notes,
         ]
-        out.append(Section("Stability margins", notes=notes, items=margin_notes, tables=rest, subsections=subs,
+        out.append(Section("Stability margins", notes=notes, items=margin_findings, tables=rest, subsections=subs,
                            anchor="margins"))  # fmt: skip
     return out
