@@ -1,6 +1,5 @@
 """The command-line interface end to end on shortened scenarios, including its errors."""
 
-import csv
 import json
 import shutil
 import subprocess
@@ -23,23 +22,7 @@ def test_help_and_list(capsys):
     assert "case-a-payload-v1" in out and "pdc" in out
 
 
-def test_paper_writes_figures_table_report_and_data(tmp_path, capsys):
-    out = tmp_path / "res"
-    rc = main(["paper", "--out", str(out), "--duration", "1.0", "--jobs", "1", "--quiet"])
-    assert rc == 0
-    printed = capsys.readouterr().out
-    assert "PD+C" in printed and "case-c-circle-v1" in printed
-    for case in ("case-a-payload-v1", "case-b-fan-v1", "case-c-circle-v1"):
-        for suffix in ("_errors.png", "_inputs.png", "_wrench.png", ".npz", ".config.json"):
-            assert (out / f"{case}{suffix}").stat().st_size > 0
-        r = Result.load(out / f"{case}.npz")
-        assert r.labels == ["pd", "pid", "pdc"]
-    assert (out / "case-c-circle-v1_xy.png").exists()
-    rows = list(csv.DictReader((out / "metrics.csv").open(encoding="utf-8")))
-    assert len(rows) == 9 and {r["controller"] for r in rows} == {"pd", "pid", "pdc"}
-    assert "<table>" in (out / "report.html").read_text(encoding="utf-8")
-    assert (out / "metrics.md").read_text(encoding="utf-8").startswith("| case")
-    assert not list(out.glob(".*.tmp"))
+# the paper command end to end (its files, terminal output and report): tests/test_first_hour.py
 
 
 def test_run_and_compare_with_overrides(tmp_path, capsys):

@@ -113,18 +113,26 @@ def plot_wrench(result: Result, path: Path, label: str = "pdc", title: str = "")
 
 
 def plot_xy(result: Result, path: Path, title: str = "") -> Path:
-    """Horizontal path: reference and each controller over the task window (Fig. 8a). y east, x north."""
+    """Horizontal path over the task window, one panel per controller with the reference dashed in each,
+    so that no path hides another (Fig. 8a shows PD+C's), titled with its RMS horizontal distance from the
+    reference (cm); the panels share their scales. y east, x north (m)."""
     m = window_mask(result)
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(result["p_ref_W"][0, m, 1], result["p_ref_W"][0, m, 0], "--", color="gray", lw=1.5, label="reference")
+    n = len(result.labels)
+    fig, ax = plt.subplots(1, n, figsize=(3.8 * n + 0.6, 4.4), sharex=True, sharey=True, squeeze=False)
     for b, lab in enumerate(result.labels):
-        ax.plot(result["p_W"][b, m, 1], result["p_W"][b, m, 0], color=COLORS.get(lab), lw=1, label=_label(lab))
-    ax.set_xlabel("y (east) [m]")
-    ax.set_ylabel("x (north) [m]")
-    ax.set_aspect("equal")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(title or "Horizontal path")
+        a = ax[0, b]
+        a.plot(result["p_ref_W"][b, m, 1], result["p_ref_W"][b, m, 0], "--", color="gray", lw=1.5, label="reference")
+        a.plot(result["p_W"][b, m, 1], result["p_W"][b, m, 0], color=COLORS.get(lab), lw=1, label=_label(lab))
+        e_xy = result["p_W"][b, m, :2] - result["p_ref_W"][b, m, :2]
+        rms = 100 * np.sqrt(np.nanmean(np.sum(e_xy * e_xy, axis=-1)))  # the paths differ by cm on a 1 m circle
+        a.set_title(f"{_label(lab)}: RMS {rms:.1f} cm off the reference", fontsize=9, color=COLORS.get(lab))
+        a.set_xlabel("y (east) [m]")
+        a.set_aspect("equal")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7, loc="upper right")
+    ax[0, 0].set_ylabel("x (north) [m]")
+    fig.suptitle(title or "Horizontal path")
+    fig.tight_layout()
     return _save(fig, path)
 
 

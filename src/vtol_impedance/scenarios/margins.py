@@ -62,6 +62,12 @@ def scenario_margins(spec: ScenarioSpec, variants: Sequence[str] = ("pd", "pid",
     return out
 
 
+#: What a compensating controller that falls short of the thresholds risks (said before it flies).
+RISK = "compensating here can make the vehicle worse than PD"
+#: The controllers that compensate the estimate (their shortfall carries :data:`RISK`).
+COMPENSATING = ("pdc", "comply")
+
+
 def warnings_of(reports: dict[str, MarginReport], thresholds: Thresholds | None = None) -> list[str]:
     """One line per controller that falls short of ``thresholds``."""
     from ..control.impedance import DISPLAY_NAMES
@@ -70,6 +76,30 @@ def warnings_of(reports: dict[str, MarginReport], thresholds: Thresholds | None 
     for variant, r in reports.items():
         v = r.violations(thresholds)
         if v:
-            risk = " (compensating here can make the vehicle worse than PD)" if variant in ("pdc", "comply") else ""
+            risk = f" ({RISK})" if variant in COMPENSATING else ""
             out.append(f"{DISPLAY_NAMES.get(variant, variant)}: " + "; ".join(v) + risk)
     return out
+
+
+def summary_of(reports: dict[str, MarginReport], thresholds: Thresholds | None = None) -> str:
+    """:func:`warnings_of` in one line: the controllers that fall short of ``thresholds``, the worst one's
+    shortfalls (unstable first, else the least phase margin; its phase margin in deg, gain margin in dB
+    and least damping ratio where each falls short) and, when a compensating controller falls short,
+    :data:`RISK`. ``""`` when every controller meets the thresholds."""
+    from ..control.impedance import DISPLAY_NAMES
+
+    t = Thresholds() if thresholds is None else thresholds
+    short = {v: r for v, r in reports.items() if r.violations(t)}
+    if not short:
+        return ""
+    name, worst = min(short.items(), key=lambda kv: (kv[1].stable, kv[1].summary()["pm_min_deg"]))
+    s = worst.summary()
+    if not worst.stable:
+        what = [f"unstable, a closed-loop pole grows at {s['growth_rate']:.3g} 1/s"]
+    else:
+        what = [f"phase {s['pm_min_deg']:.1f} deg"] if s["pm_min_deg"] < t.phase_deg else []
+        what += [f"gain {s['gm_min_db']:.1f} dB"] if s["gm_min_db"] < t.gain_db else []
+        what += [f"damping {s['damping_min']:.2f}"] if s["damping_min"] < t.damping else []
+    names = ", ".join(DISPLAY_NAMES.get(v, v) for v in short)
+    line = f"{names} below (worst {DISPLAY_NAMES.get(name, name)}: {', '.join(what)})"
+    return line + (f"; {RISK}" if any(v in COMPENSATING for v in short) else "")
