@@ -2,7 +2,7 @@
 agile flights of the project's simulator and a prescribed figure-eight, each with an aerodynamic drag force
 of 10-25 % of the weight) and corrupted logs made from them (velocity played backwards, rows shuffled, the
 thrust replaced by noise, degrees declared radians, deg/s declared rad/s, ENU declared NED, body axes
-swapped, one column swapped with another). No corrupted log gets an estimate without ``force``, no correct
+swapped, one column swapped with another), all logged at 50 Hz (the shipped CSV sample's rate). No corrupted log gets an estimate without ``force``, no correct
 log is refused; both rates are counted and printed (docs/guide/logs.md quotes them)."""
 
 from __future__ import annotations
@@ -34,15 +34,13 @@ def _rotation(b3: np.ndarray) -> np.ndarray:
     return np.stack([b1, b2, b3], -1)
 
 
-def figure_eight(
-    drag: float = 0.55, duration: float = 25.0, rate: float = 100.0
-) -> tuple[types.SimpleNamespace, float]:  # noqa: E501
-    """A prescribed figure-eight (6 s a lap) at up to ~5 m/s with vertical swings of 1.3 m/s, under linear drag
+def figure_eight(drag: float = 0.55, duration: float = 25.0, rate: float = 50.0) -> tuple[types.SimpleNamespace, float]:  # noqa: E501
+    """A prescribed figure-eight (10 s a lap) at up to ~5 m/s with vertical swings of 1 m/s, under linear drag
     ``f = -drag v`` (N per m/s): the thrust vector is what Newton's law needs, ``u R e3 = m g e3 - m a + f``,
     the attitude follows it (zero yaw), the body rates are ``R^T dR/dt``. Noise as a real log's. Returns the
     flight and the median drag force over the weight."""
-    w = 2 * np.pi / 6.0
-    amp = np.array([4.0, 1.5, 0.6])  # m: x at w, y and z at 2 w
+    w = 2 * np.pi / 10.0
+    amp = np.array([6.0, 3.0, 0.8])  # m: x at w, y and z at 2 w
 
     def kin(t):
         s1, c1, s2, c2 = np.sin(w * t), np.cos(w * t), np.sin(2 * w * t), np.cos(2 * w * t)
@@ -83,9 +81,11 @@ def circle(speed: float, radius: float, drag: float) -> tuple[types.SimpleNamesp
     spec = replace(base, trajectory=traj, sensors=replace(base.sensors, mocap_delay=0.0, imu_delay=0.0),
                    plant=replace(base.plant, rotor_drag=drag), duration=22.0)  # fmt: skip
     r = simulate(spec, ["pd"])
-    fl = types.SimpleNamespace(t=r.t, v_W=r["v_meas_W"][0], eta=r["eta_meas"][0], omega_B=r["omega_B"][0],
-                               thrust=r["thrust"][0], tau_B=r["tau_B"][0])  # fmt: skip
-    circling = r.t > 8.0
+    every = slice(None, None, 2)  # logged at 50 Hz
+    fl = types.SimpleNamespace(t=r.t[every], v_W=r["v_meas_W"][0][every], eta=r["eta_meas"][0][every],
+                               omega_B=r["omega_B"][0][every], thrust=r["thrust"][0][every],
+                               tau_B=r["tau_B"][0][every])  # fmt: skip
+    circling = fl.t > 8.0
     return fl, float(np.median(drag * np.linalg.norm(fl.v_W[circling], axis=-1)) / WEIGHT)
 
 
@@ -127,8 +127,12 @@ def _corruptions(fl, cols: dict, rng) -> dict[str, tuple[dict, dict]]:
 
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory):
-    """``[(label, kind, path, read options)]``, kind ``"correct"`` or ``"wrong"``."""
-    d = tmp_path_factory.mktemp("verdict")
+    return build_corpus(tmp_path_factory.mktemp("verdict"))
+
+
+def build_corpus(d):
+    """``([(label, kind, path, read options, _)], {flight: drag force / weight})``, kind ``"correct"`` or
+    ``"wrong"``, the logs written into the folder ``d``."""
     rng = np.random.default_rng(RNG_SEED)
     items = []
     for name in sample_logs.names():
@@ -136,7 +140,7 @@ def corpus(tmp_path_factory):
         if name == "ros-csv":
             ro = dict(world="enu", body="flu", quat_order="xyzw", rate_unit="deg", time_unit="ms")
         items.append((f"sample {name}", "correct", sample_logs.path(name), ro, None))
-    flights = {"gentle": (S.flight(12.0, 100.0), 0.0)}
+    flights = {"gentle": (S.flight(12.0, 50.0), 0.0)}
     flights["circle 5 m/s"] = circle(5.0, 4.0, 0.45)
     flights["circle 4 m/s"] = circle(4.0, 3.0, 0.6)
     flights["figure-eight"] = figure_eight()
@@ -151,10 +155,23 @@ def corpus(tmp_path_factory):
         for vname, cols in variants.items():
             slug = "".join(ch if ch.isalnum() else "-" for ch in vname)
             items.append((vname, "correct", write_csv(d / f"{slug}.csv", cols), {}, None))
-        for cname, (cols, ro) in _corruptions(fl, variants[list(variants)[-1]], rng).items():
+        target = list(variants)[min(1, len(variants) - 1)]  # with the thrust column and rotor speeds
+        wrong = _corruptions(fl, variants[target], rng)
+        if fname != "gentle":  # rotor speeds only: the thrust comes from them
+            only = variants[f"{fname}, rotor speeds only"]
+            rpm = [k for k in only if k.startswith("rpm")]
+            wrong["rotor speeds only, velocity reversed in time"] = (
+                dict(only, **{k: only[k][::-1] for k in ("vx", "vy", "vz")}),
+                {},
+            )
+            wrong["rotor speeds only, rotor speeds played backwards"] = (
+                dict(only, **{k: only[k][::-1] for k in rpm}),
+                {},
+            )
+        for cname, (cols, ro) in wrong.items():
             slug = "".join(ch if ch.isalnum() else "-" for ch in f"{fname}-{cname}")
             path = write_csv(d / f"{slug}.csv", cols)
-            items.append((f"{list(variants)[-1]}: {cname}", "wrong", path, ro, None))
+            items.append((f"{fname}: {cname}", "wrong", path, ro, None))
     # the shipped CSV sample's columns, corrupted
     import csv
 

@@ -60,6 +60,9 @@ DYN_LIMIT = 0.16
 ACCEL_FLOOR = 0.05
 #: The band-passed acceleration (measured or predicted) needs this RMS (m/s^2) in a window to count.
 DYN_MOTION = 0.1
+#: A horizontal axis is also scored alone (one axis wrong in a flight mostly along the other) where its
+#: band-passed acceleration has this RMS in a window, m/s^2: a motion well above a push's share.
+AXIS_MOTION = 0.3
 #: A fitted drag that pushes along the velocity by more than this share of g per m/s of RMS band speed
 #: refuses the log.
 DRAG_LIMIT = 0.05
@@ -190,20 +193,28 @@ def force_balance(
     d = a - p  # what the thrust does not explain: the external force over the mass
     D = np.array([float(v[:, j] @ d[:, j] / max(v[:, j] @ v[:, j], 1e-12)) for j in range(3)])
     res = d - D * v
-    for name, sl in (("horizontal", slice(0, 2)), ("vertical", slice(2, 3))):
-        scores, moved = [], 0
+
+    def score(sl: slice, motion: float = DYN_MOTION) -> tuple[float, int]:
+        """Median over the windows with motion on these axes, and how many there were."""
+        scores = []
         for w in np.unique(win):
             m = win == w
             if m.sum() < 10:
                 continue
             ra, rp = _rms(a[m, sl]), _rms(p[m, sl])
-            if max(ra, rp) < DYN_MOTION:
-                continue
-            moved += 1
-            scores.append(_rms(res[m, sl]) / (ra + rp + ACCEL_FLOOR))
+            if max(ra, rp) >= motion:
+                scores.append(_rms(res[m, sl]) / (ra + rp + ACCEL_FLOOR))
+        return (float(np.median(scores)) if scores else float("nan")), len(scores)
+
+    for name, sl in (("horizontal", slice(0, 2)), ("vertical", slice(2, 3))):
+        rel, moved = score(sl)
+        if name == "horizontal":  # and each horizontal axis alone: one axis wrong in a flight along the other
+            for j in (0, 1):
+                r_j, n_j = score(slice(j, j + 1), AXIS_MOTION)
+                if n_j and r_j > rel:
+                    rel = r_j
         out[name] = {
-            "rel": float(np.median(scores)) if scores else float("nan"),
-            "q75": float(np.percentile(scores, 75)) if scores else float("nan"),
+            "rel": rel,
             "windows": moved,
             "D_N_per_mps": (mass * D[sl]).tolist(),
             "v_rms": [_rms(v[:, j]) for j in range(3)][sl],
