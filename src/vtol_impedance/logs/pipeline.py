@@ -210,12 +210,12 @@ def estimate_file(
     **estimate_options: Any,
 ) -> LogEstimate:
     """Read, check, resample and estimate a log file (module docstring). ``vehicle``: a
-        :class:`~vtol_impedance.model.vehicle.VehicleParams` for the nominal mass, inertia and rotor geometry
-        where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
-        :func:`~vtol_impedance.logs.estimate.estimate`. A log of a vehicle that is not a multirotor is refused
-        (:mod:`.airframe`) unless ``airframe="multirotor"``. The estimate's columns are then tested against physics
-    (:mod:`.verdict`): a log they contradict raises :class:`~vtol_impedance.logs.verdict.LogRefused` unless
-    ``force``, which records the override in ``info["verdict"]`` and the warnings."""
+    :class:`~vtol_impedance.model.vehicle.VehicleParams` for the nominal mass, inertia and rotor geometry
+    where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
+    :func:`~vtol_impedance.logs.estimate.estimate`. A log of a vehicle that is not a multirotor is refused
+    (:mod:`.airframe`) unless ``airframe="multirotor"``. The estimate's columns are then tested against
+    physics (:mod:`.verdict`): a log they contradict raises :class:`~vtol_impedance.logs.verdict.LogRefused`
+    unless ``force``, which records the override in ``info["verdict"]`` and the warnings."""
     airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:
@@ -257,7 +257,10 @@ def estimate_file(
     thrust_col = raw.thrust.source if raw.thrust is not None else "thrust"
     if est.info.get("thrust_coefficient") is not None:
         thrust_col = f"rotor speeds ({raw.rotor_speed.source})"
-    verdict = judge(flight, est.thrust_N, m, thrust_column=thrust_col, undetermined=rep.undetermined)
+    verdict = judge(
+        flight, est.thrust_N, m, thrust_column=thrust_col, undetermined=rep.undetermined,
+        kinematics=rep.evidence_chosen,
+    )  # fmt: skip
     if verdict.outcome == "refused":
         if not force:
             raise LogRefused(verdict, str(path))
@@ -269,9 +272,13 @@ def estimate_file(
         choices.append(f"torque: {est.info['torque']}")
     est.info["choices"] = choices
     est.info["conventions"] = rep.to_dict()
-    est.notes = rep.notes + est.notes + ([] if verdict.outcome == "refused" else [f"verdict: {verdict.message()}"])
-    forced = [f"verdict overridden (--force): {verdict.message()}"] if verdict.forced else []
-    est.warnings = forced + rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
+    est.notes = rep.notes + est.notes + ([f"verdict: {verdict.message()}"] if verdict.outcome == "accepted" else [])
+    said = []  # undecided: what physics could not check is a warning, printed even with --quiet
+    if verdict.forced:
+        said = [f"verdict overridden (--force): {verdict.message()}"]
+    elif verdict.outcome == "undecided":
+        said = [f"verdict undecided: {verdict.message()}"]
+    est.warnings = said + rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
     return est
 
 
