@@ -210,8 +210,8 @@ def test_the_agile_flights_carry_10_to_25_percent_of_the_weight_as_drag(corpus):
 
 #: The wrong logs physics cannot tell from a correct one with a push: the shipped sample's one move runs
 #: diagonally for 3 s, so vx and vy swapped mirror it within one 4 s window, as a push in that window would
-#: (a correct 10 s log with a 1 N push scores the same; tests/test_logs_fields.py). They are estimated
-#: with the verdict "undecided" and a warning that the horizontal force test was left out, never accepted.
+#: (a correct 10 s log with a 1 N step force scores the same; tests/test_logs_fields.py). They are estimated
+#: with the verdict "undecided" and a note that the horizontal force test was left out, never accepted.
 UNDECIDABLE = {"sample csv: vx and vy swapped", "sample csv without rotor speeds: vx and vy swapped"}
 
 

@@ -272,13 +272,12 @@ def estimate_file(
         choices.append(f"torque: {est.info['torque']}")
     est.info["choices"] = choices
     est.info["conventions"] = rep.to_dict()
-    est.notes = rep.notes + est.notes + ([f"verdict: {verdict.message()}"] if verdict.outcome == "accepted" else [])
-    said = []  # undecided: what physics could not check is a warning, printed even with --quiet
-    if verdict.forced:
-        said = [f"verdict overridden (--force): {verdict.message()}"]
-    elif verdict.outcome == "undecided":
-        said = [f"verdict undecided: {verdict.message()}"]
-    est.warnings = said + rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
+    # accepted or undecided (a test left out for too little motion; conventions the data cannot decide are
+    # already a warning of the convention check): a note; a forced refusal: a warning
+    said = [f"verdict {verdict.outcome}: {verdict.message()}"] if not verdict.forced else []
+    est.notes = rep.notes + est.notes + said
+    forced = [f"verdict overridden (--force): {verdict.message()}"] if verdict.forced else []
+    est.warnings = forced + rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
     return est
 
 
