@@ -282,3 +282,20 @@ def test_cli_refusal_exits_2_names_the_column_and_force_records_the_override(tmp
     with pytest.raises(LogRefused) as exc:
         estimate_file(path, MASS, read_options={"conventions": "auto"})
     assert exc.value.verdict.failed
+
+
+def test_the_sample_with_its_velocity_played_backwards_names_the_velocity(tmp_path):
+    """The issue's other sample: the shipped CSV flight with vx, vy, vz reversed in time, under --conventions
+    auto. It was estimated ("the data cannot decide ..."); now both force balances fail, with their
+    residuals against the limit, and the refusal points at the velocity they share."""
+    import csv
+
+    rows = list(csv.reader(open(sample_logs.path("csv"))))
+    cols = {k: np.array([float(r[i]) for r in rows[1:]]) for i, k in enumerate(rows[0])}
+    path = write_csv(tmp_path / "rev.csv", dict(cols, **{k: cols[k][::-1] for k in ("vx", "vy", "vz")}))
+    with pytest.raises(LogRefused) as exc:
+        estimate_file(path, MASS, read_options={"conventions": "auto"})
+    failed = {t.name: t for t in exc.value.verdict.failed}
+    assert {"horizontal force balance", "vertical force balance"} <= set(failed)
+    assert all(t.value > 2 * t.limit for t in failed.values() if "balance" in t.name)
+    assert "the velocity, which they share, is the likeliest" in str(exc.value) and "(limit 0.16" in str(exc.value)

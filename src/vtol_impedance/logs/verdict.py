@@ -121,6 +121,12 @@ class Verdict:
         if self.outcome == "refused":
             parts = [f"{t.name}: {t.detail} (suspect: {t.columns})" for t in self.failed]
             head = "the log's columns contradict physics, whatever external force acts: " + "; ".join(parts)
+            names = {t.name for t in self.failed}
+            if {"horizontal force balance", "vertical force balance"} <= names and "kinematics" not in names:
+                head += (
+                    ". Both balances fail and the rates agree with the attitude: the velocity, which they share, "
+                    "is the likeliest"
+                )
             if self.forced:
                 return head + ". Estimated anyway (--force): the estimate is not to be trusted"
             return head
