@@ -629,6 +629,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         thrust_coefficient=args.thrust_coefficient,
         airframe=args.airframe,
         on_ground=args.on_ground,
+        force=args.force,
     )  # fmt: skip
     out = Path(args.out) if args.out else _estimate_folder(stem, log)
     flight = est.flight
@@ -675,6 +676,9 @@ def cmd_estimate(args: argparse.Namespace) -> int:
                   "in the column fz_W_N_hover_sd)")  # fmt: skip
         if est.bias is not None:
             print("bias over the quiet segment [N]: " + " ".join(f"{v:+.4f}" for v in est.bias["f_W_N"]))
+        verdict = est.info.get("verdict")
+        if verdict is not None:
+            print(f"verdict: {verdict['outcome']}" + (" (overridden with --force)" if verdict["forced"] else ""))
         print(f"results written to {final}", file=sys.stderr)
     return 0
 
@@ -1198,6 +1202,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet-segment", default=None, metavar="T0,T1", help="report the mean estimate here (bias)")
     g.add_argument("--remove-bias", action="store_true", help="subtract the quiet-segment bias")
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
+    sp.add_argument("--force", action="store_true",
+                    help="estimate even when the log's columns contradict physics (the verdict is refused); the "
+                    "override is recorded in the results and printed")  # fmt: skip
     sp.add_argument("--out", default=None, help=f"results folder (default: {DEFAULT_OUT}/estimate-<log name>)")
     sp.add_argument("--no-plots", action="store_true", help="skip figures")
     sp.add_argument("--quiet", action="store_true", help="no notes or progress (warnings are still printed)")

@@ -12,6 +12,7 @@ from .frames import Conventions
 from .pipeline import estimate_file, log_format, read_any
 from .timeseries import DEFAULT_RATE_HZ, FlightLog, RawLog, Signal, default_max_gap, resample
 from .ulog import read_ulog, torque_per_unit
+from .verdict import LogRefused, Verdict, judge
 
 
 def read_log(path, **csv_options) -> RawLog:
@@ -33,8 +34,10 @@ __all__ = [
     "Conventions",
     "FlightLog",
     "LogEstimate",
+    "LogRefused",
     "RawLog",
     "Signal",
+    "Verdict",
     "check_conventions",
     "check_inertia",
     "commands_in_si",
@@ -44,6 +47,7 @@ __all__ = [
     "evidence",
     "fit_hover_thrust",
     "fit_hover_windows",
+    "judge",
     "log_format",
     "read_any",
     "read_csv",

@@ -631,11 +631,13 @@ def commands_in_si(
             )
             if res > rotors.MAX_FIT_RESIDUAL * weight:
                 raise InputError(
-                    f"the thrust-coefficient fit on {where} leaves {res:.3g} N RMS on a {weight:.3g} N vehicle: the "
+                    f"the thrust-coefficient fit on {where} leaves {res:.3g} N RMS (0.5 s averages, after a vertical "
+                    f"drag term) on a {weight:.3g} N vehicle: the "
                     "rotor speeds do not follow the vertical balance (wrong columns? give --thrust-coefficient)"
                 )
             src = (
-                f"fitted on {where} (vertical balance, rms residual {res:.3g} N; it absorbs the mean vertical "
+                f"fitted on {where} (vertical balance with a drag term, rms residual of 0.5 s averages {res:.3g} N; "
+                "it absorbs the mean vertical "
                 "external force there)"
             )
         thrust, tau_rotors = rotors.rotor_wrench(w, k_T, geometry)

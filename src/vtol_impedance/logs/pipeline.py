@@ -23,6 +23,7 @@ from .csvlog import CsvTable, read_csv_table, table_to_raw
 from .estimate import LogEstimate, check_inertia, estimate, uses_rotor_speeds
 from .frames import TIME_UNITS, Conventions
 from .timeseries import RawLog, resample, typical_period
+from .verdict import LogRefused, judge
 
 FORMATS = {".ulg": "ulog", ".bin": "dataflash", ".tlog": "tlog"}
 #: A CSV file longer than this is checked on its most dynamic block of rows (the checks need minutes, not
@@ -215,13 +216,16 @@ def estimate_file(
     t_end: float | None = None,
     read_options: dict[str, Any] | None = None,
     airframe: str = "auto",
+    force: bool = False,
     **estimate_options: Any,
 ) -> LogEstimate:
     """Read, check, resample and estimate a log file (module docstring). ``vehicle``: a
     :class:`~vtol_impedance.model.vehicle.VehicleParams` for the nominal mass, inertia and rotor geometry
     where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
     :func:`~vtol_impedance.logs.estimate.estimate`. A log of a vehicle that is not a multirotor is refused
-    (:mod:`.airframe`) unless ``airframe="multirotor"``."""
+    (:mod:`.airframe`) unless ``airframe="multirotor"``. The estimate's columns are then tested against
+    physics (:mod:`.verdict`): a log they contradict raises :class:`~vtol_impedance.logs.verdict.LogRefused`
+    unless ``force``, which records the override in ``info["verdict"]`` and the warnings."""
     airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:
@@ -260,14 +264,30 @@ def estimate_file(
     if estimate_options.get("rotor_geometry") is None and geometry is not None:
         estimate_options["rotor_geometry"] = geometry
     est = estimate(flight, m, I_B, params, **estimate_options)
+    thrust_col = raw.thrust.source if raw.thrust is not None else "thrust"
+    if est.info.get("thrust_coefficient") is not None:
+        thrust_col = f"rotor speeds ({raw.rotor_speed.source})"
+    verdict = judge(
+        flight, est.thrust_N, m, thrust_column=thrust_col, undetermined=rep.undetermined,
+        kinematics=rep.evidence_chosen,
+    )  # fmt: skip
+    if verdict.outcome == "refused":
+        if not force:
+            raise LogRefused(verdict, str(path))
+        verdict.forced = True
+    est.info["verdict"] = verdict.to_dict()
     choices = list(raw.choices) + vchoices + [f"max gap: {flight.max_gap_source}"]
     choices.append(f"thrust: {est.info['thrust']}")
     if "torque" in est.info:
         choices.append(f"torque: {est.info['torque']}")
     est.info["choices"] = choices
     est.info["conventions"] = rep.to_dict()
-    est.notes = rep.notes + est.notes
-    est.warnings = rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
+    # accepted or undecided (a test left out for too little motion; conventions the data cannot decide are
+    # already a warning of the convention check): a note; a forced refusal: a warning
+    said = [f"verdict {verdict.outcome}: {verdict.message()}"] if not verdict.forced else []
+    est.notes = rep.notes + est.notes + said
+    forced = [f"verdict overridden (--force): {verdict.message()}"] if verdict.forced else []
+    est.warnings = forced + rep.warnings + ([kind_warning] if kind_warning else []) + est.warnings
     return est
 
 

@@ -18,10 +18,13 @@ matched to the commanded thrust in newtons (0.5 s averages, longer than the roto
 quarter of the flight) when the commands can be converted (thrust in N, or a hover thrust from the log):
 the rotors then carry the commands' calibration without their lag, and an external force stays in the
 estimate; else fitted on the vertical
-balance over every airborne sample (rotors above 30 % of their usual speed). A vertical-balance fit,
-like a hover-thrust fit, absorbs the mean vertical external force over its samples (a payload becomes
-part of the vehicle). Every fit's residual is checked: one that leaves more than 10 % of the weight is
-refused.
+balance over every airborne sample (rotors above 30 % of their usual speed), jointly with a vertical
+drag term ``d v_z`` on 0.5 s averages. A vertical-balance fit, like a hover-thrust fit, absorbs the mean
+vertical external force over its samples (a payload becomes part of the vehicle); the drag term keeps an
+agile flight's aerodynamic force out of ``k_T`` (the estimate shows it). Every fit's residual is checked
+(of the 0.5 s averages after the drag term: a differentiated velocity's noise and the drag are not a
+misfit): one that leaves more than 10 % of the weight is refused; whether the columns are right at all is
+the verdict's question (:mod:`vtol_impedance.logs.verdict`).
 
 Rotor speeds are checked against what multirotors do: a hover between 1000 and 48000 rpm (105 to 5000
 rad/s). A column in rad/s declared as rpm hovers at a few hundred "rpm" and is refused with the flag
@@ -97,17 +100,30 @@ def airborne_mask(sq_sum: np.ndarray) -> np.ndarray:
 def fit_thrust_coefficient(
     t: np.ndarray, v_W: np.ndarray, eta: np.ndarray, sq_sum: np.ndarray, mass: float, select: np.ndarray
 ) -> tuple[float, float]:
-    """``(k_T, rms residual in N)`` of the vertical balance over the selected samples (module docstring)."""
+    """``(k_T, rms residual in N)`` of the vertical balance over the selected samples (module docstring),
+    fitted jointly with a vertical drag ``d v_z`` on 0.5 s averages: the drag of an agile flight (a tenth
+    of the weight or more) is an external force for the estimate, not part of the thrust, and the
+    residual is that of the averages (a differentiated velocity's noise does not count)."""
     if select.sum() < 10:
         raise InputError(f"fitting the thrust coefficient needs at least 10 samples, got {int(select.sum())}")
+    d = np.diff(t)
+    n = max(1, int(round(0.5 / float(np.median(d[d > 0]))))) if np.any(d > 0) else 1
+    n = min(n, max(1, int(select.sum()) // 10))
+    avg = lambda x: np.convolve(x, np.ones(n) / n, "same")  # noqa: E731
     a_z = np.gradient(v_W[:, 2], t)
     c = np.cos(eta[:, 0]) * np.cos(eta[:, 1])
-    x = (sq_sum * c)[select]
-    y = mass * (G - a_z[select])
-    k = float(np.dot(x, y) / max(np.dot(x, x), 1e-300))
+    x = avg(sq_sum * c)[select]
+    vz = avg(v_W[:, 2])[select]
+    y = avg(mass * (G - a_z))[select]
+    X = np.column_stack([x, vz])
+    if np.std(vz) > 1e-6 * max(1.0, float(np.max(np.abs(vz)))):
+        (k, drag), *_ = np.linalg.lstsq(X, y, rcond=None)
+    else:
+        k, drag = float(np.dot(x, y) / max(np.dot(x, x), 1e-300)), 0.0
+    k = float(k)
     if not k > 0:
         raise InputError("the rotor speeds do not carry the weight: cannot fit a thrust coefficient")
-    return k, float(np.sqrt(np.mean((k * x - y) ** 2)))
+    return k, float(np.sqrt(np.mean((k * x + drag * vz - y) ** 2)))
 
 
 def match_thrust_coefficient(
