@@ -183,8 +183,9 @@ def force_balance(
     flight: FlightLog, thrust_N: np.ndarray, mass: float, segs: list[slice] | None = None
 ) -> dict[str, Any]:
     """The band-passed force balance with a fitted linear drag (module docstring): per axis group
-    (horizontal, vertical) the low quantile of the relative residual over windows (module docstring), how many windows had motion, the
-    fitted drag ``D`` (N per m/s, world NED, negative opposes the velocity) and the RMS band speed."""
+    (horizontal, vertical) the low quantile of the relative residual over windows (module docstring), how
+    many windows had motion, the fitted drag ``D`` (N per m/s, world NED, negative opposes the velocity)
+    and the RMS band speed."""
     if segs is None:
         segs = _segments(flight, int(2 * BAND_S[1] * flight.rate_hz))
     n1 = max(1, int(round(BAND_S[0] * flight.rate_hz)))
