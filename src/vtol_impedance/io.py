@@ -1,11 +1,13 @@
-"""Atomic file writing: a crash never leaves a half-written file under the final name."""
+"""Atomic file writing (a crash never leaves a half-written file under the final name), run folders, the
+key of every on-disk cache (:func:`source_digest`) and paths named for what is wrong with them
+(:func:`explain_path`)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -57,6 +59,32 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]
         fh.flush()
         os.fsync(fh.fileno())
     return Path(path)
+
+
+# --------------------------------------------------------------------------- on-disk caches
+
+
+def source_digest(sources: Iterable[str | os.PathLike[str]]) -> str:
+    """The key of an on-disk cache: SHA-256 of the package version and of every file in ``sources`` (the
+    code that computes the cached content; a missing file counts as empty).
+
+    Every cache the package keeps on disk (the compiled kernels, the robust designs) is keyed by it, so an
+    edit of that code or an installed upgrade is never answered from entries the old code wrote.
+    """
+    import hashlib
+
+    from . import __version__
+
+    h = hashlib.sha256(f"vtol-impedance {__version__}\n".encode())
+    for p in sources:
+        p = Path(p)
+        try:
+            data = p.read_bytes()
+        except OSError:
+            data = b""
+        h.update(f"{p.name} {len(data)}\n".encode())
+        h.update(data)
+    return h.hexdigest()
 
 
 # --------------------------------------------------------------------------- run folders
