@@ -118,3 +118,145 @@ def test_compiled_cache_uses_the_same_key(tmp_path, monkeypatch):
     src.write_text("def f(): return 1\n")
     comp._refresh_cache()
     assert not stale.exists()
+
+
+# --------------------------------------------------------------------------- hostile files and paths
+
+
+@pytest.fixture
+def hostile(tmp_path):
+    """A folder of bad paths: a link loop, a dangling link, a file where a folder is needed, deep TOML."""
+    (tmp_path / "loop").symlink_to("loop")
+    (tmp_path / "dangling.toml").symlink_to("nowhere.toml")
+    (tmp_path / "afile").write_text("not a folder\n")
+    (tmp_path / "deep.toml").write_text("x = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    (tmp_path / "tiny.toml").write_text(TINY_SWEEP)
+    return tmp_path
+
+
+#: A sweep of one point: loading it costs nothing.
+TINY_SWEEP = 'name = "tiny"\nbase = "case-a-payload"\ncontrollers = ["pd"]\n[axes]\n"payload.mass" = [0.0]\n'
+
+
+#: Every CLI path argument that reads a file, as (argv before the path, argv after it, what the file is).
+READERS = [
+    (["run"], [], "scenario file"),
+    (["margins"], [], "scenario file"),
+    (["sweep"], [], "sweep file"),
+    (["tune"], [], "tuning file"),
+    (["estimate", "--example", "csv", "--vehicle"], [], "vehicle file"),
+]
+#: Each kind of bad path: (name, path under the hostile folder, what the message must say).
+KINDS = [
+    ("loop", "loop/x.toml", "loop is a symbolic link loop"),
+    ("dangling", "dangling.toml", "dangling.toml is a symbolic link to nowhere.toml, which does not exist"),
+    ("file-as-folder", "afile/x.toml", "afile in its path, which is a file, not a folder"),
+    ("deep", "deep.toml", "nested too deeply"),
+]
+
+
+def _cli(argv, capsys):
+    from vtol_impedance.cli import main
+
+    rc = main(argv)
+    return rc, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind,rel,says", KINDS, ids=[k[0] for k in KINDS])
+@pytest.mark.parametrize("before,after,what", READERS, ids=[r[2].split()[0] + "-" + r[0][0] for r in READERS])
+def test_cli_names_a_bad_input_file(hostile, capsys, before, after, what, kind, rel, says):
+    path = str(hostile / rel)
+    rc, err = _cli([*before, path, *after, "--quiet"], capsys)
+    assert rc == 2
+    assert f"cannot read {what} {path}: " in err
+    assert says in err
+    assert "internal error" not in err and "staging" not in err
+
+
+@pytest.mark.parametrize("kind,rel,says", [k for k in KINDS if k[0] != "deep"], ids=[k[0] for k in KINDS[:3]])
+def test_cli_names_a_bad_log_file(hostile, capsys, kind, rel, says):
+    path = str(hostile / rel)  # the file's suffix does not matter: it is never reached
+    rc, err = _cli(["estimate", path, "--quiet"], capsys)
+    assert rc == 2
+    assert f"cannot read log file {path}: " in err
+    assert says in err
+
+
+OUT_KINDS = [
+    ("loop", "loop", "loop is a symbolic link loop"),
+    ("through-loop", "loop/run", "loop is a symbolic link loop"),
+    ("dangling", "dangling.toml/run", "dangling.toml is a symbolic link to nowhere.toml, which does not exist"),
+    ("file-as-folder", "afile/run", "afile in its path, which is a file, not a folder"),
+]
+
+
+@pytest.mark.parametrize("kind,rel,says", OUT_KINDS, ids=[k[0] for k in OUT_KINDS])
+@pytest.mark.parametrize("cmd", [["margins", "case-a-payload"], ["sweep", "tiny.toml"]], ids=["margins", "sweep"])
+# (the margins command refuses before linearising, the sweep before its pre-flight check)
+def test_out_names_the_users_path(hostile, capsys, cmd, kind, rel, says):
+    out = str(hostile / rel)
+    cmd = [cmd[0], str(hostile / cmd[1])] if cmd[1].endswith(".toml") else cmd
+    rc, err = _cli([*cmd, "--out", out, "--quiet", "--no-plots"] if cmd[0] == "margins" else
+                   [*cmd, "--out", out, "--quiet"], capsys)  # fmt: skip
+    assert rc == 2
+    assert f"cannot use {out} as the output folder: " in err and says in err
+    assert "staging" not in err and ".tmp" not in err
+
+
+def test_out_in_an_unwritable_folder_is_named(hostile, capsys, monkeypatch):
+    """Permission as a non-root user would meet it (root passes every access check, so it is simulated)."""
+    locked = hostile / "locked"
+    locked.mkdir()
+    real = os.access
+
+    def access(p, mode, **kw):
+        return not (Path(p) == locked and mode & os.W_OK) and real(p, mode, **kw)
+
+    monkeypatch.setattr(os, "access", access)
+    rc, err = _cli(["margins", "case-a-payload", "--out", str(locked / "run"), "--quiet", "--no-plots"], capsys)
+    assert rc == 2
+    assert f"{locked} is not writable (permission denied)" in err
+
+
+def test_unsearchable_parent_is_named(hostile, monkeypatch):
+    locked = hostile / "locked"
+    locked.mkdir()
+    real = os.lstat
+
+    def lstat(p, *a, **kw):
+        if Path(p).parent == locked:
+            raise PermissionError(13, "Permission denied", str(p))
+        return real(p, *a, **kw)
+
+    monkeypatch.setattr(os, "lstat", lstat)
+    assert vio.explain_path(locked / "f.toml") == f"{locked} cannot be searched (permission denied), so " \
+        f"{locked / 'f.toml'} cannot be reached"  # fmt: skip
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads every file")
+def test_unreadable_file_for_real(hostile, capsys):
+    f = hostile / "secret.toml"
+    f.write_text('name = "x"\n')
+    f.chmod(0)
+    rc, err = _cli(["run", str(f), "--quiet"], capsys)
+    assert rc == 2 and "is not readable (permission denied)" in err
+
+
+def test_set_value_nested_too_deeply_is_named(capsys):
+    rc, err = _cli(["margins", "case-a-payload", "--set", "control.Kp=" + "[" * 5000 + "]" * 5000], capsys)
+    assert rc == 2 and "nests arrays or tables too deeply" in err
+
+
+def test_staging_and_temporary_names_map_to_the_users_path():
+    assert vio.user_path("/r/.run.staging-ab12cd/x.json") == "/r/run/x.json"
+    assert vio.user_path("/r/.run.old-ab12cd") == "/r/run"
+    assert vio.user_path("/r/out/.bench.json.k2j3h4.tmp") == "/r/out/bench.json"
+    assert vio.user_path("/r/plain/file.txt") == "/r/plain/file.txt"
+
+
+def test_a_good_path_has_nothing_to_explain(tmp_path):
+    f = tmp_path / "ok.toml"
+    f.write_text("")
+    assert vio.explain_path(f) is None
+    assert vio.explain_path(tmp_path / "new" / "run", "folder") is None
+    assert vio.explain_path(tmp_path / "missing.toml") == f"{tmp_path / 'missing.toml'} does not exist"

@@ -504,7 +504,9 @@ def cmd_estimate(args: argparse.Namespace) -> int:
             raise InputError("give a log file (CSV, .ulg, .bin, .tlog) or --example NAME (--example list)")
         log = Path(args.log)
         if not log.is_file():
-            raise InputError(f"log file {log} {'is not a file' if log.exists() else 'does not exist'}")
+            from .io import explain_path
+
+            raise InputError(f"cannot read log file {log}: {explain_path(log) or 'not a regular file'}")
         stem = log.stem
     inertia: Any = _floats("--inertia", args.inertia, (3, 9))
     if inertia is not None and len(inertia) == 9:
@@ -627,9 +629,11 @@ def _sweep_out(args: argparse.Namespace, name: str) -> Path:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run or resume a sweep, then write its summary."""
+    from .io import check_folder_path
     from .sweeps import load, run_sweep, write_report
 
     sweep = load(args.spec)
+    check_folder_path(_sweep_out(args, sweep.name))  # before any work
     where = Path(args.spec) if Path(args.spec).suffix else None
     if sweep.fast_estimator_points and not args.quiet:
         print(
@@ -666,13 +670,13 @@ def cmd_tune(args: argparse.Namespace) -> int:
     """Search gains with optuna over a population of plants; write the best as a scenario file."""
     from .analysis.plots import _save, plt
     from .analysis.report import write_html
-    from .io import RunFolder, write_text
+    from .io import RunFolder, check_folder_path, write_text
     from .sweeps.tune import _optuna, best_scenario_toml, bound_notes, load_tuning, trials_csv, tune
 
     _optuna()  # a missing extra is said at once, before anything compiles
     t = load_tuning(args.spec)
+    out = check_folder_path(Path(args.out) if args.out else _default_out("tune", t.name))
     _preflight([t.base_spec()], [t.controller], args.quiet)
-    out = Path(args.out) if args.out else _default_out("tune", t.name)
     with RunFolder(out) as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
         res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log)
@@ -1289,8 +1293,14 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted; no results were written", file=sys.stderr)
         return 130
     except OSError as exc:
-        where = f" ({exc.filename})" if exc.filename else ""
-        print(f"error: cannot write or read a file{where}: {exc.strerror or exc}", file=sys.stderr)
+        import errno
+
+        from .io import explain_path, user_path
+
+        name = user_path(exc.filename) if exc.filename else None  # the user's path, never a staging one
+        path_fault = name and exc.errno in (errno.ENOENT, errno.EACCES, errno.ENOTDIR, errno.ELOOP)
+        why = (explain_path(Path(name).parent, "folder") or explain_path(name, "file")) if path_fault else None
+        print(f"error: cannot write or read {name or 'a file'}: {why or exc.strerror or exc}", file=sys.stderr)
         return 1
     except Exception as exc:  # the CLI never shows a traceback unless asked
         if _interrupted(exc):  # a library's clean-up failed on the way out of an interrupt (PillowWriter)

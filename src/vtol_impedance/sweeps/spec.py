@@ -36,7 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
+import os
 import warnings
 from dataclasses import dataclass, field
 from itertools import product
@@ -48,6 +48,7 @@ import numpy as np
 from ..control.impedance import VARIANTS
 from ..errors import InputError, ScenarioError, check_keys, scalar
 from ..estimator.momentum import EstimatorBandwidthWarning
+from ..io import read_toml
 from ..scenarios import get, load_toml, set_value
 from ..scenarios.spec import ScenarioSpec, check, check_name
 
@@ -343,14 +344,11 @@ def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
 def load(path_or_name: str | Path) -> Sweep:
     """A sweep file, or the name of a built-in study (see :func:`builtin_names`)."""
     path = Path(path_or_name)
-    if not path.suffix and not path.exists():
+    if not path.suffix and not os.path.lexists(path):  # a link loop is a path, named as such below
         path = _BUILTIN / f"{path_or_name}.toml"
         if not path.exists():
             raise InputError(f"unknown sweep {path_or_name!r}; built-in studies: {', '.join(builtin_names())}")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read sweep file {path}: {exc}") from None
+    data = read_toml(path, "sweep file")
     return from_dict(data, where=path)
 
 

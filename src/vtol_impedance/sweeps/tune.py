@@ -35,7 +35,6 @@ import csv
 import io
 import json
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +44,7 @@ import numpy as np
 
 from ..control.impedance import VARIANTS
 from ..errors import InputError, check_keys, scalar
+from ..io import read_toml
 from ..robust.design import DesignError
 from ..scenarios.spec import _INDEXED, get_value
 from .run import METRICS, Executor, warm_up
@@ -138,10 +138,7 @@ class Tuning:
 
 def load_tuning(path: str | Path) -> Tuning:
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read tuning file {path}: {exc}") from None
+    data = read_toml(path, "tuning file")
     return tuning_from_dict(data, path)
 
 
