@@ -260,3 +260,150 @@ def test_a_good_path_has_nothing_to_explain(tmp_path):
     assert vio.explain_path(f) is None
     assert vio.explain_path(tmp_path / "new" / "run", "folder") is None
     assert vio.explain_path(tmp_path / "missing.toml") == f"{tmp_path / 'missing.toml'} does not exist"
+
+
+# --------------------------------------------------------------------------- bounded work with progress
+
+from vtol_impedance.sweeps import budget  # noqa: E402
+
+
+def _grid_toml(n: int) -> str:
+    """Issue 35's sample: an ``n`` x ``n`` x ``n`` margin grid of case A, PD and PD+C (margins on)."""
+    vals = lambda lo, step: ", ".join(f"{lo + step * i:.4g}" for i in range(n))  # noqa: E731
+    return (
+        'name = "grid"\nbase = "case-a-payload"\ncontrollers = ["pd", "pdc"]\n[axes]\n'
+        f'"payload.mass" = [{vals(0.0, 0.01)}]\n"sensors.mocap_delay" = [{vals(0.0, 0.002)}]\n'
+        f'"plant.inertia_scale" = [{vals(0.8, 0.04)}]\n'
+    )
+
+
+def test_a_3375_point_margin_grid_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    (tmp_path / "grid.toml").write_text(_grid_toml(15))
+
+    def no_work(*a, **k):
+        raise AssertionError("work started before the refusal")
+
+    monkeypatch.setattr(rd, "_design_search", no_work)
+    monkeypatch.setattr("vtol_impedance.sweeps.run.point_margins", no_work)
+    monkeypatch.setattr("vtol_impedance.sweeps.spec.check", no_work)
+    rc, err = _cli(["sweep", str(tmp_path / "grid.toml"), "--out", str(tmp_path / "out")], capsys)
+    assert rc == 2
+    # by hand: 6,750 flights of 30 s (case A: 1 s on the ground, 4 s take-off, 25 s hover) at 1,000
+    # vehicle-s/s = 202.5 s; 3,375 x 2 margins at 0.2 s = 1,350 s; 3,375 checks at 0.01 s = 33.75 s;
+    # 15 designs (one per latency) at 6 s = 90 s: 1,676 s = 28 min
+    assert "sweep grid is estimated at 28 min, over the bound of 10 min" in err
+    assert "--yes" in err and "--max-minutes" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_sweep_estimate_by_hand():
+    from vtol_impedance.sweeps import from_dict
+
+    d = {"name": "s", "base": "case-a-payload", "controllers": ["pd", "pdc"], "seeds": 3, "set": {"duration": 100.0},
+         "axes": {"payload.mass": [0.0, 0.1]}}  # fmt: skip
+    s = from_dict(d, check_points=False)
+    # 2 points x 3 seeds x 2 controllers x 100 s at 1,000 vehicle-s/s; 2 checks; 2 x 2 margins; one design
+    hand = 12 * 100.0 / 1000.0 + 2 * 0.01 + 4 * 0.2 + 6.0
+    assert budget.sweep_seconds(s) == pytest.approx(hand)
+    assert budget.sweep_seconds(s, workers=2) == pytest.approx(hand / 2)
+    assert budget.sweep_seconds(s, backend="numpy") == pytest.approx(hand - 1.2 + 1200.0 / 0.4)
+    d["axes"]["control.Kp,control.Dp"] = [[8.0, 10.0], [16.0, 12.0], [8.0, 10.0]]  # 2 distinct designs
+    s = from_dict({**d, "margins": False}, check_points=False)
+    assert budget.sweep_seconds(s) == pytest.approx(36 * 100.0 / 1000.0 + 6 * 0.01 + 2 * 6.0)
+
+
+def test_tuning_estimate_by_hand():
+    from vtol_impedance.sweeps.tune import tuning_from_dict
+
+    t = tuning_from_dict({
+        "name": "t", "base": "case-a-payload", "controller": "pdc", "trials": 10, "population": 4,
+        "set": {"duration": 50.0}, "search": {"control.Kp": {"min": 4.0, "max": 40.0}},
+        "cost": {"min_phase_margin_deg": 20.0},
+    }, check_corners=False)  # fmt: skip
+    # per trial: 4 flights x 50 s at 1,000 vehicle-s/s, 4 margins, one design (Kp changes it); and the
+    # three corners of the search box designed before the first trial
+    assert budget.tuning_seconds(t, 10) == pytest.approx(3 * 6.0 + 10 * (0.2 + 4 * 0.2 + 6.0))
+    assert budget.tuning_seconds(t, 10, workers=2) == pytest.approx(3 * 6.0 + 5 * (0.2 + 4 * 0.2 + 6.0))
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_max_minutes_must_be_a_positive_number(bad):
+    with pytest.raises(vio_errors().InputError, match="--max-minutes must be a positive number"):
+        budget.check_budget(10.0, "x", bad)
+
+
+def vio_errors():
+    import vtol_impedance.errors as e
+
+    return e
+
+
+def test_the_bound_and_its_confirmations():
+    budget.check_budget(budget.MAX_MINUTES * 60.0, "at the bound")  # at the bound: runs
+    with pytest.raises(budget.WorkBoundError, match="estimated at 11 min, over the bound of 10 min"):
+        budget.check_budget(11 * 60.0, "sweep x")
+    budget.check_budget(11 * 60.0, "sweep x", max_minutes=12)
+    budget.check_budget(1e9, "sweep x", yes=True)
+    with pytest.raises(budget.WorkBoundError, match="over the bound of 0.5 min"):
+        budget.check_budget(31.0, "sweep x", max_minutes=0.5)
+
+
+def test_cli_refuses_a_tiny_sweep_under_a_tiny_bound(tmp_path, capsys):
+    (tmp_path / "tiny.toml").write_text(TINY_SWEEP)
+    rc, err = _cli(["sweep", str(tmp_path / "tiny.toml"), "--max-minutes", "0.001", "--out", str(tmp_path / "o")],
+                   capsys)  # fmt: skip
+    assert rc == 2 and "over the bound of 0.001 min" in err and not (tmp_path / "o").exists()
+    rc, err = _cli(["sweep", str(tmp_path / "tiny.toml"), "--max-minutes", "-3"], capsys)
+    assert rc == 2 and "--max-minutes must be a positive number of minutes, got -3" in err
+
+
+def test_cli_refuses_a_tuning_before_designing_anything(tmp_path, capsys, monkeypatch):
+    def no_work(*a, **k):
+        raise AssertionError("work started before the refusal")
+
+    monkeypatch.setattr(rd, "_design_search", no_work)
+    (tmp_path / "t.toml").write_text(
+        'name = "t"\nbase = "case-a-payload"\ncontroller = "pd"\ntrials = 5\npopulation = 1\n'
+        '[search]\n"control.Kp" = {min = 4.0, max = 40.0}\n'
+    )
+    rc, err = _cli(["tune", str(tmp_path / "t.toml"), "--out", str(tmp_path / "o")], capsys)
+    # by hand: 3 corners designed (18 s), then 5 trials of one 30 s flight (0.03 s) and one design (6 s)
+    assert rc == 1 and "work started before the refusal" in err  # under 10 min: let through, to the work
+    rc, err = _cli(["tune", str(tmp_path / "t.toml"), "--max-minutes", "0.5", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "tuning t is estimated at 48 s, over the bound of 0.5 min" in err
+    assert not (tmp_path / "o").exists()
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_progress_lines_every_few_seconds_with_the_time_left():
+    import io
+
+    clock, out = _Clock(), io.StringIO()  # not a terminal
+    p = budget.Progress(20, "flights", every_s=5.0, stream=out, clock=clock)
+    for _ in range(20):  # one flight a second
+        clock.t += 1.0
+        p(1)
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 4  # at 5, 10, 15 s and the end
+    # at 5 s: 5 of 20 done at 1 flight/s: 15 s left
+    assert lines[0] == "  flights 5/20      1.0/s  15 s left"
+    assert lines[-1].startswith("  flights 20/20") and lines[-1].endswith("0 s left")
+
+
+def test_progress_counts_every_unit_of_a_sweep(monkeypatch):
+    """In this process the sweep reports each unit (not only each chunk): a tiny sweep on NumPy."""
+    from vtol_impedance.sweeps import from_dict, run_units
+
+    d = {"name": "s", "base": "case-a-payload", "controllers": ["pd", "pdc"], "seeds": 3, "margins": False,
+         "set": {"duration": 0.05}, "axes": {"payload.mass": [0.0]}}  # fmt: skip
+    s = from_dict(d, check_points=False)
+    calls = []
+    rows, _ = run_units(s, s.chunk_units(0), "numpy", calls.append)
+    assert calls == [2, 2, 2] and len(rows["unit"]) == 6

@@ -631,9 +631,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     """Run or resume a sweep, then write its summary."""
     from .io import check_folder_path
     from .sweeps import load, run_sweep, write_report
+    from .sweeps.budget import check_budget, sweep_seconds
 
-    sweep = load(args.spec)
+    sweep = load(args.spec, check_points=False)
     check_folder_path(_sweep_out(args, sweep.name))  # before any work
+    check_budget(sweep_seconds(sweep, args.backend, args.workers), f"sweep {sweep.name}", args.max_minutes, args.yes)
+    sweep = load(args.spec)  # every point checked (its controller designed)
     where = Path(args.spec) if Path(args.spec).suffix else None
     if sweep.fast_estimator_points and not args.quiet:
         print(
@@ -671,11 +674,15 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from .analysis.plots import _save, plt
     from .analysis.report import write_html
     from .io import RunFolder, check_folder_path, write_text
+    from .sweeps.budget import check_budget, tuning_seconds
     from .sweeps.tune import _optuna, best_scenario_toml, bound_notes, load_tuning, trials_csv, tune
 
     _optuna()  # a missing extra is said at once, before anything compiles
-    t = load_tuning(args.spec)
+    t = load_tuning(args.spec, check_corners=False)
     out = check_folder_path(Path(args.out) if args.out else _default_out("tune", t.name))
+    seconds = tuning_seconds(t, t.trials if args.trials is None else args.trials, args.backend, args.workers)
+    check_budget(seconds, f"tuning {t.name}", args.max_minutes, args.yes)
+    t = load_tuning(args.spec)  # the search box's corners checked (their controllers designed)
     _preflight([t.base_spec()], [t.controller], args.quiet)
     with RunFolder(out) as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
@@ -923,6 +930,13 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bound_flags(sp: argparse.ArgumentParser) -> None:
+    """``--max-minutes`` and ``--yes``: the bound on the estimated duration (docs: sweeps, 'Bounded work')."""
+    sp.add_argument("--max-minutes", type=float, default=None, metavar="M",
+                    help="refuse when the estimated duration exceeds M minutes (default 10)")  # fmt: skip
+    sp.add_argument("--yes", action="store_true", help="run whatever the estimated duration")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vtol-impedance",
@@ -1121,6 +1135,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-report", action="store_true", help="only the data, no summary")
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
     sp.add_argument("--quiet", action="store_true", help="no progress output")
+    _bound_flags(sp)
     sp.set_defaults(func=cmd_sweep)
 
     sp = sub.add_parser("sweep-report", help="summary figures, table and HTML report of a finished sweep folder")
@@ -1139,6 +1154,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask cluster")
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
     sp.add_argument("--quiet", action="store_true")
+    _bound_flags(sp)
     sp.set_defaults(func=cmd_tune)
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")

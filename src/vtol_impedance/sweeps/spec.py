@@ -341,15 +341,16 @@ def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
                 seen[k] = f"{group} {a.key!r}"
 
 
-def load(path_or_name: str | Path) -> Sweep:
-    """A sweep file, or the name of a built-in study (see :func:`builtin_names`)."""
+def load(path_or_name: str | Path, check_points: bool = True) -> Sweep:
+    """A sweep file, or the name of a built-in study (see :func:`builtin_names`); ``check_points=False``
+    skips checking every point's scenario (which designs the controllers: work, see ``sweeps.budget``)."""
     path = Path(path_or_name)
     if not path.suffix and not os.path.lexists(path):  # a link loop is a path, named as such below
         path = _BUILTIN / f"{path_or_name}.toml"
         if not path.exists():
             raise InputError(f"unknown sweep {path_or_name!r}; built-in studies: {', '.join(builtin_names())}")
     data = read_toml(path, "sweep file")
-    return from_dict(data, where=path)
+    return from_dict(data, where=path, check_points=check_points)
 
 
 _BUILTIN = Path(__file__).resolve().parent / "studies"
