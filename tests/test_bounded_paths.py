@@ -407,3 +407,15 @@ def test_progress_counts_every_unit_of_a_sweep(monkeypatch):
     calls = []
     rows, _ = run_units(s, s.chunk_units(0), "numpy", calls.append)
     assert calls == [2, 2, 2] and len(rows["unit"]) == 6
+
+
+def test_progress_counts_every_point_checked():
+    """Checking a big grid's points designs their controllers: it reports each point too."""
+    from vtol_impedance.sweeps import from_dict
+
+    hand = {"wn_o": 17.5, "wn_o_yaw": 7.3, "attitude_filter_wn": 26.25, "estimator_wn": 8.0}  # no design needed
+    d = {"name": "s", "base": "case-a-payload", "controllers": ["pd"], "set": {"control": hand},
+         "axes": {"payload.mass": [0.0, 0.05, 0.1]}}  # fmt: skip
+    calls = []
+    from_dict(d, on_point=calls.append)
+    assert calls == [1, 1, 1]

@@ -19,7 +19,8 @@ DEFAULT_OUT = "results"
 
 
 class _Progress:
-    """Progress on stderr: an updating line on a terminal, a line every 25 % otherwise."""
+    """Progress on stderr with the time left: an updating line on a terminal, otherwise a line every 25 % or
+    every 5 s, whichever comes first."""
 
     def __init__(self, name: str, enabled: bool = True) -> None:
         self.name = name
@@ -27,21 +28,25 @@ class _Progress:
         self.tty = sys.stderr.isatty()
         self.t0 = time.perf_counter()
         self.last = -1
+        self.last_t = self.t0
 
     def __call__(self, frac: float) -> None:
         if not self.enabled:
             return
         pct = int(frac * 100)
-        el = time.perf_counter() - self.t0
+        now = time.perf_counter()
+        el = now - self.t0
         if self.tty:
             bar = "#" * (pct // 4) + "." * (25 - pct // 4)
             sys.stderr.write(f"\r  {self.name:<20} [{bar}] {pct:3d}%  {el:5.1f} s")
             if frac >= 1.0:
                 sys.stderr.write("\n")
             sys.stderr.flush()
-        elif pct // 25 > self.last // 25 or frac >= 1.0:
-            sys.stderr.write(f"  {self.name}: {pct}% ({el:.1f} s)\n")
+        elif pct // 25 > self.last // 25 or frac >= 1.0 or now - self.last_t >= 5.0:
+            left = f", {el * (1.0 - frac) / frac:.0f} s left" if 0.0 < frac < 1.0 else ""
+            sys.stderr.write(f"  {self.name}: {pct}% ({el:.1f} s{left})\n")
             sys.stderr.flush()
+            self.last_t = now
         self.last = pct
 
 
@@ -631,12 +636,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     """Run or resume a sweep, then write its summary."""
     from .io import check_folder_path
     from .sweeps import load, run_sweep, write_report
-    from .sweeps.budget import check_budget, sweep_seconds
+    from .sweeps.budget import Progress, check_budget, sweep_seconds
 
     sweep = load(args.spec, check_points=False)
     check_folder_path(_sweep_out(args, sweep.name))  # before any work
     check_budget(sweep_seconds(sweep, args.backend, args.workers), f"sweep {sweep.name}", args.max_minutes, args.yes)
-    sweep = load(args.spec)  # every point checked (its controller designed)
+    checked = Progress(len(sweep.points), "points checked", not args.quiet)
+    sweep = load(args.spec, on_point=checked)  # every point checked (its controller designed)
     where = Path(args.spec) if Path(args.spec).suffix else None
     if sweep.fast_estimator_points and not args.quiet:
         print(

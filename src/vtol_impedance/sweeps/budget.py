@@ -120,8 +120,12 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.clock = clock
         self.tty = self.stream.isatty()
-        self.t0 = self.last = clock()
         self.done = 0
+        self.start()
+
+    def start(self) -> None:
+        """Start (or restart) the clock: after a compile, so that the rate is the work's."""
+        self.t0 = self.last = self.clock()
 
     def left_s(self) -> float:
         """Seconds left at the rate measured so far (inf before the first)."""

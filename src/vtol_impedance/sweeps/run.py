@@ -394,6 +394,8 @@ def execute(
     if not chunks:
         return
     warm_up(sweep, backend)
+    if isinstance(progress, Progress):
+        progress.start()  # the time left is the flights', not the compile's
     payload = {"source": folder.description["source"], "where": folder.description["where"]}
     with Executor(workers, scheduler) as ex:
         for k, rows, traces in ex.map_chunks(sweep, payload, chunks, backend, None if ex.distributed else progress):
