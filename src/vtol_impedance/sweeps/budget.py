@@ -23,7 +23,7 @@ from ..errors import InputError
 MAX_MINUTES = 10.0
 #: Simulated vehicle-seconds per wall second, one process: compiled batch of a few vehicles (measured
 #: 2,500 for case A; 1,000 kept) and the NumPy reference (measured 0.5; 0.4 kept).
-VEHICLE_SECONDS_PER_S = {"compiled": 1000.0, "numpy": 0.4, "mujoco": 20.0, "mujoco-numpy": 0.3}
+VEHICLE_SECONDS_PER_S = {"compiled": 1000.0, "numpy": 0.4}
 #: Margin check of one point for one controller (linearise, poles, loop margins), s (measured 0.13).
 MARGIN_S = 0.2
 #: One robust design (``vtol_impedance.robust.design``) not yet cached, s (measured about 5).
@@ -56,25 +56,31 @@ def _design_keys(spec: Any, keys: list[str]) -> list[str]:
     return [k for k in keys if any(part.strip().startswith(_DESIGN_INPUTS) for part in k.split(","))]
 
 
+def _rate(backend: str) -> float:
+    if backend not in VEHICLE_SECONDS_PER_S:
+        raise InputError(f"backend must be one of {', '.join(VEHICLE_SECONDS_PER_S)}, got {backend!r}")
+    return VEHICLE_SECONDS_PER_S[backend]
+
+
 def sweep_seconds(sweep: Any, backend: str = "compiled", workers: int | None = None) -> float:
     """Estimated wall time of ``sweep``, s: its flights, margin checks and designs at the per-cell costs,
     shared by ``workers`` processes (one when None)."""
     n = len(sweep.points)
     sample = [sweep.point_spec(i) for i in sorted({0, n // 2, n - 1})]  # duration may be an axis
     per_flight = sum(flight_seconds(s) for s in sample) / len(sample)
-    total = sweep.n_flights * per_flight / VEHICLE_SECONDS_PER_S.get(backend, VEHICLE_SECONDS_PER_S["numpy"])
+    total = sweep.n_flights * per_flight / _rate(backend)
     total += n * CHECK_S
     if sweep.margins:
         total += n * len(sweep.controllers) * MARGIN_S
     by = _design_keys(sample[0], [a.key for a in sweep.axes])  # one design per distinct combination
-    total += len({json.dumps([p[k] for k in by]) for p in sweep.points}) * DESIGN_S
+    total += len({json.dumps([p[k] for k in by], default=str) for p in sweep.points}) * DESIGN_S
     return total / max(1, workers or 1)
 
 
 def tuning_seconds(t: Any, trials: int, backend: str = "compiled", workers: int | None = None) -> float:
     """Estimated wall time of a tuning of ``trials`` trials, s (each flies the population once)."""
     spec = t.base_spec()
-    per_trial = t.population * flight_seconds(spec) / VEHICLE_SECONDS_PER_S.get(backend, 0.4)
+    per_trial = t.population * flight_seconds(spec) / _rate(backend)
     if t.min_phase_margin_deg > 0.0:
         per_trial += t.population * MARGIN_S
     checks = 0.0
