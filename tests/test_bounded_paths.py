@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from vtol_impedance import io as vio
+from vtol_impedance.errors import InputError
 
 rd = importlib.import_module("vtol_impedance.robust.design")  # the package exports a function of that name
 
@@ -328,14 +329,8 @@ def test_tuning_estimate_by_hand():
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
 def test_max_minutes_must_be_a_positive_number(bad):
-    with pytest.raises(vio_errors().InputError, match="--max-minutes must be a positive number"):
+    with pytest.raises(InputError, match="--max-minutes must be a positive number"):
         budget.check_budget(10.0, "x", bad)
-
-
-def vio_errors():
-    import vtol_impedance.errors as e
-
-    return e
 
 
 def test_the_bound_and_its_confirmations():
