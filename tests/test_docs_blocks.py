@@ -279,22 +279,22 @@ def short_studies(monkeypatch, tmp_path):
 
     load_sweep, load_tuning = sweeps.load, tune.load_tuning
 
-    def short_sweep(path_or_name):
+    def short_sweep(path_or_name, **kw):  # kw: check_points, on_point
         path = Path(path_or_name)
         if not path.suffix and not path.exists():
             path = spec._BUILTIN / f"{path_or_name}.toml"
         data = _shrink_sweep(tomllib.loads(path.read_text(encoding="utf-8")))
         short = tmp_path / f"{path.stem}.toml"
         short.write_text(_dump_toml(data), encoding="utf-8")
-        return load_sweep(short)
+        return load_sweep(short, **kw)
 
-    def short_tuning(path):
+    def short_tuning(path, **kw):  # kw: check_corners
         data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         data.update(trials=2, population=2)
         data["set"] = {**data.get("set", {}), "duration": 3.0}
         short = tmp_path / f"tuning-{Path(path).name}"
         short.write_text(_dump_toml(data), encoding="utf-8")
-        return load_tuning(short)
+        return load_tuning(short, **kw)
 
     monkeypatch.setattr(sweeps, "load", short_sweep)
     monkeypatch.setattr(tune, "load_tuning", short_tuning)

@@ -19,7 +19,8 @@ DEFAULT_OUT = "results"
 
 
 class _Progress:
-    """Progress on stderr: an updating line on a terminal, a line every 25 % otherwise."""
+    """Progress on stderr with the time left: an updating line on a terminal, otherwise a line every 25 % or
+    every 5 s, whichever comes first."""
 
     def __init__(self, name: str, enabled: bool = True) -> None:
         self.name = name
@@ -27,21 +28,25 @@ class _Progress:
         self.tty = sys.stderr.isatty()
         self.t0 = time.perf_counter()
         self.last = -1
+        self.last_t = self.t0
 
     def __call__(self, frac: float) -> None:
         if not self.enabled:
             return
         pct = int(frac * 100)
-        el = time.perf_counter() - self.t0
+        now = time.perf_counter()
+        el = now - self.t0
         if self.tty:
             bar = "#" * (pct // 4) + "." * (25 - pct // 4)
             sys.stderr.write(f"\r  {self.name:<20} [{bar}] {pct:3d}%  {el:5.1f} s")
             if frac >= 1.0:
                 sys.stderr.write("\n")
             sys.stderr.flush()
-        elif pct // 25 > self.last // 25 or frac >= 1.0:
-            sys.stderr.write(f"  {self.name}: {pct}% ({el:.1f} s)\n")
+        elif pct // 25 > self.last // 25 or frac >= 1.0 or now - self.last_t >= 5.0:
+            left = f", {el * (1.0 - frac) / frac:.0f} s left" if 0.0 < frac < 1.0 else ""
+            sys.stderr.write(f"  {self.name}: {pct}% ({el:.1f} s{left})\n")
             sys.stderr.flush()
+            self.last_t = now
         self.last = pct
 
 
@@ -576,7 +581,9 @@ def cmd_estimate(args: argparse.Namespace) -> int:
             raise InputError("give a log file (CSV, .ulg, .bin, .tlog) or --example NAME (--example list)")
         log = Path(args.log)
         if not log.is_file():
-            raise InputError(f"log file {log} {'is not a file' if log.exists() else 'does not exist'}")
+            from .io import explain_path
+
+            raise InputError(f"cannot read log file {log}: {explain_path(log) or 'not a regular file'}")
         stem = log.stem
     inertia: Any = _floats("--inertia", args.inertia, (3, 9))
     if inertia is not None and len(inertia) == 9:
@@ -710,14 +717,20 @@ def _sweep_out(args: argparse.Namespace, name: str) -> Path:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run or resume a sweep, then write its summary."""
+    from .io import check_folder_path
     from .sweeps import load, run_sweep, write_report
+    from .sweeps.budget import Progress, check_budget, sweep_seconds
     from .sweeps.run import METRICS
 
     if args.metric not in METRICS:  # checked before the flights, not after them in the report
         from .errors import InputError
 
         raise InputError(f"--metric must be one of {', '.join(METRICS)}, got {args.metric!r}")
-    sweep = load(args.spec)
+    sweep = load(args.spec, check_points=False)
+    check_folder_path(_sweep_out(args, sweep.name))  # before any work
+    check_budget(sweep_seconds(sweep, args.backend, args.workers), f"sweep {sweep.name}", args.max_minutes, args.yes)
+    checked = Progress(len(sweep.points), "points checked", not args.quiet)
+    sweep = load(args.spec, on_point=checked)  # every point checked (its controller designed)
     where = Path(args.spec) if Path(args.spec).suffix else None
     if sweep.fast_estimator_points and not args.quiet:
         print(
@@ -754,13 +767,17 @@ def cmd_tune(args: argparse.Namespace) -> int:
     """Search gains with optuna over a population of plants; write the best as a scenario file."""
     from .analysis.plots import _save, plt
     from .analysis.report import write_html
-    from .io import RunFolder, write_text
+    from .io import RunFolder, check_folder_path, write_text
+    from .sweeps.budget import check_budget, tuning_seconds
     from .sweeps.tune import _optuna, best_scenario_toml, bound_notes, load_tuning, trials_csv, tune
 
     _optuna()  # a missing extra is said at once, before anything compiles
-    t = load_tuning(args.spec)
+    t = load_tuning(args.spec, check_corners=False)
+    out = check_folder_path(Path(args.out) if args.out else _default_out("tune", t.name))
+    seconds = tuning_seconds(t, t.trials if args.trials is None else args.trials, args.backend, args.workers)
+    check_budget(seconds, f"tuning {t.name}", args.max_minutes, args.yes)
+    t = load_tuning(args.spec)  # the search box's corners checked (their controllers designed)
     _preflight([t.base_spec()], [t.controller], args.quiet)
-    out = Path(args.out) if args.out else _default_out("tune", t.name)
     with RunFolder(out) as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
         res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log)
@@ -1007,6 +1024,13 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bound_flags(sp: argparse.ArgumentParser) -> None:
+    """``--max-minutes`` and ``--yes``: the bound on the estimated duration (docs: sweeps, 'Bounded work')."""
+    sp.add_argument("--max-minutes", type=float, default=None, metavar="M",
+                    help="refuse when the estimated duration exceeds M minutes (default 10)")  # fmt: skip
+    sp.add_argument("--yes", action="store_true", help="run whatever the estimated duration")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="vtol-impedance",
@@ -1226,6 +1250,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-report", action="store_true", help="only the data, no summary")
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
     sp.add_argument("--quiet", action="store_true", help="no progress output")
+    _bound_flags(sp)
     sp.set_defaults(func=cmd_sweep)
 
     sp = sub.add_parser("sweep-report", help="summary figures, table and HTML report of a finished sweep folder")
@@ -1244,6 +1269,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask cluster")
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
     sp.add_argument("--quiet", action="store_true")
+    _bound_flags(sp)
     sp.set_defaults(func=cmd_tune)
 
     sp = sub.add_parser("bench", help="speed of the compiled and NumPy backends; prints a table, writes JSON")
@@ -1398,8 +1424,14 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted; no results were written", file=sys.stderr)
         return 130
     except OSError as exc:
-        where = f" ({exc.filename})" if exc.filename else ""
-        print(f"error: cannot write or read a file{where}: {exc.strerror or exc}", file=sys.stderr)
+        import errno
+
+        from .io import explain_path, user_path
+
+        name = user_path(exc.filename) if exc.filename else None  # the user's path, never a staging one
+        path_fault = name and exc.errno in (errno.ENOENT, errno.EACCES, errno.ENOTDIR, errno.ELOOP)
+        why = (explain_path(Path(name).parent, "folder") or explain_path(name, "file")) if path_fault else None
+        print(f"error: cannot write or read {name or 'a file'}: {why or exc.strerror or exc}", file=sys.stderr)
         return 1
     except Exception as exc:  # the CLI never shows a traceback unless asked
         if _interrupted(exc):  # a library's clean-up failed on the way out of an interrupt (PillowWriter)

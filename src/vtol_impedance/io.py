@@ -1,11 +1,13 @@
-"""Atomic file writing: a crash never leaves a half-written file under the final name."""
+"""Atomic file writing (a crash never leaves a half-written file under the final name), run folders, the
+key of every on-disk cache (:func:`source_digest`) and paths named for what is wrong with them
+(:func:`explain_path`)."""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -57,6 +59,159 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]
         fh.flush()
         os.fsync(fh.fileno())
     return Path(path)
+
+
+# --------------------------------------------------------------------------- on-disk caches
+
+
+def source_digest(sources: Iterable[str | os.PathLike[str]]) -> str:
+    """The key of an on-disk cache: SHA-256 of the package version and of every file in ``sources`` (the
+    code that computes the cached content; a missing file counts as empty).
+
+    Every cache the package keeps on disk (the compiled kernels, the robust designs) is keyed by it, so an
+    edit of that code or an installed upgrade is never answered from entries the old code wrote.
+    """
+    import hashlib
+
+    from . import __version__
+
+    h = hashlib.sha256(f"vtol-impedance {__version__}\n".encode())
+    for p in sources:
+        p = Path(p)
+        try:
+            data = p.read_bytes()
+        except OSError:
+            data = b""
+        h.update(f"{p.name} {len(data)}\n".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- paths named for what is wrong
+
+
+def explain_path(path: str | os.PathLike[str], need: str = "file") -> str | None:
+    """What makes ``path`` unusable, in words that name the user's path and its culprit, or None.
+
+    ``need`` is ``"file"`` (a file to read: it must exist and be readable) or ``"folder"`` (an output folder:
+    it may be missing, but every existing part of it must be a folder, reachable, and the first missing
+    part's parent writable). Named: a symbolic link loop, a dangling link, a part of the path that is a file
+    where a folder is needed, a folder that cannot be searched, read or written (permission), a missing file.
+    """
+    import errno
+
+    path = Path(path)
+    parts = [path, *path.parents][::-1]  # from the root (or the first relative part) down to ``path``
+    if not path.is_absolute():
+        parts = [p for p in parts if str(p) != "."]
+    prev: Path | None = None
+    for part in parts:
+        last = part == parts[-1]
+        try:
+            st = os.lstat(part)
+        except FileNotFoundError:
+            if need == "folder":
+                base = prev if prev is not None else Path.cwd()
+                if not os.access(base, os.W_OK | os.X_OK):
+                    return f"{base} is not writable (permission denied), so {part} cannot be created"
+                return None
+            return f"{part} does not exist" if last else f"{part} does not exist (a folder on the way to {path})"
+        except PermissionError:
+            return f"{prev} cannot be searched (permission denied), so {part} cannot be reached"
+        except OSError as exc:
+            if exc.errno == errno.ENOTDIR:
+                return f"{path} has {prev} in its path, which is a file, not a folder"
+            if exc.errno == errno.ELOOP:
+                return f"{part} is a symbolic link loop"
+            if exc.errno == errno.ENAMETOOLONG:
+                return f"{path} is too long a path for the file system"
+            return f"{part}: {exc.strerror}"
+        import stat as _stat
+
+        if _stat.S_ISLNK(st.st_mode):
+            try:
+                st = os.stat(part)
+            except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    return f"{part} is a symbolic link loop (it points back to itself)"
+                if exc.errno == errno.ENOENT:
+                    return f"{part} is a symbolic link to {os.readlink(part)}, which does not exist"
+                return f"{part} is a symbolic link that cannot be followed ({exc.strerror})"
+        is_dir = _stat.S_ISDIR(st.st_mode)
+        if not last and not is_dir:
+            return f"{path} has {part} in its path, which is a file, not a folder"
+        if not last and not os.access(part, os.X_OK):
+            return f"{part} cannot be searched (permission denied)"
+        if last and need == "file":
+            if is_dir:
+                return f"{part} is a folder, not a file"
+            if not os.access(part, os.R_OK):
+                return f"{part} is not readable (permission denied)"
+        if last and need == "folder":
+            if not is_dir:
+                return f"{part} is a file (or a device), not a folder"
+            if not os.access(part, os.W_OK | os.X_OK):
+                return f"{part} is not writable (permission denied)"
+        prev = part
+    return None
+
+
+def input_file(path: str | os.PathLike[str], what: str) -> Path:
+    """``path`` as a :class:`~pathlib.Path` when it is a readable file, else
+    :class:`~vtol_impedance.errors.InputError` naming ``what`` it is (``"log file"``), the path and why."""
+    from .errors import InputError
+
+    if not isinstance(path, str | os.PathLike):
+        raise InputError(f"{what} must be a path (str or os.PathLike), got {type(path).__name__} {path!r}")
+    why = explain_path(path, "file")
+    if why:
+        raise InputError(f"cannot read {what} {path}: {why}")
+    return Path(path)
+
+
+def read_toml(path: str | os.PathLike[str], what: str, error: type[Exception] | None = None) -> dict[str, Any]:
+    """The TOML file at ``path`` as a dict, or ``error`` (default
+    :class:`~vtol_impedance.errors.InputError`) naming ``what`` it is, the path and why: unreadable (see
+    :func:`explain_path`), not UTF-8, malformed, or nested deeper than the reader can follow."""
+    from .errors import InputError
+
+    error = error or InputError
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise error(f"cannot read {what} {path}: {explain_path(path, 'file') or exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"cannot read {what} {path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    return parse_toml(text, f"{what} {path}", error)
+
+
+def parse_toml(text: str, where: str, error: type[Exception] | None = None) -> dict[str, Any]:
+    """``tomllib.loads(text)``, with a malformed or too deeply nested text an ``error`` naming ``where``."""
+    import tomllib
+
+    from .errors import InputError
+
+    error = error or InputError
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"cannot read {where}: {exc}") from None
+    except RecursionError:
+        raise error(
+            f"cannot read {where}: its arrays or tables are nested too deeply for the TOML reader (no value "
+            "of this tool nests more than three levels)"
+        ) from None
+
+
+def user_path(filename: str | os.PathLike[str]) -> str:
+    """The path the user gave for an internal one: a run's hidden staging or set-aside folder
+    (``.NAME.staging-XXXX``, ``.NAME.old-XXXX``) or an atomic write's temporary file (``.NAME.XXXX.tmp``)
+    becomes ``NAME`` in the same place."""
+    import re
+
+    text = os.fspath(filename)
+    text = re.sub(r"(^|/)\.([^/]+?)\.(?:staging|old)-[^/]+", r"\1\2", text)
+    return re.sub(r"(^|/)\.([^/]+?)\.[^/.]+\.tmp$", r"\1\2", text)
 
 
 # --------------------------------------------------------------------------- run folders
@@ -112,13 +267,26 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+def check_folder_path(final: str | os.PathLike[str]) -> Path:
+    """``final`` as a :class:`~pathlib.Path` when it can be (or become) an output folder, else
+    :class:`~vtol_impedance.errors.InputError` naming what is in the way (:func:`explain_path`). Cheap:
+    commands call it before any work."""
+    from .errors import InputError
+
+    final = Path(final)
+    why = explain_path(final, "folder")
+    if why:
+        raise InputError(f"cannot use {final} as the output folder: {why}; choose another --out")
+    return final
+
+
 def check_output_folder(final: Path, swapped: bool = True) -> Path:
     """Refuse, before any work, an output folder that cannot hold a run: a path through or onto a regular
     file, a mount point when the folder is ``swapped`` as a whole, or an existing folder that is not a run
     of this tool as it wrote it (no ``manifest.json`` of this tool, or files it does not list)."""
     from .errors import InputError
 
-    final = Path(final)
+    final = check_folder_path(final)
     for parent in [final, *final.parents]:
         if parent.exists() and not parent.is_dir():
             where = "is" if parent == final else f"has {parent} in its path, which is"

@@ -6,15 +6,17 @@ proves the two agree. Kernels are compiled on first use and cached on disk.
 
 Numba keys each cached function on its own source file only, so a kernel that inlines code from
 another module could load stale machine code after that module changed (an upgrade, an edit). Before
-any kernel is imported, :func:`_refresh_cache` stamps the package's cache folder with a hash of every
-source the kernels read and clears the cached kernels when the hash differs.
+any kernel is imported, :func:`_refresh_cache` stamps the package's cache folder with
+:func:`~vtol_impedance.io.source_digest` of every source the kernels read (and the package version) and
+clears the cached kernels when it differs.
 """
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
+
+from ..io import source_digest
 
 _HERE = Path(__file__).resolve().parent
 _SOURCES = (
@@ -34,7 +36,7 @@ def _refresh_cache() -> None:
         return
     import fcntl
 
-    digest = hashlib.sha256(b"".join(p.read_bytes() for p in _SOURCES if p.exists())).hexdigest()
+    digest = source_digest(_SOURCES)
     cache = _HERE / "__pycache__"
     stamp = cache / "kernels.stamp"
     try:

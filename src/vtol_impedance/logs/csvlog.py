@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..io import explain_path
 from . import frames
 from .frames import ANGLE_UNITS, ROTOR_SPEED_UNITS, TIME_UNITS, Conventions
 from .timeseries import RawLog, Signal
@@ -158,7 +159,7 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
     """Parse a CSV log once: every known role's column as floats (NaN where empty)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
+        raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
     notes: list[str] = []
     header, rows = _read_rows(path, notes)
     mapping = {k: k for k in COLUMNS}

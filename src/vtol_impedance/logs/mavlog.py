@@ -57,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..io import explain_path
 from .airframe import classify
 from .frames import ROTOR_SPEED_UNITS, eta_ned_frd, euler_rotation, quaternion_rotation
 from .timeseries import RawLog, Signal, typical_period
@@ -251,7 +252,7 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
     """Read an ArduPilot DataFlash ``.bin`` log (module docstring) into NED/FRD signals."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
+        raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
     out, err = io.StringIO(), io.StringIO()
     try:
         reader = _connect(path, out, err)
@@ -441,7 +442,7 @@ def read_tlog(path: str | os.PathLike[str], sysid: int | None = None, compid: in
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
+        raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
     n_frames, _, tail = _tlog_frames(path)
     if n_frames == 0:
         raise InputError(f"{path} holds no MAVLink frames (not a .tlog, or empty)")

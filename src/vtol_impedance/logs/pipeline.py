@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, scalar
+from ..io import explain_path
 from .airframe import airframe_option, check_airframe
 from .checks import ConventionReport, ImplausibleTime, check_conventions, check_thrust_signal, time_plausible
 from .csvlog import CsvTable, read_csv_table, table_to_raw
@@ -89,7 +90,7 @@ def read_any(
     (:func:`~vtol_impedance.logs.mavlog.read_tlog`)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
+        raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
     fmt = log_format(path)
     for name, val in (("sysid", sysid), ("compid", compid)):
         if val is not None and fmt != "tlog":

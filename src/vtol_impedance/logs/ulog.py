@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..io import explain_path
 from .frames import ROTOR_SPEED_UNITS
 from .timeseries import RawLog, Signal, typical_period
 
@@ -239,7 +240,7 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
     """Read a PX4 ULog into world NED / body FRD signals (see the module docstring for the topics)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
+        raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
     ULog = _pyulog()
     try:
         with open(path, "rb") as fh:  # ours to close: pyulog leaves a file it opened open when it raises

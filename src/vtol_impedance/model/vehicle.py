@@ -27,6 +27,7 @@ import numpy as np
 
 from ..conventions import G
 from ..errors import InputError, as_finite, check_keys, scalar
+from ..io import read_toml
 
 #: Rotor layouts built from an arm length, see :func:`layout_positions`.
 LAYOUTS = ("plus", "x", "hex")
@@ -444,10 +445,7 @@ def load_preset(name: str = "pelican") -> VehicleParams:
         raise InputError(f"vehicle must be a preset name or a .toml path, got {name!r}")
     if name.endswith(".toml"):
         path = Path(name)
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise InputError(f"cannot read vehicle file {path}: {exc}") from None
+        data = read_toml(path, "vehicle file")
         return vehicle_from_dict(data, str(path))
     return _shipped_preset(name)
 

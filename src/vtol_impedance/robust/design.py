@@ -42,6 +42,7 @@ from ..control.gains import ImpedanceGains
 from ..control.impedance import ControllerParams
 from ..errors import InputError, scalar
 from ..estimator.momentum import EstimatorParams
+from ..io import source_digest
 from ..model.vehicle import VehicleParams
 from ..sim.plant import PlantParams
 from ..sim.sensors import SensorParams
@@ -184,14 +185,31 @@ def design(
     dp = tuple(float(v) for v in np.broadcast_to(np.asarray(Dp, dtype=float), (3,)))
     rate = scalar("rate", rate, lo=0.0, lo_open=True)
     key = json.dumps(
-        [vehicle.to_dict(), kp, dp, rate, timing.velocity_delay, timing.attitude_delay, timing.rotor_tau, _RULE],
+        [vehicle.to_dict(), kp, dp, rate, timing.velocity_delay, timing.attitude_delay, timing.rotor_tau, code_key()],
         sort_keys=True, default=str,
     )  # fmt: skip
     return _design_cached(key, vehicle, kp, dp, rate, timing)
 
 
-#: Changes whenever the rule changes, so that no design cached on disk outlives it.
-_RULE = "2026-12-02 r2"
+_PACKAGE = Path(__file__).resolve().parent.parent
+#: The code a design depends on: the rule, the linearisation and margins, and every model they call.
+DESIGN_SOURCES: tuple[Path, ...] = tuple(
+    sorted(p for sub in ("robust", "control", "estimator", "model", "sim") for p in (_PACKAGE / sub).glob("*.py"))
+) + (_PACKAGE / "conventions.py",)
+
+
+def code_key() -> str:
+    """The code version of a cached design: :func:`~vtol_impedance.io.source_digest` of
+    :data:`DESIGN_SOURCES` and the package version, so that no design cached on disk outlives the code
+    that computed it (an edit, an upgrade)."""
+    from .. import __version__
+
+    return _code_key(DESIGN_SOURCES, __version__)
+
+
+@functools.lru_cache(maxsize=8)
+def _code_key(sources: tuple[Path, ...], version: str) -> str:
+    return source_digest(sources)
 
 
 def cache_dir() -> Path | None:

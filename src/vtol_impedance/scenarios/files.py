@@ -3,10 +3,10 @@ new one. Here, above both :mod:`.spec` and :mod:`.registry`, so that neither imp
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 from ..errors import ScenarioError
+from ..io import read_toml
 from .registry import get
 from .spec import ScenarioSpec, apply_mapping, set_value
 
@@ -14,10 +14,7 @@ from .spec import ScenarioSpec, apply_mapping, set_value
 def load_toml(path: str | Path, base: ScenarioSpec | None = None) -> ScenarioSpec:
     """Read a scenario file. ``base = "case-a-payload"`` at the top starts from a registered scenario."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"cannot read scenario file {path}: {exc}") from exc
+    data = read_toml(path, "scenario file", ScenarioError)
     base_name = data.pop("base", None)
     if base_name is not None:
         spec = get(base_name)

@@ -694,6 +694,8 @@ def parse_value(text: str) -> Any:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:
+        raise InputError(f"value {text[:40]!r}... nests arrays or tables too deeply to read") from None
 
 
 def apply_overrides(spec: ScenarioSpec, assignments: list[str] | tuple[str, ...]) -> ScenarioSpec:

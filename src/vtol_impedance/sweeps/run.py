@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-import time
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -34,6 +33,7 @@ import numpy as np
 from ..errors import InputError
 from ..estimator.momentum import EstimatorBandwidthWarning
 from ..io import FolderLock, write_text, write_with
+from .budget import Progress
 from .spec import Sweep, Unit
 
 METRICS = ("rms_ep_cm", "max_ep_cm", "ss_ep_cm", "rms_ev_cms", "rms_f_err_N", "rms_tau_err_mNm", "sat_pct")
@@ -75,8 +75,11 @@ def _numba_one_thread() -> None:
         pass
 
 
-def run_units(sweep: Sweep, units: Iterable[Unit], backend: str = "compiled") -> tuple[dict, dict | None]:
-    """Fly ``units`` and return the flight rows and (when kept) the decimated traces, as column dicts."""
+def run_units(
+    sweep: Sweep, units: Iterable[Unit], backend: str = "compiled", on_unit: Callable[[int], None] | None = None
+) -> tuple[dict, dict | None]:
+    """Fly ``units`` and return the flight rows and (when kept) the decimated traces, as column dicts;
+    ``on_unit(flights)`` is called after each unit (progress)."""
     from ..analysis.metrics import compute_metrics
     from ..scenarios import simulate
 
@@ -125,6 +128,8 @@ def run_units(sweep: Sweep, units: Iterable[Unit], backend: str = "compiled") ->
                 for i, a in enumerate("xyz"):
                     traces[f"f{a}_hat_N"] += r["f_hat_W"][b, :, i].tolist()
                     traces[f"f{a}_true_N"] += r["f_lumped_W"][b, :, i].tolist()
+        if on_unit is not None:
+            on_unit(len(sweep.controllers))
     return rows, traces
 
 
@@ -284,30 +289,6 @@ def _versions() -> dict[str, str]:
     return {"vtol-impedance": __version__, **lib_versions()}
 
 
-class Progress:
-    """Chunks done, flights per second and the time left, on stderr."""
-
-    def __init__(self, total_chunks: int, flights_per_chunk: float, enabled: bool = True) -> None:
-        self.total, self.fpc, self.enabled = total_chunks, flights_per_chunk, enabled
-        self.done = 0
-        self.t0 = time.perf_counter()
-        self.tty = sys.stderr.isatty()
-
-    def __call__(self) -> None:
-        self.done += 1
-        if not self.enabled:
-            return
-        el = time.perf_counter() - self.t0
-        rate = self.done * self.fpc / max(el, 1e-9)
-        left = (self.total - self.done) * self.fpc / max(rate, 1e-9)
-        msg = f"  chunks {self.done}/{self.total}  {rate:7.1f} flights/s  {left:6.0f} s left"
-        if self.tty:
-            sys.stderr.write("\r" + msg + ("\n" if self.done == self.total else ""))
-        elif self.done == self.total or self.done % max(1, self.total // 10) == 0:
-            sys.stderr.write(msg + "\n")
-        sys.stderr.flush()
-
-
 def warm_up(sweep: Sweep, backend: str = "compiled") -> None:
     """Compile the kernels here, once, before workers start (they then load them from the cache)."""
     from ..scenarios import set_value, simulate
@@ -379,11 +360,15 @@ class Executor:
         if self.cluster is not None:
             self.cluster.close()
 
-    def map_chunks(self, sweep: Sweep, payload: dict[str, Any], chunks: list[int], backend: str = "compiled"):
-        """``(k, rows, traces)`` for every chunk, as each completes."""
+    def map_chunks(
+        self, sweep: Sweep, payload: dict[str, Any], chunks: list[int], backend: str = "compiled",
+        on_unit: Callable[[int], None] | None = None,
+    ):  # fmt: skip
+        """``(k, rows, traces)`` for every chunk, as each completes (``on_unit``: see :func:`run_units`, in
+        this process only; on Dask a chunk is the unit of progress)."""
         if not self.distributed:
             for k in chunks:
-                yield (k, *run_units(sweep, sweep.chunk_units(k), backend))
+                yield (k, *run_units(sweep, sweep.chunk_units(k), backend, on_unit))
             return
         from dask.distributed import as_completed
 
@@ -402,18 +387,21 @@ def execute(
     workers: int | None = None,
     scheduler: str | None = None,
     backend: str = "compiled",
-    progress: Callable[[], None] | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> None:
-    """Compute ``chunks`` and write each as it completes (in-process by default, else on Dask)."""
+    """Compute ``chunks`` and write each as it completes (in-process by default, else on Dask);
+    ``progress(flights)`` is told of every unit (in this process) or chunk (on Dask) done."""
     if not chunks:
         return
     warm_up(sweep, backend)
+    if isinstance(progress, Progress):
+        progress.start()  # the time left is the flights', not the compile's
     payload = {"source": folder.description["source"], "where": folder.description["where"]}
     with Executor(workers, scheduler) as ex:
-        for k, rows, traces in ex.map_chunks(sweep, payload, chunks, backend):
+        for k, rows, traces in ex.map_chunks(sweep, payload, chunks, backend, None if ex.distributed else progress):
             folder.write_chunk(k, rows, traces)
-            if progress:
-                progress()
+            if progress and ex.distributed:
+                progress(len(sweep.chunk_units(k)) * len(sweep.controllers))
 
 
 def read_dataset(folder: Path, digest: str | None = None):
@@ -474,8 +462,8 @@ def run_sweep(
             msg = f"sweep {sweep.name}: {sweep.n_flights} flights in {sweep.n_chunks} chunks"
             msg += f" ({done} already done, resuming)" if done else ""
             print(msg, file=sys.stderr)
-        per_chunk = sweep.n_flights / max(sweep.n_chunks, 1)
-        execute(sweep, folder, todo, workers, scheduler, backend, Progress(len(todo), per_chunk, show_progress))
+        flights = sum(len(sweep.chunk_units(k)) for k in todo) * len(sweep.controllers)
+        execute(sweep, folder, todo, workers, scheduler, backend, Progress(flights, "flights", show_progress))
     finally:
         folder.close()
     return folder.folder, len(todo)

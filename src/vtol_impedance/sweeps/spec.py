@@ -36,8 +36,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
+import os
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import product
 from pathlib import Path
@@ -48,6 +49,7 @@ import numpy as np
 from ..control.impedance import VARIANTS
 from ..errors import InputError, ScenarioError, check_keys, scalar
 from ..estimator.momentum import EstimatorBandwidthWarning
+from ..io import read_toml
 from ..scenarios import get, load_toml, set_value
 from ..scenarios.spec import ScenarioSpec, check, check_name
 
@@ -222,8 +224,12 @@ def _base(data: dict[str, Any], where: Path | None) -> ScenarioSpec:
     return get(base)
 
 
-def from_dict(data: dict[str, Any], where: Path | None = None, check_points: bool = True) -> Sweep:
-    """Validate a sweep description and resolve its points (see the module docstring)."""
+def from_dict(
+    data: dict[str, Any], where: Path | None = None, check_points: bool = True,
+    on_point: Callable[[int], None] | None = None,
+) -> Sweep:  # fmt: skip
+    """Validate a sweep description and resolve its points (see the module docstring); ``on_point(1)``
+    is called after each point is checked (progress: a check designs the point's controller)."""
     check_keys("sweep", data, KEYS)
     name = check_name(data.get("name", "sweep"))
     base = _base(data, where)
@@ -305,6 +311,8 @@ def from_dict(data: dict[str, Any], where: Path | None = None, check_points: boo
                     raise type(exc)(f"point {i} ({_fmt_point(points[i])}): {exc}") from None
             if any(issubclass(w.category, EstimatorBandwidthWarning) for w in caught):
                 sweep.fast_estimator_points.append(i)
+            if on_point is not None:
+                on_point(1)
     return sweep
 
 
@@ -340,18 +348,16 @@ def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
                 seen[k] = f"{group} {a.key!r}"
 
 
-def load(path_or_name: str | Path) -> Sweep:
-    """A sweep file, or the name of a built-in study (see :func:`builtin_names`)."""
+def load(path_or_name: str | Path, check_points: bool = True, on_point: Callable[[int], None] | None = None) -> Sweep:
+    """A sweep file, or the name of a built-in study (see :func:`builtin_names`); ``check_points=False``
+    skips checking every point's scenario (which designs the controllers: work, see ``sweeps.budget``)."""
     path = Path(path_or_name)
-    if not path.suffix and not path.exists():
+    if not path.suffix and not os.path.lexists(path):  # a link loop is a path, named as such below
         path = _BUILTIN / f"{path_or_name}.toml"
         if not path.exists():
             raise InputError(f"unknown sweep {path_or_name!r}; built-in studies: {', '.join(builtin_names())}")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read sweep file {path}: {exc}") from None
-    return from_dict(data, where=path)
+    data = read_toml(path, "sweep file")
+    return from_dict(data, where=path, check_points=check_points, on_point=on_point)
 
 
 _BUILTIN = Path(__file__).resolve().parent / "studies"

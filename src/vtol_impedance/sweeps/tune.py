@@ -35,7 +35,6 @@ import csv
 import io
 import json
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,8 +44,10 @@ import numpy as np
 
 from ..control.impedance import VARIANTS
 from ..errors import InputError, check_keys, scalar
+from ..io import read_toml
 from ..robust.design import DesignError
 from ..scenarios.spec import _INDEXED, get_value
+from .budget import Progress, minutes
 from .run import METRICS, Executor, warm_up
 from .spec import Axis, _axis, _flatten, distinct_keys, from_dict
 
@@ -136,16 +137,16 @@ class Tuning:
         }  # fmt: skip
 
 
-def load_tuning(path: str | Path) -> Tuning:
+def load_tuning(path: str | Path, check_corners: bool = True) -> Tuning:
+    """A tuning file (module docstring); see :func:`tuning_from_dict` for ``check_corners``."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read tuning file {path}: {exc}") from None
-    return tuning_from_dict(data, path)
+    data = read_toml(path, "tuning file")
+    return tuning_from_dict(data, path, check_corners)
 
 
-def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
+def tuning_from_dict(data: dict[str, Any], where: Path | None = None, check_corners: bool = True) -> Tuning:
+    """Validate a tuning description; ``check_corners=False`` skips checking the search box's corners as
+    scenarios (which designs their controllers: work, see ``sweeps.budget``)."""
     check_keys("tuning", data, KEYS)
     search_raw = data.get("search")
     if not isinstance(search_raw, dict) or not search_raw:
@@ -183,7 +184,8 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None) -> Tuning:
     hi = {a.key: a.hi if a.values is None else a.values[-1] for a in search}
     # and a point inside every range, which a key taking whole numbers refuses (a range draws real numbers)
     inside = {a.key: (a.lo + 0.37 * (a.hi - a.lo) if a.values is None else a.values[0]) for a in search}
-    for point in [lo, hi, inside, *({**lo, a.key: v} for a in search for v in a.values or ())]:
+    corners = [lo, hi, inside, *({**lo, a.key: v} for a in search for v in a.values or ())]
+    for point in corners if check_corners else []:
         try:
             from_dict(t.trial_sweep(point), where)
         except DesignError:
@@ -268,9 +270,12 @@ def tune(
             records.append({**params, "cost": cost, **parts, "no_design": ""})
             return cost
 
+        clock = Progress(n_trials, "trials", enabled=False)  # measures the time left; the line is ours
+
         def progress(i: int, params: dict[str, float], value: float) -> None:
             best = min(r["cost"] for r in records)
-            log(f"  trial {i}/{n_trials}: cost {value:.4g} (best {best:.4g})")
+            clock()
+            log(f"  trial {i}/{n_trials}: cost {value:.4g} (best {best:.4g}), {minutes(clock.left_s())} left")
 
         best, value, _ = optimize(t.search, objective, n_trials, t.seed, progress)
     return {"best": best, "cost": value, "trials": records}
