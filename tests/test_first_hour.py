@@ -253,7 +253,7 @@ def test_the_designed_tuning_the_warning_points_at_meets_the_thresholds():
 
 
 def test_verbose_prints_every_finding(capsys):
-    from vtol_impedance.cli import _preflight
+    from vtol_impedance.cli.flights import _preflight
     from vtol_impedance.scenarios import set_value
     from vtol_impedance.scenarios.spec import PAPER_CONTROL
 

@@ -562,7 +562,7 @@ def test_scenario_file_round_trips_its_config(tmp_path):
 def test_an_error_while_unwinding_an_interrupt_is_still_an_interrupt(monkeypatch, tmp_path, capsys):
     """Ctrl-C while matplotlib writes a GIF: its writer's clean-up fails (IndexError) on the way out. The
     user pressed Ctrl-C: exit 130 and "interrupted", not an internal error."""
-    import vtol_impedance.cli as cli
+    import vtol_impedance.cli.run as run_command
 
     def interrupted_run(args, controllers):
         try:
@@ -570,8 +570,8 @@ def test_an_error_while_unwinding_an_interrupt_is_still_an_interrupt(monkeypatch
         finally:
             [][0]  # noqa: B018 (a library's clean-up failing)
 
-    monkeypatch.setattr(cli, "cmd_run", interrupted_run)
-    assert cli.main(["run", "case-a-payload", "--out", str(tmp_path / "o")]) == 130
+    monkeypatch.setattr(run_command, "cmd_run", interrupted_run)
+    assert main(["run", "case-a-payload", "--out", str(tmp_path / "o")]) == 130
     err = capsys.readouterr().err
     assert "interrupted" in err and "internal error" not in err
 

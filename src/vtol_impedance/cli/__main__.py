@@ -1,0 +1,7 @@
+"""``python -m vtol_impedance.cli``."""
+
+import sys
+
+from .main import main
+
+sys.exit(main())
