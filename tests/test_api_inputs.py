@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 from test_docs_api import PACKAGES, public_names
 
-from vtol_impedance import control, estimator, live, logs, model, robust, runtime, scenarios, sim, sweeps
+from vtol_impedance import control, estimator, live, logs, model, robust, scenarios, sim, sweeps
+from vtol_impedance.control.reference import Trajectory
 from vtol_impedance.errors import VtolImpedanceError
 
 NAN, INF = math.nan, math.inf
@@ -64,6 +65,7 @@ def bad_values(kind: Any, good: Any) -> list[Any]:
         "nonneg": ["abc", [1.0, 2.0], NAN, INF, -1.0],
         "pos": ["abc", [1.0, 2.0], NAN, INF, -INF, -1.0, 0.0],
         "batch": ["abc", None],  # real numbers of any batch shape (a mass, a thrust in the batched math)
+        "posany": ["abc", NAN, INF, -1.0, 0.0],  # numbers > 0 of any shape
         "count": ["abc", 1.5, NAN, 0, -1],  # a whole number >= 1
         "index": ["abc", 1.5, NAN, -1],  # a whole number >= 0
         "vec3": ["abc", [1.0, 2.0], [NAN, 0.0, 0.0], [INF, 0.0, 0.0]],
@@ -178,31 +180,58 @@ def eye3() -> np.ndarray:
 
 # --- the table: name -> (valid keyword arguments, {argument: kind}) --------------------------------------
 
-VP, CP, PP, CA = Obj(model.VehicleParams), Obj(control.ControllerParams), Obj(sim.PlantParams), Obj(control.ControllerArrays)
+VP, CP, PP, CA = (
+    Obj(model.VehicleParams),
+    Obj(control.ControllerParams),
+    Obj(sim.PlantParams),
+    Obj(control.ControllerArrays),
+)
 A3, A33 = Arr((3,)), Arr((3, 3))
 
 TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
     # model
-    "model.Rotor": (lambda: dict(position_B=(0.2, 0.0, 0.0), spin=1), {"position_B": "vec3", "f_max": "pos", "spin": "choice"}),
+    "model.Rotor": (
+        lambda: dict(position_B=(0.2, 0.0, 0.0), spin=1),
+        {"position_B": "vec3", "f_max": "pos", "spin": "choice"},
+    ),
     "model.drag_factor_from_constants": (
         lambda: dict(torque_constant=1e-7, thrust_constant=6e-6),
         {"torque_constant": "pos", "thrust_constant": "pos"},
     ),
     "model.effectiveness": (
-        lambda: dict(positions_B=model.layout_positions("x", 0.2)[0], spins=model.layout_positions("x", 0.2)[1], drag_factor=0.016),
+        lambda: dict(
+            positions_B=model.layout_positions("x", 0.2)[0],
+            spins=model.layout_positions("x", 0.2)[1],
+            drag_factor=0.016,
+        ),
         {"positions_B": Arr((4, 3)), "drag_factor": "pos"},
     ),
-    "model.f_max_from_motor": (lambda: dict(thrust_constant=6e-6, max_speed=1000.0), {"thrust_constant": "pos", "max_speed": "pos"}),
+    "model.f_max_from_motor": (
+        lambda: dict(thrust_constant=6e-6, max_speed=1000.0),
+        {"thrust_constant": "pos", "max_speed": "pos"},
+    ),
     "model.layout_positions": (lambda: dict(layout="x", arm_length=0.2), {"layout": "choice", "arm_length": "pos"}),
     "model.vehicle_from_dict": (lambda: dict(data={"mass": 1.0, "inertia": [0.01, 0.01, 0.02]}), {"data": "mapping"}),
-    "model.VehicleParams": (lambda: dict(mass=1.2, inertia=eye3(), arm_length=0.21), {"mass": "pos", "inertia": A33, "arm_length": "pos", "drag_factor": "pos"}),
+    "model.VehicleParams": (
+        lambda: dict(mass=1.2, inertia=eye3(), arm_length=0.21),
+        {"mass": "pos", "inertia": A33, "arm_length": "pos", "drag_factor": "pos"},
+    ),
     "model.allocate": (
-        lambda: dict(thrust=np.array(11.0), tau_B=z3(), E=vehicle().geometry.E, E_pinv=vehicle().geometry.E_pinv,
-                     f_min=vehicle().geometry.f_min, f_max=vehicle().geometry.f_max),
+        lambda: dict(
+            thrust=np.array(11.0),
+            tau_B=z3(),
+            E=vehicle().geometry.E,
+            E_pinv=vehicle().geometry.E_pinv,
+            f_min=vehicle().geometry.f_min,
+            f_max=vehicle().geometry.f_max,
+        ),
         {"tau_B": A3, "E": Arr((4, 4)), "thrust_shift_max": "nonneg"},
     ),
     "model.body_moment_from_euler": (lambda: dict(tau_eta=z3(), eta=z3()), {"tau_eta": A3, "eta": A3}),
-    "model.coriolis_matrix_C": (lambda: dict(eta=z3(), eta_dot=z3(), I_B=eye3()), {"eta": A3, "eta_dot": A3, "I_B": A33}),
+    "model.coriolis_matrix_C": (
+        lambda: dict(eta=z3(), eta_dot=z3(), I_B=eye3()),
+        {"eta": A3, "eta_dot": A3, "I_B": A33},
+    ),
     "model.euler_moment_from_body": (lambda: dict(tau_B=z3(), eta=z3()), {"tau_B": A3, "eta": A3}),
     "model.euler_rate_matrix_Q": (lambda: dict(eta=z3()), {"eta": A3}),
     "model.euler_rate_matrix_Q_dot": (lambda: dict(eta=z3(), eta_dot=z3()), {"eta": A3, "eta_dot": A3}),
@@ -220,31 +249,75 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
     ),
     "model.rotation_zyx": (lambda: dict(eta=z3()), {"eta": A3}),
     "model.skew": (lambda: dict(v=z3()), {"v": A3}),
-    "model.unmix": (lambda: dict(thrust=np.array(11.0), tau_B=z3(), E_pinv=vehicle().geometry.E_pinv), {"tau_B": A3, "E_pinv": Arr((4, 4))}),
-    # estimator
-    "estimator.EstimatorParams": (lambda: dict(), {"wn": "gain", "zeta": "gain", "order": "count", "prototype": "choice", "rotor_tau": "nonneg"}),
-    "estimator.design": (lambda: dict(params=estimator.EstimatorParams(), Ts=0.01), {"params": Obj(estimator.EstimatorParams), "Ts": "pos"}),
-    "estimator.estimator_step": (
-        lambda: dict(des=est_design(), state=estimator.initial_state(est_design()), eta=z3(), eta_dot=z3(), v_W=z3(),
-                     thrust_prev=np.array(11.0), tau_B_prev=z3(), mass=np.array(1.2), I_B=eye3()),
-        {"des": Obj(estimator.EstimatorDesign), "state": Obj(estimator.EstimatorState), "eta": A3, "v_W": A3, "mass": "batch"},
+    "model.unmix": (
+        lambda: dict(thrust=np.array(11.0), tau_B=z3(), E_pinv=vehicle().geometry.E_pinv),
+        {"tau_B": A3, "E_pinv": Arr((4, 4))},
     ),
-    "estimator.initial_state": (lambda: dict(des=est_design()), {"des": Obj(estimator.EstimatorDesign), "batch_shape": "mapping"}),
+    # estimator
+    "estimator.EstimatorParams": (
+        lambda: dict(),
+        {"wn": "gain", "zeta": "gain", "order": "count", "prototype": "choice", "rotor_tau": "nonneg"},
+    ),
+    "estimator.design": (
+        lambda: dict(params=estimator.EstimatorParams(), Ts=0.01),
+        {"params": Obj(estimator.EstimatorParams), "Ts": "pos"},
+    ),
+    "estimator.estimator_step": (
+        lambda: dict(
+            des=est_design(),
+            state=estimator.initial_state(est_design()),
+            eta=z3(),
+            eta_dot=z3(),
+            v_W=z3(),
+            thrust_prev=np.array(11.0),
+            tau_B_prev=z3(),
+            mass=np.array(1.2),
+            I_B=eye3(),
+        ),
+        {
+            "des": Obj(estimator.EstimatorDesign),
+            "state": Obj(estimator.EstimatorState),
+            "eta": A3,
+            "v_W": A3,
+            "mass": "batch",
+        },
+    ),
+    "estimator.initial_state": (
+        lambda: dict(des=est_design()),
+        {"des": Obj(estimator.EstimatorDesign), "batch_shape": "mapping"},
+    ),
     # control
     "control.ControllerParams": (
         lambda: dict(vehicle=vehicle(), gains=control.ImpedanceGains(16.0, 12.0, 100.0, 20.0)),
-        {"vehicle": VP, "gains": Obj(control.ImpedanceGains), "variant": "choice", "Ts": "pos", "tilt_max": "pos",
-         "estimator": Obj(estimator.EstimatorParams), "integral_limit": "nonneg"},
+        {
+            "vehicle": VP,
+            "gains": Obj(control.ImpedanceGains),
+            "variant": "choice",
+            "Ts": "pos",
+            "tilt_max": "pos",
+            "estimator": Obj(estimator.EstimatorParams),
+            "integral_limit": "nonneg",
+        },
     ),
     "control.Impedance": (lambda: dict(M=2.0, D=6.0, K=5.0), {"M": "gain", "D": "gain0", "K": "gain0"}),
-    "control.ImpedanceGains": (lambda: dict(Kp=16.0, Dp=12.0, Ko=100.0, Do=20.0), {"Kp": "gain", "Dp": "gain", "Ko": "gain", "Do": "gain", "Ki": "gain0"}),
+    "control.ImpedanceGains": (
+        lambda: dict(Kp=16.0, Dp=12.0, Ko=100.0, Do=20.0),
+        {"Kp": "gain", "Dp": "gain", "Ko": "gain", "Do": "gain", "Ki": "gain0"},
+    ),
     "control.Measurement": (lambda: dict(p_W=z3(), v_W=z3(), eta=z3()), {"p_W": A3, "v_W": A3, "eta": A3}),
     "control.Reference": (lambda: dict(p_W=z3()), {"p_W": A3, "v_W": A3, "a_W": A3, "psi": "batch"}),
-    "control.acceleration_from_thrust": (lambda: dict(thrust=np.array(11.0), eta=z3(), mass=np.array(1.2)), {"eta": A3, "mass": "batch", "thrust": "batch"}),
+    "control.acceleration_from_thrust": (
+        lambda: dict(thrust=np.array(11.0), eta=z3(), mass=np.array(1.2)),
+        {"eta": A3, "mass": "batch", "thrust": "batch"},
+    ),
     "control.compile_controllers": (lambda: dict(params=cparams()), {"params": CP}),
     "control.controller_step": (
-        lambda: dict(P=carrays(), S=control.initial_controller_state(carrays()),
-                     meas=control.Measurement(z3(), z3(), z3(), eta_dot=z3()), ref=control.Reference(np.array([0.0, 0.0, -1.0]))),
+        lambda: dict(
+            P=carrays(),
+            S=control.initial_controller_state(carrays()),
+            meas=control.Measurement(z3(), z3(), z3(), eta_dot=z3()),
+            ref=control.Reference(np.array([0.0, 0.0, -1.0])),
+        ),
         {"P": CA, "S": Obj(control.ControllerState), "meas": Obj(control.Measurement), "ref": Obj(control.Reference)},
     ),
     "control.initial_controller_state": (lambda: dict(P=carrays()), {"P": CA}),
@@ -266,18 +339,39 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         {"rows": "mapping", "n_rotors": "count"},
     ),
     # sim
-    "sim.BandLimitedNoise": (lambda: dict(), {"force_rms_W": "vec3", "torque_rms_B": "vec3", "f_lo": "pos", "f_hi": "pos"}),
+    "sim.BandLimitedNoise": (
+        lambda: dict(),
+        {"force_rms_W": "vec3", "torque_rms_B": "vec3", "f_lo": "pos", "f_hi": "pos"},
+    ),
     "sim.ConstantWrench": (lambda: dict(), {"force_W": "vec3", "torque_B": "vec3"}),
-    "sim.FanJet": (lambda: dict(), {"position_W": "vec3", "direction_W": "vec3", "mean_force": "nonneg", "ref_distance": "pos", "width": "pos"}),
+    "sim.FanJet": (
+        lambda: dict(),
+        {"position_W": "vec3", "direction_W": "vec3", "mean_force": "nonneg", "ref_distance": "pos", "width": "pos"},
+    ),
     "sim.PlantParams": (
         lambda: dict(vehicle=vehicle()),
-        {"vehicle": VP, "payload_mass": "nonneg", "payload_offset_B": "vec3", "inertia_scale": "vec3pos", "arm_length_scale": "pos",
-         "rotor_tau_up": "nonneg", "rotor_tau_down": "nonneg", "ground_stiffness": "pos", "pendulum_length": "pos"},
+        {
+            "vehicle": VP,
+            "payload_mass": "nonneg",
+            "payload_offset_B": "vec3",
+            "inertia_scale": "vec3pos",
+            "arm_length_scale": "pos",
+            "rotor_tau_up": "nonneg",
+            "rotor_tau_down": "nonneg",
+            "ground_stiffness": "pos",
+            "pendulum_length": "pos",
+        },
     ),
     "sim.Push": (lambda: dict(), {"force_W": "vec3", "torque_B": "vec3", "t_on": "real", "duration": "pos"}),
     "sim.RampWrench": (lambda: dict(), {"force_W": "vec3", "torque_B": "vec3", "t_start": "real", "t_end": "real"}),
-    "sim.Result": (lambda: dict(t=np.zeros(2), labels=["a"], data={}), {"t": Arr((2,)), "labels": "mapping", "data": "mapping"}),
-    "sim.SensorParams": (lambda: dict(), {"pos_noise": "nonneg", "vel_noise": "nonneg", "mocap_delay": "nonneg", "imu_delay": "nonneg"}),
+    "sim.Result": (
+        lambda: dict(t=np.zeros(2), labels=["a"], data={}),
+        {"t": "batch", "labels": "mapping", "data": "mapping"},
+    ),
+    "sim.SensorParams": (
+        lambda: dict(),
+        {"pos_noise": "nonneg", "vel_noise": "nonneg", "mocap_delay": "nonneg", "imu_delay": "nonneg"},
+    ),
     "sim.SinusoidWrench": (lambda: dict(), {"force_W": "vec3", "torque_B": "vec3", "freq_hz": "pos", "phase": "real"}),
     "sim.StepWrench": (lambda: dict(), {"force_W": "vec3", "torque_B": "vec3", "t_on": "real"}),
     "sim.Wind": (lambda: dict(), {"velocity_W": "vec3", "drag": "nonneg"}),
@@ -291,24 +385,58 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         {"P": Obj(type(parrays())), "x": Arr(plant_x().shape), "f_cmd": Arr((4,)), "t": "real", "dt": "pos"},
     ),
     "sim.run_closed_loop": (
-        lambda: dict(plant=pparams(), controllers=[cparams()], trajectory=scenarios.build(spec()).trajectory, duration=0.01),
-        {"plant": PP, "controllers": CP, "trajectory": "func", "duration": "pos", "plant_rate": "pos", "sensors": Obj(sim.SensorParams)},
+        lambda: dict(
+            plant=pparams(), controllers=[cparams()], trajectory=scenarios.build(spec()).trajectory, duration=0.01
+        ),
+        {
+            "plant": PP,
+            "controllers": CP,
+            "trajectory": Obj(Trajectory),
+            "duration": "pos",
+            "plant_rate": "pos",
+            "sensors": Obj(sim.SensorParams),
+        },
     ),
     # robust
     "robust.Timing": (lambda: dict(), {"velocity_delay": "nonneg", "attitude_delay": "nonneg", "rotor_tau": "nonneg"}),
-    "robust.design": (lambda: dict(vehicle=vehicle(), Kp=16.0, Dp=12.0), {"vehicle": VP, "Kp": "gain", "Dp": "gain", "rate": "pos", "timing": Obj(robust.Timing)}),
+    "robust.design": (
+        lambda: dict(vehicle=vehicle(), Kp=16.0, Dp=12.0),
+        {"vehicle": VP, "Kp": "gain", "Dp": "gain", "rate": "pos", "timing": Obj(robust.Timing)},
+    ),
     "robust.designed_controller": (
         lambda: dict(vehicle=vehicle(), variant="pdc", Kp=16.0, Dp=12.0),
-        {"vehicle": VP, "variant": "choice", "Kp": "gain", "Dp": "gain", "rate": "pos", "timing": Obj(robust.Timing), "Ki": "gain0"},
+        {
+            "vehicle": VP,
+            "variant": "choice",
+            "Kp": "gain",
+            "Dp": "gain",
+            "rate": "pos",
+            "timing": Obj(robust.Timing),
+            "Ki": "gain0",
+        },
     ),
     "robust.Thresholds": (lambda: dict(), {"phase_deg": "nonneg", "gain_db": "nonneg", "damping": "nonneg"}),
-    "robust.loop_margins": (lambda: dict(name="x", L=lin().plant), {"name": "text", "L": "mapping", "omega": Arr((2,), positive=True)}),
+    "robust.loop_margins": (
+        lambda: dict(name="x", L=lin().loop("thrust")),
+        {"name": "text", "L": "mapping", "omega": Arr((2,), positive=True)},
+    ),
     "robust.margins": (lambda: dict(loop=lin()), {"loop": Obj(robust.LinearLoop), "label": "text"}),
-    "robust.equivalent_rotor_tau": (lambda: dict(tau_up=0.0125, tau_down=0.025), {"tau_up": "nonneg", "tau_down": "nonneg"}),
+    "robust.equivalent_rotor_tau": (
+        lambda: dict(tau_up=0.0125, tau_down=0.025),
+        {"tau_up": "nonneg", "tau_down": "nonneg"},
+    ),
     "robust.linearize": (
         lambda: dict(controller=cparams(), plant=pparams()),
-        {"controller": CP, "plant": PP, "sensors": Obj(sim.SensorParams), "p_W": "vec3", "psi": "real", "force_W": "vec3",
-         "torque_B": "vec3", "plant_rate": "pos"},
+        {
+            "controller": CP,
+            "plant": PP,
+            "sensors": Obj(sim.SensorParams),
+            "p_W": "vec3",
+            "psi": "real",
+            "force_W": "vec3",
+            "torque_B": "vec3",
+            "plant_rate": "pos",
+        },
     ),
     "robust.operating_point": (
         lambda: dict(controller=cparams(), plant=pparams()),
@@ -319,81 +447,197 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         {"tau_up": "nonneg", "tau_down": "nonneg", "omega": "pos", "periods": "count"},
     ),
     # scenarios
-    "scenarios.ControlSpec": (lambda: dict(), {"rate": "pos", "Kp": "gain", "Dp": "gain", "Ki": "gain0", "rotor_tau": "nonneg", "tilt_max_deg": "pos"}),
+    "scenarios.ControlSpec": (
+        lambda: dict(),
+        {
+            "rate": "pos",
+            "Kp": "gain",
+            "Dp": "gain",
+            "Ki": "gain0",
+            "rotor_tau": "nonneg",
+            "tilt_max_deg": "pos",
+            "estimator_prototype": "text",
+        },
+    ),
     "scenarios.PayloadSpec": (lambda: dict(), {"mass": "nonneg", "offset_B": "vec3"}),
-    "scenarios.PlantSpec": (lambda: dict(), {"inertia_scale": "vec3pos", "arm_length_scale": "pos", "rotor_tau_up": "nonneg", "pendulum_length": "pos"}),
-    "scenarios.ScenarioSpec": (lambda: dict(name="x"), {"name": "text", "plant_rate": "pos", "duration": "nonneg", "seed": "index"}),
-    "scenarios.TrajectorySpec": (lambda: dict(), {"kind": "choice", "altitude": "real", "takeoff_duration": "pos", "circle_radius": "pos"}),
-    "scenarios.apply_overrides": (lambda: dict(spec=spec(), assignments=["duration=5"]), {"spec": Obj(scenarios.ScenarioSpec), "assignments": "mapping"}),
+    "scenarios.PlantSpec": (
+        lambda: dict(),
+        {"inertia_scale": "vec3pos", "arm_length_scale": "pos", "rotor_tau_up": "nonneg", "pendulum_length": "pos"},
+    ),
+    "scenarios.ScenarioSpec": (
+        lambda: dict(name="x"),
+        {"name": "text", "plant_rate": "pos", "duration": "nonneg", "seed": "index"},
+    ),
+    "scenarios.TrajectorySpec": (
+        lambda: dict(),
+        {"kind": "text", "altitude": "real", "takeoff_duration": "pos", "circle_radius": "pos"},
+    ),
+    "scenarios.apply_overrides": (
+        lambda: dict(spec=spec(), assignments=["duration=5"]),
+        {"spec": Obj(scenarios.ScenarioSpec), "assignments": "mapping"},
+    ),
     "scenarios.build": (lambda: dict(spec=spec()), {"spec": Obj(scenarios.ScenarioSpec)}),
     "scenarios.check": (lambda: dict(spec=spec()), {"spec": Obj(scenarios.ScenarioSpec)}),
-    "scenarios.controller_params": (lambda: dict(spec=spec(), variant="pdc"), {"spec": Obj(scenarios.ScenarioSpec), "variant": "choice"}),
+    "scenarios.controller_params": (
+        lambda: dict(spec=spec(), variant="pdc"),
+        {"spec": Obj(scenarios.ScenarioSpec), "variant": "choice"},
+    ),
     "scenarios.get": (lambda: dict(name="case-a-payload-v1"), {"name": "choice"}),
     "scenarios.load_toml": (lambda: dict(path=Path("x.toml")), {"path": "path", "base": Obj(scenarios.ScenarioSpec)}),
     "scenarios.register": (lambda: dict(spec=spec()), {"spec": Obj(scenarios.ScenarioSpec)}),
-    "scenarios.set_value": (lambda: dict(spec=spec(), key="duration", value=5.0), {"spec": Obj(scenarios.ScenarioSpec), "key": "choice"}),
+    "scenarios.set_value": (
+        lambda: dict(spec=spec(), key="duration", value=5.0),
+        {"spec": Obj(scenarios.ScenarioSpec), "key": "choice"},
+    ),
     "scenarios.simulate": (
         lambda: dict(scenario=spec()),
-        {"scenario": Obj(scenarios.ScenarioSpec), "variants": "mapping", "seed": "index", "backend": "choice", "progress": "func"},
+        {
+            "scenario": Obj(scenarios.ScenarioSpec),
+            "variants": "mapping",
+            "seed": "index",
+            "backend": "choice",
+            "progress": "func",
+        },
     ),
     # analysis
     "analysis.compute_metrics": (lambda: dict(result=result()), {"result": Obj(sim.Result), "window": "mapping"}),
     "analysis.window_mask": (lambda: dict(result=result()), {"result": Obj(sim.Result), "window": "mapping"}),
     # logs
-    "logs.Conventions": (lambda: dict(), {"world": "choice", "body": "choice", "angle_unit": "choice", "quat_order": "choice", "time_unit": "choice"}),
-    "logs.Signal": (lambda: dict(name="v", source="x", t=np.arange(3.0), values=np.zeros((3, 3))), {"name": "text", "t": Arr((3,)), "values": Arr((3, 3))}),
-    "logs.RawLog": (
-        lambda: dict(velocity_W=raw().velocity_W, attitude=raw().attitude, omega_B=raw().omega_B, thrust=None, torque_B=None),
-        {"velocity_W": Obj(logs.Signal), "attitude": Obj(logs.Signal), "omega_B": Obj(logs.Signal), "thrust_unit": "choice"},
+    "logs.Conventions": (
+        lambda: dict(),
+        {"world": "choice", "body": "choice", "angle_unit": "choice", "quat_order": "choice", "time_unit": "choice"},
     ),
-    "logs.check_conventions": (lambda: dict(raw=raw()), {"raw": Obj(logs.RawLog), "mode": "choice", "declared": Obj(logs.Conventions)}),
+    "logs.Signal": (
+        lambda: dict(name="v", source="x", t=np.arange(3.0), values=np.zeros((3, 3))),
+        {"name": "text", "t": Arr((3,)), "values": "batch"},
+    ),
+    "logs.RawLog": (
+        lambda: dict(
+            velocity_W=raw().velocity_W, attitude=raw().attitude, omega_B=raw().omega_B, thrust=None, torque_B=None
+        ),
+        {
+            "velocity_W": Obj(logs.Signal),
+            "attitude": Obj(logs.Signal),
+            "omega_B": Obj(logs.Signal),
+            "thrust_unit": "text",
+        },
+    ),
+    "logs.check_conventions": (
+        lambda: dict(raw=raw()),
+        {"raw": Obj(logs.RawLog), "mode": "choice", "declared": Obj(logs.Conventions)},
+    ),
     "logs.check_inertia": (lambda: dict(inertia=[0.01, 0.01, 0.02]), {"inertia": Arr((3,), positive=True)}),
-    "logs.commands_in_si": (lambda: dict(flight=flight(), mass=1.2), {"flight": Obj(logs.FlightLog), "mass": "pos", "hover_thrust": "pos", "thrust_from": "choice"}),
+    "logs.commands_in_si": (
+        lambda: dict(flight=flight(), mass=1.2),
+        {"flight": Obj(logs.FlightLog), "mass": "pos", "hover_thrust": "pos", "thrust_from": "choice"},
+    ),
     "logs.default_max_gap": (lambda: dict(sigs=[raw().velocity_W]), {"sigs": "mapping"}),
     "logs.estimate": (
         lambda: dict(flight=flight(), mass=1.2, inertia=[0.0034, 0.0034, 0.0047]),
-        {"flight": Obj(logs.FlightLog), "mass": "pos", "params": Obj(estimator.EstimatorParams), "backend": "choice", "hover_thrust": "pos"},
+        {
+            "flight": Obj(logs.FlightLog),
+            "mass": "pos",
+            "params": Obj(estimator.EstimatorParams),
+            "backend": "choice",
+            "hover_thrust": "pos",
+        },
     ),
-    "logs.estimate_file": (lambda: dict(path=csv_file(), mass=1.2), {"path": "path", "mass": "pos", "rate_hz": "pos", "airframe": "text"}),
+    "logs.estimate_file": (
+        lambda: dict(path=csv_file(), mass=1.2),
+        {"path": "path", "mass": "pos", "rate_hz": "pos", "airframe": "text"},
+    ),
     "logs.evidence": (lambda: dict(raw=raw()), {"raw": Obj(logs.RawLog)}),
-    "logs.fit_hover_thrust": (lambda: dict(flight=flight(), mass=1.2, segment=(0.1, 1.5)), {"flight": Obj(logs.FlightLog), "mass": "pos", "segment": "mapping"}),
+    "logs.fit_hover_thrust": (
+        lambda: dict(flight=flight(), mass=1.2, segment=(0.1, 1.5)),
+        {"flight": Obj(logs.FlightLog), "mass": "pos", "segment": "mapping"},
+    ),
     "logs.log_format": (lambda: dict(path=csv_file()), {"path": "path"}),
     "logs.read_any": (lambda: dict(path=csv_file()), {"path": "path", "conventions": "choice", "world": "choice"}),
     "logs.read_csv": (lambda: dict(path=csv_file()), {"path": "path", "world": "choice", "columns": "mapping"}),
     "logs.read_csv_table": (lambda: dict(path=csv_file()), {"path": "path", "columns": "mapping"}),
     "logs.read_log": (lambda: dict(path=csv_file()), {"path": "path"}),
     "logs.read_ulog": (lambda: dict(path=csv_file().with_name("px4-v1.14.ulg")), {"path": "path"}),
-    "logs.resample": (lambda: dict(raw=raw()), {"raw": Obj(logs.RawLog), "rate_hz": "pos", "max_gap_s": "pos", "t_start": "real"}),
-    "logs.table_to_raw": (lambda: dict(table=None, conv=logs.Conventions()), {"table": "mapping", "conv": Obj(logs.Conventions), "rotor_speed_unit": "choice"}),
+    "logs.resample": (
+        lambda: dict(raw=raw()),
+        {"raw": Obj(logs.RawLog), "rate_hz": "pos", "max_gap_s": "pos", "t_start": "real"},
+    ),
+    "logs.table_to_raw": (
+        lambda: dict(table=logs.read_csv_table(csv_file()), conv=logs.Conventions()),
+        {"table": "mapping", "conv": Obj(logs.Conventions), "rotor_speed_unit": "choice"},
+    ),
     "logs.torque_per_unit": (lambda: dict(params={}), {"params": "mapping"}),
     # live
     "live.ControlSettings": (
         lambda: dict(),
-        {"variant": "choice", "comply": "vec3", "impedance": "vec3pos", "Kp": "pos", "Dp": "pos", "tilt_max_deg": "pos",
-         "watchdog_s": "pos", "on_loss": "choice"},
+        {
+            "variant": "choice",
+            "comply": "vec3",
+            "impedance": "vec3pos",
+            "Kp": "pos",
+            "Dp": "pos",
+            "tilt_max_deg": "pos",
+            "watchdog_s": "pos",
+            "on_loss": "choice",
+        },
     ),
-    "live.EstimatorSettings": (lambda: dict(), {"rate_hz": "pos", "params": Obj(estimator.EstimatorParams), "max_gap_s": "pos", "backend": "choice"}),
+    "live.EstimatorSettings": (
+        lambda: dict(),
+        {"rate_hz": "pos", "params": Obj(estimator.EstimatorParams), "max_gap_s": "pos", "backend": "choice"},
+    ),
     "live.LiveEstimator": (
         lambda: dict(mass=1.2, inertia_B=eye3(), thrust_map=thrust_map(), sources={}, n_rotors=4),
-        {"mass": "pos", "inertia_B": A33, "thrust_map": Obj(live.ThrustMap), "n_rotors": "count", "settings": Obj(live.EstimatorSettings)},
+        {
+            "mass": "pos",
+            "inertia_B": A33,
+            "thrust_map": Obj(live.ThrustMap),
+            "n_rotors": "count",
+            "settings": Obj(live.EstimatorSettings),
+        },
     ),
     "live.LiveSettings": (
         lambda: dict(connect="udp:127.0.0.1:14550"),
-        {"connect": "text", "autopilot": "choice", "mass": "pos", "duration": "pos", "connect_timeout_s": "pos",
-         "estimator": Obj(live.EstimatorSettings), "control": Obj(live.ControlSettings)},
+        {
+            "connect": "text",
+            "autopilot": "choice",
+            "mass": "pos",
+            "duration": "pos",
+            "connect_timeout_s": "pos",
+            "estimator": Obj(live.EstimatorSettings),
+            "control": Obj(live.ControlSettings),
+        },
     ),
     "live.OffboardController": (
-        lambda: dict(settings=live.ControlSettings(), loop=live.OuterLoop(cparams()), profile=None, thrust_map=thrust_map(), mass=1.2, rate_hz=50.0),
-        {"settings": Obj(live.ControlSettings), "loop": Obj(live.OuterLoop), "thrust_map": Obj(live.ThrustMap), "mass": "pos", "rate_hz": "pos"},
+        lambda: dict(
+            settings=live.ControlSettings(),
+            loop=live.OuterLoop(cparams()),
+            profile=importlib.import_module("vtol_impedance.live.streams").PX4,
+            thrust_map=thrust_map(),
+            mass=1.2,
+            rate_hz=50.0,
+        ),
+        {
+            "settings": Obj(live.ControlSettings),
+            "loop": Obj(live.OuterLoop),
+            "profile": "mapping",
+            "thrust_map": Obj(live.ThrustMap),
+            "mass": "pos",
+            "rate_hz": "pos",
+        },
     ),
     "live.OuterLoop": (lambda: dict(params=cparams()), {"params": CP}),
-    "live.ThrustMap": (lambda: dict(mass=1.2, hover=0.5), {"mass": "pos", "hover": "pos", "max_thrust": "pos", "rotor_constant": "pos"}),
+    "live.ThrustMap": (
+        lambda: dict(mass=1.2, hover=0.5),
+        {"mass": "pos", "hover": "pos", "max_thrust": "pos", "rotor_constant": "pos"},
+    ),
     "live.parse_address": (lambda: dict(text="udp:127.0.0.1:14550"), {"text": "text"}),
     "live.replay": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path", "backend": "choice"}),
     "live.run_live": (lambda: dict(settings=None), {"settings": Obj(live.LiveSettings)}),
     # sweeps
     "sweeps.Axis": (lambda: dict(key="duration", values=(1.0, 2.0)), {"key": "text", "n": "count"}),
-    "sweeps.SweepFolder": (lambda: dict(sweep=sweep(), folder=Path("no-such-folder")), {"sweep": Obj(sweeps.Sweep), "folder": "path"}),
+    "sweeps.SweepFolder": (
+        lambda: dict(sweep=sweep(), folder=Path("no-such-folder")),
+        {"sweep": Obj(sweeps.Sweep), "folder": "path"},
+    ),
     "sweeps.from_dict": (lambda: dict(data={}), {"data": "mapping"}),
     "sweeps.load": (lambda: dict(path_or_name="payload-vs-offset"), {"path_or_name": "path"}),
     "sweeps.read_dataset": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path", "digest": "text"}),
@@ -401,34 +645,53 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         lambda: dict(sweep=sweep(), out=Path("no-such-folder")),
         {"sweep": Obj(sweeps.Sweep), "out": "path", "workers": "count", "scheduler": "choice", "backend": "choice"},
     ),
-    "sweeps.run_units": (lambda: dict(sweep=sweep(), units=[]), {"sweep": Obj(sweeps.Sweep), "units": "mapping", "backend": "choice"}),
-    "sweeps.set_param": (lambda: dict(spec=spec(), key="duration", value=5.0), {"spec": Obj(scenarios.ScenarioSpec), "key": "choice"}),
+    "sweeps.run_units": (
+        lambda: dict(sweep=sweep(), units=[]),
+        {"sweep": Obj(sweeps.Sweep), "units": "mapping", "backend": "choice"},
+    ),
+    "sweeps.set_param": (
+        lambda: dict(spec=spec(), key="duration", value=5.0),
+        {"spec": Obj(scenarios.ScenarioSpec), "key": "choice"},
+    ),
     "sweeps.summarise": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path", "metric": "text"}),
-    "sweeps.unit_seed": (lambda: dict(sweep_seed=1, point=0, repeat=0), {"sweep_seed": "index", "point": "index", "repeat": "index"}),
-    "sweeps.write_report": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path", "metric": "text", "x": "text", "y": "text"}),
+    "sweeps.unit_seed": (
+        lambda: dict(sweep_seed=1, point=0, repeat=0),
+        {"sweep_seed": "index", "point": "index", "repeat": "index"},
+    ),
+    "sweeps.write_report": (
+        lambda: dict(folder=Path("no-such-folder")),
+        {"folder": "path", "metric": "text", "x": "text", "y": "text"},
+    ),
     # io
     "io.atomic_path": (lambda: dict(path=Path("no-such-folder/x")), {"path": "path"}),
     "io.write_text": (lambda: dict(path=Path("no-such-folder/x"), text="x"), {"path": "path", "text": "text"}),
-    "io.write_with": (lambda: dict(path=Path("no-such-folder/x"), writer=lambda f: None), {"path": "path", "writer": "func"}),
+    "io.write_with": (
+        lambda: dict(path=Path("no-such-folder/x"), writer=lambda f: None),
+        {"path": "path", "writer": "func"},
+    ),
     "io.sha256_of": (lambda: dict(path=csv_file()), {"path": "path"}),
     "io.check_output_folder": (lambda: dict(final=Path("no-such-folder")), {"final": "path"}),
     "io.FolderLock": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path"}),
     "io.RunFolder": (lambda: dict(final=Path("no-such-folder")), {"final": "path"}),
     "io.verify_run_folder": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path"}),
     # errors: the checks themselves refuse what they check
-    "errors.as_finite": (lambda: dict(name="x_W", value=z3()), {"value": Arr((3,))}),
-    "errors.positive": (lambda: dict(name="x_W", value=1.0), {"value": "pos"}),
+    "errors.as_finite": (lambda: dict(name="x_W", value=z3(), shape_tail=(3,)), {"value": Arr((3,))}),
+    "errors.positive": (lambda: dict(name="x_W", value=1.0), {"value": "posany"}),
     "errors.scalar": (lambda: dict(name="x_W", value=1.0), {"value": "real"}),
     "errors.per_axis": (lambda: dict(name="x_W", value=1.0, lo=0.0, lo_open=True), {"value": "gain"}),
     "errors.instance": (lambda: dict(name="x_W", value=1.0, types=float), {"value": Obj(float)}),
     "errors.choice": (lambda: dict(name="x_W", value="a", options=("a", "b")), {"value": "choice"}),
     "errors.path_like": (lambda: dict(name="x_W", value="a"), {"value": "path"}),
+    "errors.batched": (lambda: dict(name="x_W", value=z3(), tail=(3,)), {"value": Arr((3,))}),
     "errors.function": (lambda: dict(name="x_W", value=print), {"value": "func"}),
 }
 
 # The arguments of the errors helpers are named by their ``name`` argument, not by ``value``.
-NAMED_AS = {"errors.as_finite": "x_W", "errors.positive": "x_W", "errors.scalar": "x_W", "errors.per_axis": "x_W",
-            "errors.instance": "x_W", "errors.choice": "x_W", "errors.path_like": "x_W", "errors.function": "x_W"}  # fmt: skip
+NAMED_AS = {
+    **{f"errors.{n}": "x_W" for n in (
+        "as_finite", "positive", "scalar", "per_axis", "instance", "choice", "path_like", "function", "batched")},
+    "live.parse_address": "--connect",
+}  # fmt: skip
 
 # The batched math called every step lets NaN and infinities through (IEEE arithmetic): the batch engine
 # flags a diverged vehicle by them without stopping the others. They refuse wrong types and shapes; the
@@ -439,6 +702,8 @@ NAN_PROPAGATES = {
     "model.generalized_momentum", "model.inertia_matrix_M", "model.mix", "model.momentum_rate_known",
     "model.rotation_zyx", "model.skew", "model.unmix", "estimator.estimator_step", "control.acceleration_from_thrust",
     "control.thrust_and_attitude", "control.Measurement", "control.Reference", "sim.plant_derivative", "sim.rk4_step",
+    "errors.batched",
+    "logs.Signal",  # a reader's raw signal: NaN rows are reported and dropped by the cleaning step
 }  # fmt: skip
 
 EXEMPT = {
@@ -448,7 +713,8 @@ EXEMPT = {
     "robust.LoopSizeError": "an exception class", "live.LiveError": "an exception class",
     "estimator.EstimatorBandwidthWarning": "a warning class", "runtime.ControllerWarning": "a warning class",
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
-    "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters", "scenarios.Registry": "no parameters",
+    "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",
+    "scenarios.Registry": "no parameters",
     "sim.Disturbance": "an abstract base class without parameters",
     "scenarios.names": "one flag (latest_only), any truth value is meaningful",
     "errors.check_keys": "checks a mapping's keys; the mapping and names come from the package's own readers",
@@ -519,8 +785,13 @@ def test_bad_argument_is_refused_by_name(qual: str, arg: str, kind: Any):
         args = {**base, arg: bad}
         try:
             out = fn(**args)
+            if hasattr(out, "__enter__") and hasattr(out, "__exit__") and not hasattr(out, "step"):  # a context
+                with out:  # manager refuses on entry, before it touches anything
+                    pass
         except VtolImpedanceError as exc:
-            assert named in str(exc), f"{qual}({arg}={bad!r}): the message does not name {named!r}: {exc}"
+            assert named in str(exc) or named.replace("_", "-") in str(exc), (
+                f"{qual}({arg}={bad!r}): the message does not name {named!r}: {exc}"
+            )
         except Exception as exc:  # noqa: BLE001  (what the test exists to catch)
             pytest.fail(f"{qual}({arg}={bad!r}) raised {type(exc).__name__}: {exc}")
         else:

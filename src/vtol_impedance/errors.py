@@ -252,6 +252,10 @@ def flag(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def _fits(shape: tuple[int, ...], tail: tuple[int, ...]) -> bool:
+    return all(t in (-1, s) for s, t in zip(shape, tail, strict=True))
+
+
 def batched(name: str, value: Any, tail: tuple[int, ...] = ()) -> np.ndarray:
     """``value`` as a float array with trailing shape ``tail``, for the batched math called every step.
 
@@ -289,9 +293,6 @@ def batched(name: str, value: Any, tail: tuple[int, ...] = ()) -> np.ndarray:
         except (TypeError, ValueError) as exc:
             raise InputError(f"{name} must be real numbers, got {_short(value)} ({exc})") from None
     n = len(tail)
-    if n and (
-        arr.ndim < n
-        or (arr.shape[arr.ndim - n :] != tail and any(t not in (-1, s) for s, t in zip(arr.shape[arr.ndim - n :], tail)))
-    ):
+    if n and (arr.ndim < n or (arr.shape[arr.ndim - n :] != tail and not _fits(arr.shape[arr.ndim - n :], tail))):
         raise InputError(f"{name} must have trailing shape {tail}, got shape {arr.shape}")
     return arr

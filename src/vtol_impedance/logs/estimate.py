@@ -130,6 +130,10 @@ def fit_hover_thrust(flight: FlightLog, mass: float, segment: Any) -> tuple[floa
     residual in N)``. Refuses a segment on the ground and one the balance does not fit (an RMS residual of
     0.25 s averages above 3 % of the weight: a take-off with the ground still carrying part of the weight,
     a landing, a manoeuvre in ground effect)."""
+    from ..errors import instance
+
+    instance("flight", flight, FlightLog)
+    mass = scalar("mass", mass, lo=0.0, lo_open=True)
     sel = _segment("hover segment", segment, flight.t, 0.5)
     if flight.thrust is None:
         raise InputError("the log has no thrust command to fit a hover thrust on")
@@ -265,6 +269,13 @@ def commands_in_si(
     :mod:`~vtol_impedance.logs.rotors`) or ``"auto"`` (rotors when the log has their speeds at 20 Hz or
     more). ``info["hover"]`` is the per-sample hover thrust used (normalised commands only).
     """
+    from ..errors import choice, instance
+
+    instance("flight", flight, FlightLog)
+    mass = scalar("mass", mass, lo=0.0, lo_open=True)
+    if hover_thrust is not None:
+        scalar("hover_thrust", hover_thrust, lo=0.0, hi=1.0, lo_open=True)
+    choice("thrust_from", thrust_from, THRUST_SOURCES)
     raw = flight.raw
     info: dict[str, Any] = {}
     notes: list[str] = []
@@ -531,6 +542,14 @@ def estimate(
 ) -> LogEstimate:
     """Estimate the external wrench along a resampled log (see the module docstring). ``inertia``
     ``None``: the force only."""
+    from ..errors import choice, instance
+
+    instance("flight", flight, FlightLog)
+    if params is not None:
+        instance("params", params, EstimatorParams)
+    if hover_thrust is not None:
+        scalar("hover_thrust", hover_thrust, lo=0.0, hi=1.0, lo_open=True)
+    choice("backend", backend, BACKENDS)
     mass = float(scalar("mass", mass, lo=0.0, lo_open=True))
     I_B = None if inertia is None else check_inertia(inertia)
     if backend not in BACKENDS:

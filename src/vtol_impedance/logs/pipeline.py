@@ -32,6 +32,9 @@ CHECK_ROWS = 30000
 
 def log_format(path: str | os.PathLike[str]) -> str:
     """``"ulog"``, ``"dataflash"``, ``"tlog"`` or ``"csv"`` from the file name."""
+    from ..errors import path_like
+
+    path_like("path", path)
     return FORMATS.get(Path(path).suffix.lower(), "csv")
 
 
@@ -81,6 +84,13 @@ def read_any(
 ) -> tuple[RawLog, ConventionReport]:
     """Read a log of any supported format and check it (module docstring). The frame and unit arguments
     are a CSV file's declared conventions; ``conventions`` is ``"check"``, ``"auto"`` or ``"unchecked"``."""
+    from ..errors import choice, instance, path_like
+    from .checks import MODES
+
+    choice("conventions", conventions, MODES)
+    path_like("path", path)
+    if columns is not None:
+        instance("columns", columns, dict)
     path = Path(path)
     if not path.is_file():
         raise InputError(f"log file {path} {'is not a file' if path.exists() else 'does not exist'}")
@@ -212,6 +222,12 @@ def estimate_file(
     where they are not given; ``read_options`` go to :func:`read_any`, ``estimate_options`` to
     :func:`~vtol_impedance.logs.estimate.estimate`. A log of a vehicle that is not a multirotor is refused
     (:mod:`.airframe`) unless ``airframe="multirotor"``."""
+    from ..errors import path_like
+
+    path_like("path", path)
+    rate_hz = scalar("rate_hz", rate_hz, lo=0.0, lo_open=True)
+    if mass is not None:
+        mass = scalar("mass", mass, lo=0.0, lo_open=True)
     airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:

@@ -22,7 +22,9 @@ THRUST_SHIFT_MAX = 0.25
 def mix(f: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (4): rotor forces ``f (..., n)`` to total thrust ``u (...)`` and body torque ``tau_B (..., 3)``."""
     E = batched("E", E, (4, -1))
-    f = batched("f", f, (E.shape[-1],))
+    f = batched("f", f, (-1,))
+    if f.shape[-1] != E.shape[-1]:
+        raise InputError(f"f has {f.shape[-1]} rotor forces but E {E.shape} has {E.shape[-1]} columns")
     w = np.einsum("...ij,...j->...i", E, f)
     return w[..., 0], w[..., 1:]
 
@@ -93,12 +95,15 @@ def allocate(
     """
     u = batched("thrust", thrust)
     tau_B = batched("tau_B", tau_B, (3,))
-    batched("E", E, (4, -1))
     Ep = batched("E_pinv", E_pinv, (-1, 4))
+    if batched("E", E, (4, -1)).shape[-1] != Ep.shape[-2]:
+        raise InputError(f"E {np.shape(E)} and E_pinv {Ep.shape} are not for the same rotors")
     fmin = batched("f_min", f_min, (Ep.shape[-2],))
     fmax = batched("f_max", f_max, (Ep.shape[-2],))
     if not isinstance(thrust_shift_max, np.ndarray) and not (
-        isinstance(thrust_shift_max, float | int) and not isinstance(thrust_shift_max, bool) and 0 <= thrust_shift_max < np.inf
+        isinstance(thrust_shift_max, float | int)
+        and not isinstance(thrust_shift_max, bool)
+        and 0 <= thrust_shift_max < np.inf
     ):
         raise InputError(f"thrust_shift_max must be a number >= 0, got {thrust_shift_max!r}")
     shape = np.broadcast_shapes(u.shape, tau_B.shape[:-1], Ep.shape[:-2], fmin.shape[:-1], np.shape(thrust_shift_max))

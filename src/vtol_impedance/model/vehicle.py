@@ -151,12 +151,8 @@ def effectiveness(positions_B: np.ndarray, spins: np.ndarray, drag_factor: float
         raise InputError(f"positions_B must have shape (..., n, 3), got {r.shape}")
     spins = as_finite("spins", spins, r.shape[-2:-1])
     c = positive("drag_factor", drag_factor)
-    try:
-        np.broadcast_shapes(r.shape[:-2], spins.shape[:-1], c.shape)
-    except ValueError:
-        raise InputError(
-            f"drag_factor of shape {c.shape} does not match the batch of positions_B {r.shape}"
-        ) from None
+    if c.shape not in ((), r.shape[:-2]):
+        raise InputError(f"drag_factor of shape {c.shape} does not match the batch of positions_B {r.shape}")
     s = spins * c[..., None]
     return np.stack([np.ones(r.shape[:-1]), -r[..., 1], r[..., 0], s], axis=-2)
 
@@ -349,6 +345,9 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
     Rotor limits may be given as ``f_max`` or as ``thrust_constant`` and ``max_speed`` (rad/s); the drag
     factor as ``drag_factor`` or as ``torque_constant`` with ``thrust_constant``.
     """
+    from ..errors import instance
+
+    instance("data", data, dict)
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a table, got {data!r}")
     check_keys(source, data, PRESET_KEYS)
@@ -434,7 +433,7 @@ def _shipped_preset(name: str) -> VehicleParams:
     """Shipped presets are read once per process (a VehicleParams is immutable)."""
     available = preset_names()
     if name not in available:
-        raise InputError(f"unknown vehicle preset {name!r}; available: {', '.join(available)} (or a .toml path)")
+        raise InputError(f"unknown vehicle preset name {name!r}; available: {', '.join(available)} (or a .toml path)")
     data = tomllib.loads((resources.files("vtol_impedance") / "presets" / f"{name}.toml").read_text())
     return vehicle_from_dict(data, name)
 

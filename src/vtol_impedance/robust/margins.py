@@ -201,7 +201,9 @@ def loop_margins(name: str, L: ct.StateSpace, omega: np.ndarray | None = None) -
     instance("name", name, str)
     instance("L", L, ct.StateSpace)
     if not L.isdtime(strict=True) or L.ninputs != 1 or L.noutputs != 1:
-        raise InputError(f"L must be a discrete single-input single-output loop, got {L.ninputs}x{L.noutputs}, dt={L.dt}")
+        raise InputError(
+            f"L must be a discrete single-input single-output loop, got {L.ninputs}x{L.noutputs}, dt={L.dt}"
+        )
     if omega is not None:
         omega = as_finite("omega", omega)
         if omega.ndim != 1 or omega.size < 2 or not np.all(omega > 0):

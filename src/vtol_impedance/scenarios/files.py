@@ -6,14 +6,16 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from ..errors import ScenarioError
+from ..errors import ScenarioError, instance, path_like
 from .registry import get
 from .spec import ScenarioSpec, apply_mapping, set_value
 
 
 def load_toml(path: str | Path, base: ScenarioSpec | None = None) -> ScenarioSpec:
     """Read a scenario file. ``base = "case-a-payload"`` at the top starts from a registered scenario."""
-    path = Path(path)
+    path = path_like("path", path)
+    if base is not None:
+        instance("base", base, ScenarioSpec)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

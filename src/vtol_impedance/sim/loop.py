@@ -325,6 +325,10 @@ def run_closed_loop(
     """
     if isinstance(controllers, ControllerParams):
         controllers = [controllers]
+    if isinstance(controllers, str) or not hasattr(controllers, "__iter__"):
+        raise InputError(f"controllers must be a sequence of ControllerParams, got {type(controllers).__name__}")
+    if isinstance(plant, str) or not (isinstance(plant, PlantParams) or hasattr(plant, "__iter__")):
+        raise InputError(f"plant must be a PlantParams or a sequence of them, got {type(plant).__name__}")
     controllers = list(controllers)
     B = len(controllers)
     if B == 0 or not all(isinstance(c, ControllerParams) for c in controllers):
