@@ -691,6 +691,7 @@ NAMED_AS = {
     **{f"errors.{n}": "x_W" for n in (
         "as_finite", "positive", "scalar", "per_axis", "instance", "choice", "path_like", "function", "batched")},
     "live.parse_address": "--connect",
+    "model.load_preset": "vehicle preset",
 }  # fmt: skip
 
 # The batched math called every step lets NaN and infinities through (IEEE arithmetic): the batch engine

@@ -205,7 +205,7 @@ def per_axis(name: str, value: Any, n: int = 3, lo: float | None = None, lo_open
     """
     arr = as_finite(name, value)
     if arr.shape not in ((), (1,), (n,)):
-        raise InputError(f"{name} must be one number or {n} numbers (one per axis), got shape {arr.shape}")
+        raise InputError(f"{name} must be one number or {n} numbers (one per axis), got {_short(value)}")
     out = np.broadcast_to(arr.reshape(-1) if arr.ndim else arr, (n,)).astype(float)
     if lo is not None and not bool(np.all(out > lo if lo_open else out >= lo)):
         raise InputError(f"{name} must be {'>' if lo_open else '>='} {lo} on every axis, got {out.tolist()}")

@@ -225,9 +225,9 @@ def estimate_file(
     from ..errors import path_like
 
     path_like("path", path)
-    rate_hz = scalar("rate_hz", rate_hz, lo=0.0, lo_open=True)
+    rate_hz = scalar("resampling rate (rate_hz, Hz)", rate_hz, lo=1.0, hi=10000.0)
     if mass is not None:
-        mass = scalar("mass", mass, lo=0.0, lo_open=True)
+        mass = scalar("mass (kg)", mass, lo=0.0, hi=MAX_MASS_KG, lo_open=True)
     airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:

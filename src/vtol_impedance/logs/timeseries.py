@@ -261,9 +261,9 @@ def resample(
     from ..errors import instance
 
     instance("raw", raw, RawLog)
-    rate_hz = scalar("rate_hz", rate_hz, lo=0.0, lo_open=True)
+    rate_hz = scalar("resampling rate (rate_hz, Hz)", rate_hz, lo=1.0, hi=10000.0)
     if max_gap_s is not None:
-        max_gap_s = scalar("max_gap_s", max_gap_s, lo=0.0, lo_open=True)
+        max_gap_s = scalar("max gap (max_gap_s)", max_gap_s, lo=0.0, lo_open=True)
     if t_start is not None:
         t_start = scalar("t_start", t_start)
     if t_end is not None:

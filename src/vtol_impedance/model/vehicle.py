@@ -417,7 +417,7 @@ def preset_names() -> list[str]:
 def load_preset(name: str = "pelican") -> VehicleParams:
     """A vehicle preset shipped in ``vtol_impedance/presets/NAME.toml``, or a vehicle TOML file by path."""
     if not isinstance(name, str):
-        raise InputError(f"vehicle must be a preset name or a .toml path, got {name!r}")
+        raise InputError(f"vehicle preset must be a preset name or a .toml path, got {name!r}")
     if name.endswith(".toml"):
         path = Path(name)
         try:
@@ -433,7 +433,7 @@ def _shipped_preset(name: str) -> VehicleParams:
     """Shipped presets are read once per process (a VehicleParams is immutable)."""
     available = preset_names()
     if name not in available:
-        raise InputError(f"unknown vehicle preset name {name!r}; available: {', '.join(available)} (or a .toml path)")
+        raise InputError(f"unknown vehicle preset {name!r}; available: {', '.join(available)} (or a .toml path)")
     data = tomllib.loads((resources.files("vtol_impedance") / "presets" / f"{name}.toml").read_text())
     return vehicle_from_dict(data, name)
 
