@@ -686,6 +686,44 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
     "errors.function": (lambda: dict(name="x_W", value=print), {"value": "func"}),
 }
 
+# More arguments of the rows above (kept apart to keep the rows short).
+MORE_KINDS: dict[str, dict[str, Any]] = {
+    "model.VehicleParams": {"f_max": "pos", "name": "text"},
+    "estimator.EstimatorParams": {"velocity_delay": "nonneg", "attitude_delay": "nonneg"},
+    "control.ControllerParams": {"attitude_filter_wn": "pos", "attitude_filter_zeta": "pos",
+                                 "thrust_shift_max": "nonneg", "min_lift_accel": "pos"},
+    "control.Impedance": {"M_o": "gain", "D_o": "gain0", "K_o": "gain0"},
+    "control.Measurement": {"eta_dot": A3, "omega_B": A3},
+    "sim.FanJet": {"turbulence": "nonneg", "cop_offset_B": "vec3", "t_on": "real"},
+    "sim.PlantParams": {"drag_factor_scale": "pos", "rotor_drag": "nonneg", "ground_damping": "nonneg",
+                        "ground_friction": "nonneg", "pendulum_mass": "nonneg"},
+    "sim.SensorParams": {"att_noise": "nonneg", "gyro_noise": "nonneg"},
+    "sim.SinusoidWrench": {"t_on": "real"},
+    "sim.run_closed_loop": {"progress": "func", "backend": "choice", "labels": "mapping", "disturbances": "mapping"},
+    "robust.linearize": {"comply": "gain0"},
+    "scenarios.ControlSpec": {"zeta_o": "pos", "estimator_zeta": "pos", "integral_limit": "nonneg",
+                              "thrust_shift_max": "nonneg", "wn_o": "pos", "estimator_wn": "pos",
+                              "velocity_delay": "nonneg"},
+    "scenarios.PlantSpec": {"drag_factor_scale": "pos", "rotor_tau_down": "nonneg", "rotor_drag": "nonneg",
+                            "pendulum_mass": "nonneg"},
+    "scenarios.TrajectorySpec": {"takeoff_at": "nonneg", "hover_duration": "nonneg", "land_duration": "pos",
+                                 "move_offset": "vec3", "yaw": "real", "move_duration": "pos"},
+    "scenarios.ScenarioSpec": {"description": "text", "vehicle": "text", "trajectory": Obj(scenarios.TrajectorySpec),
+                               "payload": Obj(scenarios.PayloadSpec), "control": Obj(scenarios.ControlSpec),
+                               "sensors": Obj(sim.SensorParams)},
+    "logs.Conventions": {"quat_direction": "choice", "velocity_world": "choice", "rate_unit": "choice"},
+    "logs.read_csv": {"body": "choice", "angle_unit": "choice", "quat_order": "choice", "time_unit": "choice",
+                      "rotor_speed_unit": "choice", "conventions": Obj(logs.Conventions)},
+    "logs.resample": {"t_end": "real"},
+    "live.ControlSettings": {"thrust_rate_max": "pos", "fence_radius_m": "pos", "fence_height_m": "pos",
+                             "max_speed_m_s": "pos", "handshake_timeout_s": "pos", "engage_after_s": "nonneg"},
+    "live.EstimatorSettings": {"command_stale_s": "pos"},
+    "live.LiveSettings": {"probe_s": "pos", "stream_timeout_s": "pos", "min_stream_hz": "pos", "display": "choice"},
+    "sweeps.Axis": {"lo": "real", "hi": "real"},
+}  # fmt: skip
+for _qual, _kinds in MORE_KINDS.items():
+    TABLE[_qual][1].update(_kinds)
+
 # The arguments of the errors helpers are named by their ``name`` argument, not by ``value``.
 NAMED_AS = {
     **{f"errors.{n}": "x_W" for n in (

@@ -304,6 +304,10 @@ def read_csv(
     path_like("path", path)
     if columns is not None:
         instance("columns", columns, dict)
+    if conventions is not None:
+        instance("conventions", conventions, Conventions)
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
+        raise InputError(f"angle unit (angle_unit) must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     if angle_unit not in ANGLE_UNITS:
         raise InputError(f"angle unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     table = read_csv_table(path, columns)

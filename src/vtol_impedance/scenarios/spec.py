@@ -177,8 +177,13 @@ class ControlSpec:
     integral_limit: float = 3.0
     thrust_shift_max: float = THRUST_SHIFT_MAX
 
-    _positive: ClassVar[tuple[str, ...]] = ("rate", "Kp", "Dp", "zeta_o", "estimator_zeta", "tilt_max_deg")
-    _nonneg: ClassVar[tuple[str, ...]] = ("Ki", "rotor_tau", "integral_limit", "thrust_shift_max", "estimator_order")
+    _positive: ClassVar[tuple[str, ...]] = (
+        "rate", "Kp", "Dp", "zeta_o", "estimator_zeta", "tilt_max_deg", "wn_o", "wn_o_yaw", "estimator_wn",
+        "attitude_filter_wn",
+    )  # fmt: skip
+    _nonneg: ClassVar[tuple[str, ...]] = (
+        "Ki", "rotor_tau", "integral_limit", "thrust_shift_max", "estimator_order", "velocity_delay", "attitude_delay",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         _check_fields(self)

@@ -334,6 +334,7 @@ class FanJet(Disturbance):
         object.__setattr__(self, "cop_offset_B", _vec("cop_offset_B", self.cop_offset_B))
         scalar("fan mean_force", self.mean_force, lo=0.0)
         scalar("fan ref_distance", self.ref_distance, lo=0.0, lo_open=True)
+        scalar("fan t_on", self.t_on)
         scalar("fan width", self.width, lo=0.0, lo_open=True)
         scalar("fan turbulence", self.turbulence, lo=0.0)
         object.__setattr__(self, "turbulence_band", check_band("fan turbulence_band", self.turbulence_band))
