@@ -69,7 +69,8 @@ def register(spec: ScenarioSpec) -> None:
 def get(name: str) -> ScenarioSpec:
     """The registered scenario ``name``: ``"case-a-payload-v1"``, or ``"case-a-payload"`` for the latest
     version. Raises :class:`~vtol_impedance.errors.ScenarioError` naming the valid scenarios."""
-    instance("name", name, str)
+    if not isinstance(name, str):
+        raise ScenarioError(f"unknown scenario {name!r}: name must be the str name of a registered scenario")
     return DEFAULT.get(name)
 
 
