@@ -809,8 +809,15 @@ def test_rows_name_real_arguments():
         assert not wrong, f"{qual}: no argument(s) {wrong}"
 
 
+@pytest.fixture(autouse=True)
+def _in_tmp(tmp_path, monkeypatch):
+    """The rows' relative paths (``no-such-folder``) resolve in a scratch folder: a refusal that came too
+    late would leave its traces there, not in the checkout."""
+    monkeypatch.chdir(tmp_path)
+
+
 @pytest.mark.parametrize(("qual", "arg", "kind"), _cases())
-def test_bad_argument_is_refused_by_name(qual: str, arg: str, kind: Any):
+def test_bad_argument_is_refused_by_name(qual: str, arg: str, kind: Any, tmp_path: Path):
     fn = _resolve(qual)
     base = TABLE[qual][0]()
     good = base.get(arg, inspect.signature(fn).parameters[arg].default)
@@ -835,3 +842,5 @@ def test_bad_argument_is_refused_by_name(qual: str, arg: str, kind: Any):
             pytest.fail(f"{qual}({arg}={bad!r}) raised {type(exc).__name__}: {exc}")
         else:
             pytest.fail(f"{qual}({arg}={bad!r}) was accepted and returned {type(out).__name__}")
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert not left, f"{qual}: refused calls left {left} behind"
