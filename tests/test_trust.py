@@ -367,15 +367,15 @@ def test_events_after_the_end_warn_and_winds_beyond_any_vehicle_are_refused(tmp_
 def test_reference_and_start_shapes_are_checked():
     ctrl = Controller(ControllerParams.paper("pdc"))
     meas = Measurement(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
-    for ref, msg in (
-        (Reference(np.zeros(2)), "p_d"),
-        (Reference(np.zeros(3), v_W=np.zeros(4)), "v_d"),
-        (Reference(np.zeros(3), psi=np.zeros(3)), "psi_d"),
-        (Reference(np.zeros(3), psi="north"), "psi_d"),
-        ("hover", "Reference"),
+    for make, msg in (  # a field of the wrong shape or type is refused where the Reference is made
+        (lambda: Reference(np.zeros(2)), "p_W"),
+        (lambda: Reference(np.zeros(3), v_W=np.zeros(4)), "v_W"),
+        (lambda: ctrl.step(meas, Reference(np.zeros(3), psi=np.zeros(3))), "psi_d"),
+        (lambda: Reference(np.zeros(3), psi="north"), "psi"),
+        (lambda: ctrl.step(meas, "hover"), "Reference"),
     ):
         with pytest.raises(InputError, match=msg):
-            ctrl.step(meas, ref)
+            make()
     veh = load_preset()
     traj = Trajectory((Hold((0, 0, -1.0), 1.0),))
     for start in (np.zeros(2), np.zeros((2, 3)), [0, 0, np.nan], "up"):

@@ -108,3 +108,191 @@ def scalar(
         rng = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
         raise InputError(f"{name} must be in {rng}, got {value!r}")
     return int(v) if integer else v
+
+
+def _type_name(types: type | tuple[type, ...]) -> str:
+    types = types if isinstance(types, tuple) else (types,)
+    return " or ".join(t.__name__ for t in types)
+
+
+def instance(name: str, value: Any, types: type | tuple[type, ...]) -> Any:
+    """Return ``value`` if it is an instance of ``types``, else raise :class:`InputError` naming the expected type.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, as the caller knows it.
+    value : object
+        What was given.
+    types : type or tuple of type
+        The accepted type(s).
+
+    Returns
+    -------
+    object
+        ``value`` itself.
+    """
+    if not isinstance(value, types):
+        raise InputError(f"{name} must be a {_type_name(types)}, got {type(value).__name__} {_short(value)}")
+    return value
+
+
+def choice(name: str, value: Any, options: tuple[str, ...] | list[str]) -> str:
+    """Return ``value`` if it is one of the strings ``options``, else raise :class:`InputError` listing them.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name.
+    value : object
+        What was given.
+    options : sequence of str
+        The accepted values.
+
+    Returns
+    -------
+    str
+        ``value``.
+    """
+    if not isinstance(value, str) or value not in options:
+        raise InputError(f"{name} must be one of {', '.join(map(repr, options))}; got {_short(value)}")
+    return value
+
+
+def path_like(name: str, value: Any) -> Any:
+    """Return ``value`` as a :class:`pathlib.Path` if it is a non-empty ``str`` or ``os.PathLike``.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name.
+    value : object
+        What was given.
+
+    Returns
+    -------
+    pathlib.Path
+        The path (not checked for existence).
+    """
+    import os
+    from pathlib import Path
+
+    if isinstance(value, bytes | bool) or not isinstance(value, str | os.PathLike) or str(value) == "":
+        raise InputError(f"{name} must be a file or folder path (str or os.PathLike), got {_short(value)}")
+    return Path(value)
+
+
+def per_axis(name: str, value: Any, n: int = 3, lo: float | None = None, lo_open: bool = False) -> np.ndarray:
+    """``value`` as a finite float array of shape ``(n,)``: one number for every axis, or ``n`` numbers.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name.
+    value : float or array_like
+        A scalar (the same for all axes) or ``n`` values.
+    n : int
+        The number of axes.
+    lo : float, optional
+        The lower bound of every entry (``lo_open``: strictly above it).
+    lo_open : bool
+        Whether ``lo`` itself is refused.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(n,)``.
+    """
+    arr = as_finite(name, value)
+    if arr.shape not in ((), (1,), (n,)):
+        raise InputError(f"{name} must be one number or {n} numbers (one per axis), got {_short(value)}")
+    out = np.broadcast_to(arr.reshape(-1) if arr.ndim else arr, (n,)).astype(float)
+    if lo is not None and not bool(np.all(out > lo if lo_open else out >= lo)):
+        raise InputError(f"{name} must be {'>' if lo_open else '>='} {lo} on every axis, got {out.tolist()}")
+    return out
+
+
+def function(name: str, value: Any) -> Any:
+    """Return ``value`` if it is callable, else raise :class:`InputError`.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name.
+    value : object
+        What was given.
+
+    Returns
+    -------
+    callable
+        ``value``.
+    """
+    if not callable(value):
+        raise InputError(f"{name} must be callable, got {type(value).__name__} {_short(value)}")
+    return value
+
+
+def flag(name: str, value: Any) -> bool:
+    """Return ``value`` if it is a ``bool`` (or NumPy bool), else raise :class:`InputError`.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name.
+    value : object
+        What was given.
+
+    Returns
+    -------
+    bool
+        ``value``.
+    """
+    if not isinstance(value, bool | np.bool_):
+        raise InputError(f"{name} must be True or False, got {_short(value)}")
+    return bool(value)
+
+
+def _fits(shape: tuple[int, ...], tail: tuple[int, ...]) -> bool:
+    return all(t in (-1, s) for s, t in zip(shape, tail, strict=True))
+
+
+def batched(name: str, value: Any, tail: tuple[int, ...] = ()) -> np.ndarray:
+    """``value`` as a float array with trailing shape ``tail``, for the batched math called every step.
+
+    Checks the type and the shape only: NaN and infinities pass through by IEEE arithmetic, as the
+    batch engine relies on them to flag a diverged vehicle without stopping the others. Entry points
+    that take a user's values (:class:`~vtol_impedance.runtime.Controller`, the constructors) refuse
+    them with :func:`as_finite`.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name.
+    value : array_like
+        Real numbers.
+    tail : tuple of int
+        The required trailing shape (leading batch dimensions are free); ``-1`` takes any length.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``value`` as float64 (the same object when it already is one).
+    """
+    if type(value) is np.ndarray and value.dtype == np.float64:  # the hot path: no conversion
+        arr = value
+    else:
+        if isinstance(value, str | bytes | dict | bool | np.bool_) or value is None:
+            raise InputError(f"{name} must be real numbers, got {_short(value)}")
+        try:
+            raw = np.asarray(value)
+            if raw.dtype.kind in "bcSUVO":
+                raise InputError(f"{name} must be real numbers, got {_short(value)}")
+            arr = raw.astype(float, copy=False)
+        except InputError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{name} must be real numbers, got {_short(value)} ({exc})") from None
+    n = len(tail)
+    if n and (arr.ndim < n or (arr.shape[arr.ndim - n :] != tail and not _fits(arr.shape[arr.ndim - n :], tail))):
+        raise InputError(f"{name} must have trailing shape {tail}, got shape {arr.shape}")
+    return arr

@@ -31,7 +31,9 @@ def _default_dir_mode() -> int:
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path in the same folder; on success it is renamed onto ``path``."""
-    path = Path(path)
+    from .errors import path_like
+
+    path = path_like("path", path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
@@ -47,6 +49,10 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
 def write_text(path: str | os.PathLike[str], text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_path`); return the path."""
+    from .errors import instance, path_like
+
+    path = path_like("path", path)
+    instance("text", text, str)
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
@@ -54,6 +60,10 @@ def write_text(path: str | os.PathLike[str], text: str) -> Path:
 
 def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]) -> Path:
     """Call ``writer(file)`` on a binary temporary file, then move it into place."""
+    from .errors import function, path_like
+
+    path = path_like("path", path)
+    function("writer", writer)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         writer(fh)
         fh.flush()
@@ -245,6 +255,9 @@ def _exchange(a: Path, b: Path) -> bool:
 
 def sha256_of(path: Path) -> str:
     """Hexadecimal SHA-256 of the file at ``path``, read in 1 MiB blocks."""
+    from .errors import path_like
+
+    path = path_like("path", path)
     import hashlib
 
     h = hashlib.sha256()
@@ -284,6 +297,9 @@ def check_output_folder(final: Path, swapped: bool = True) -> Path:
     """Refuse, before any work, an output folder that cannot hold a run: a path through or onto a regular
     file, a mount point when the folder is ``swapped`` as a whole, or an existing folder that is not a run
     of this tool as it wrote it (no ``manifest.json`` of this tool, or files it does not list)."""
+    from .errors import path_like
+
+    final = path_like("final", final)
     from .errors import InputError
 
     final = check_folder_path(final)
@@ -353,7 +369,9 @@ class FolderLock:
     def __init__(self, folder: Path) -> None:
         import fcntl
 
-        from .errors import InputError
+        from .errors import InputError, path_like
+
+        folder = path_like("folder", folder)
 
         folder = Path(folder).absolute()
         self.path = folder.parent / f".{folder.name}.lock"
@@ -395,7 +413,9 @@ class RunFolder:
     """
 
     def __init__(self, final: str | os.PathLike[str]) -> None:
-        self.final = check_output_folder(Path(final)).absolute()
+        from .errors import path_like
+
+        self.final = check_output_folder(path_like("final", final)).absolute()
         parent = self.final.parent
         self._lock = FolderLock(self.final)
         self._recover()
@@ -486,6 +506,9 @@ def _versions() -> dict[str, str]:
 def verify_run_folder(folder: str | os.PathLike[str]) -> dict[str, Any]:
     """Check that ``folder`` holds exactly the files its manifest lists, with their hashes; returns the
     manifest or raises :class:`~vtol_impedance.errors.InputError` naming what differs."""
+    from .errors import path_like
+
+    folder = path_like("folder", folder)
     from .errors import InputError
 
     folder = Path(folder)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import InputError, choice, scalar
 from .model.vehicle import MAX_ROTORS
 
 #: Logged signals: name -> (trailing shape, unit, meaning). All are sampled at the control rate. A shape
@@ -45,6 +46,8 @@ SIGNALS: dict[str, tuple[tuple[int | str, ...], str, str]] = {
 
 def signal_shape(name: str, n_rotors: int) -> tuple[int, ...]:
     """Trailing shape of a signal for a vehicle with ``n_rotors`` rotors."""
+    choice("name", name, tuple(SIGNALS))
+    n_rotors = scalar("n_rotors", n_rotors, lo=1, hi=MAX_ROTORS, integer=True)
     return tuple(n_rotors if d == "rotors" else int(d) for d in SIGNALS[name][0])
 
 
@@ -54,6 +57,8 @@ LOG_ROW = np.dtype([(name, np.float64, signal_shape(name, MAX_ROTORS)) for name 
 
 def empty_log(batch: int, samples: int) -> np.ndarray:
     """Log rows ``(batch, samples)`` of :data:`LOG_ROW`, all NaN (a row never written stays NaN)."""
+    batch = scalar("batch", batch, lo=1, integer=True)
+    samples = scalar("samples", samples, lo=0, integer=True)
     rows = np.empty((batch, samples), dtype=LOG_ROW)
     rows.view(np.float64)[...] = np.nan  # every field is float64: one fill of the whole block
     return rows
@@ -61,6 +66,9 @@ def empty_log(batch: int, samples: int) -> np.ndarray:
 
 def rows_to_data(rows: np.ndarray, n_rotors: int) -> dict[str, np.ndarray]:
     """Named signals ``(B, N, *shape)`` from log rows ``(B, N)`` of :data:`LOG_ROW` (views, no copy)."""
+    if not isinstance(rows, np.ndarray) or rows.dtype != LOG_ROW:
+        raise InputError(f"rows must be log rows of dtype LOG_ROW (from empty_log), got {type(rows).__name__}")
+    n_rotors = scalar("n_rotors", n_rotors, lo=1, hi=MAX_ROTORS, integer=True)
     return {name: rows[name][..., :n_rotors] if "rotors" in SIGNALS[name][0] else rows[name] for name in SIGNALS}
 
 

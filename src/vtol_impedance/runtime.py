@@ -148,8 +148,12 @@ class Controller:
         if backend not in ("compiled", "numpy"):
             raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
         single = isinstance(params, ControllerParams)
-        if not single and not all(isinstance(p, ControllerParams) for p in params):  # type: ignore[union-attr]
-            raise InputError("Controller takes a ControllerParams or a sequence of them")
+        if not single and (
+            isinstance(params, str)
+            or not hasattr(params, "__iter__")
+            or not all(isinstance(p, ControllerParams) for p in params)  # type: ignore[union-attr]
+        ):
+            raise InputError(f"params must be a ControllerParams or a sequence of them, got {params!r:.80}")
         self.params = params
         self.backend = backend
         self.arrays = compile_controllers(params)
@@ -368,7 +372,10 @@ class Estimator:
         self.mass = scalar("mass", mass, lo=0.0, lo_open=True)
         from .model.vehicle import check_inertia
 
-        I_B = check_inertia(inertia_B)  # symmetric, positive definite, a rigid body's
+        try:
+            I_B = check_inertia(inertia_B)  # symmetric, positive definite, a rigid body's
+        except InputError as exc:
+            raise InputError(f"inertia_B: {exc}") from None
         self.I_B = np.ascontiguousarray(I_B, dtype=float)
         self.params = params or EstimatorParams()
         if not isinstance(self.params, EstimatorParams):

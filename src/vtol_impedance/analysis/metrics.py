@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InputError, as_finite, instance
 from ..sim.result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
 
 #: Metric keys of a result's table (``rms_ep_cm``, ...) and the column titles they are printed with.
@@ -20,11 +21,18 @@ METRIC_COLUMNS: dict[str, str] = {
 }
 
 
+def _check(result: Result, window: Any) -> None:
+    instance("result", result, Result)
+    if window is not None and (isinstance(window, str) or as_finite("window", window).shape[-1:] not in ((2,), (3,))):
+        raise InputError(f"window must be (t0, t1) in seconds, got {window!r}")
+
+
 def window_mask(result: Result, window: tuple[float, float] | None = None) -> np.ndarray:
     """Samples inside the task window (default: the one stored in the result's config).
 
     A run cut shorter than the window's start (``--duration``) falls back to the whole run.
     """
+    _check(result, window)
     return window_mask_of(result.t, window if window is not None else result.config.get("window"))
 
 
@@ -40,6 +48,7 @@ def compute_metrics(result: Result, window: tuple[float, float] | None = None) -
     the estimation error compares the estimate with the lumped wrench the nominal model misses
     (``f_lumped_W``, ``tau_lumped_eta``). A run logged with ``log="metrics"`` already carries them.
     """
+    _check(result, window)
     if not result.data:
         if result.metrics is None:
             raise ValueError("the result has neither traces nor metrics")

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..conventions import G
-from ..errors import InputError, scalar
+from ..errors import InputError, instance, scalar
 from ..estimator.momentum import (
     EstimatorDesign,
     EstimatorParams,
@@ -199,6 +199,8 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
     A batch must share the control period, the estimator design and the attitude filter.
     """
     single = isinstance(params, ControllerParams)
+    if not single and not (isinstance(params, Sequence) and all(isinstance(p, ControllerParams) for p in params)):
+        raise InputError(f"params must be a ControllerParams or a sequence of them, got {params!r:.80}")
     plist = [params] if single else list(params)
     if not plist:
         raise InputError("no controller given")
@@ -280,6 +282,7 @@ def initial_controller_state(P: ControllerArrays) -> ControllerState:
     ControllerState
         With the batch shape of ``P``; pass it to the first :func:`controller_step`.
     """
+    instance("P", P, ControllerArrays)
     bs = P.batch_shape
     z2 = np.zeros(bs + (2,))
     return ControllerState(
@@ -419,6 +422,12 @@ def controller_step(
 ) -> tuple[ControllerState, ControlOutput]:
     """One control period: estimator, eqs. (18a), (16) (:func:`position_step`), then filter, (18b), (14)
     and allocation (:func:`attitude_step`). Pure function."""
+    if type(P) is not ControllerArrays or type(S) is not ControllerState:  # exact types: cheap, every step
+        instance("P", P, ControllerArrays)
+        instance("S", S, ControllerState)
+    if type(meas) is not Measurement or type(ref) is not Reference:
+        instance("meas", meas, Measurement)
+        instance("ref", ref, Reference)
     return attitude_step(P, S, meas, ref, position_step(P, S, meas, ref))
 
 

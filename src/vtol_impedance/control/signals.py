@@ -6,25 +6,51 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import batched
+
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 
 
-class Measurement(NamedTuple):
+class _MeasurementFields(NamedTuple):
+    p_W: np.ndarray
+    v_W: np.ndarray
+    eta: np.ndarray
+    eta_dot: np.ndarray | None = None
+    omega_B: np.ndarray | None = None
+
+
+class Measurement(_MeasurementFields):
     """What the controller and estimator receive, each ``(..., 3)``.
 
     ``p_W``, ``v_W``: position (m) and velocity (m/s) of the body origin in the world NED frame (motion
     capture); ``eta``: ZYX Euler angles ``[phi, theta, psi]`` (rad); and the attitude rate as *either*
     ``eta_dot`` (Euler-angle rates, rad/s) *or* ``omega_B`` (the gyro's body rates, FRD, rad/s), from which
     :class:`~vtol_impedance.Controller` computes ``eta_dot = Q(eta)^{-1} omega_B`` (eq. (1c)).
-    The pure :func:`~vtol_impedance.control.controller_step` needs ``eta_dot``.
+    The pure :func:`~vtol_impedance.control.controller_step` needs ``eta_dot``. Built with real numbers of
+    these shapes, or refused with an :class:`~vtol_impedance.errors.InputError` naming the field.
     """
 
-    p_W: np.ndarray
-    v_W: np.ndarray
-    eta: np.ndarray
-    eta_dot: np.ndarray | None = None
-    omega_B: np.ndarray | None = None
+    __slots__ = ()
+
+    def __new__(
+        cls,
+        p_W: np.ndarray,
+        v_W: np.ndarray,
+        eta: np.ndarray,
+        eta_dot: np.ndarray | None = None,
+        omega_B: np.ndarray | None = None,
+    ) -> Measurement:
+        return tuple.__new__(
+            cls,
+            (
+                batched("p_W", p_W, (3,)),
+                batched("v_W", v_W, (3,)),
+                batched("eta", eta, (3,)),
+                None if eta_dot is None else batched("eta_dot", eta_dot, (3,)),
+                None if omega_B is None else batched("omega_B", omega_B, (3,)),
+            ),
+        )
 
     @classmethod
     def from_frames(
@@ -69,7 +95,17 @@ def comply6(comply: np.ndarray | float) -> np.ndarray:
     return np.concatenate([c, np.zeros_like(c)], -1)
 
 
-class Reference(NamedTuple):
+class _ReferenceFields(NamedTuple):
+    p_W: np.ndarray
+    v_W: np.ndarray = _ZERO3
+    a_W: np.ndarray = _ZERO3
+    psi: np.ndarray | float = 0.0
+    psi_dot: np.ndarray | float = 0.0
+    psi_ddot: np.ndarray | float = 0.0
+    comply: np.ndarray | float = 0.0
+
+
+class Reference(_ReferenceFields):
     """Desired flat outputs: position ``p_W`` (m), velocity ``v_W`` (m/s), acceleration ``a_W`` (m/s^2), each
     ``(..., 3)`` in the world NED frame, and yaw ``psi`` (rad) with two derivatives.
 
@@ -80,16 +116,34 @@ class Reference(NamedTuple):
     switch ramps through them, so the commands never jump). Other variants ignore it.
 
     Everything but ``p_W`` defaults to zero, so ``Reference(np.array([0, 0, -1.0]))`` holds a point 1 m up
-    with the nose north.
+    with the nose north. Built with real numbers of these shapes, or refused with an
+    :class:`~vtol_impedance.errors.InputError` naming the field.
     """
 
-    p_W: np.ndarray
-    v_W: np.ndarray = _ZERO3
-    a_W: np.ndarray = _ZERO3
-    psi: np.ndarray | float = 0.0
-    psi_dot: np.ndarray | float = 0.0
-    psi_ddot: np.ndarray | float = 0.0
-    comply: np.ndarray | float = 0.0
+    __slots__ = ()
+
+    def __new__(
+        cls,
+        p_W: np.ndarray,
+        v_W: np.ndarray = _ZERO3,
+        a_W: np.ndarray = _ZERO3,
+        psi: np.ndarray | float = 0.0,
+        psi_dot: np.ndarray | float = 0.0,
+        psi_ddot: np.ndarray | float = 0.0,
+        comply: np.ndarray | float = 0.0,
+    ) -> Reference:
+        return tuple.__new__(
+            cls,
+            (
+                batched("p_W", p_W, (3,)),
+                batched("v_W", v_W, (3,)),
+                batched("a_W", a_W, (3,)),
+                batched("psi", psi),
+                batched("psi_dot", psi_dot),
+                batched("psi_ddot", psi_ddot),
+                batched("comply", comply),
+            ),
+        )
 
     @classmethod
     def from_frames(

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..conventions import G
+from ..errors import batched
 from ..model.dynamics import thrust_direction_W
 
 #: Default bound on the tilt of the thrust vector, rad (35 deg).
@@ -61,7 +62,11 @@ def thrust_and_attitude(
     ----------
     Ruggiero et al. 2014, eqs. (16) and (20) (solved in NED; see :doc:`/equations`).
     """
-    mu_bar = np.asarray(mu_bar, dtype=float)
+    mu_bar = batched("mu_bar", mu_bar, (3,))
+    psi_d = batched("psi_d", psi_d)
+    mass = batched("mass", mass)
+    tilt_max = batched("tilt_max", tilt_max)
+    min_lift_accel = batched("min_lift_accel", min_lift_accel)
     vert = G - mu_bar[..., 2]
     vert_c = np.maximum(vert, min_lift_accel)
     horiz = mu_bar[..., :2]
@@ -75,10 +80,10 @@ def thrust_and_attitude(
     phi_d = np.arcsin(np.clip((m2 * cp - m1 * sp) / a, -1.0, 1.0))  # eq. (20b)
     theta_d = np.arctan2(-(m1 * cp + m2 * sp), vert_c)  # eq. (20c)
     limited = (vert < min_lift_accel) | (scale < 1.0)
-    return np.asarray(mass) * a, phi_d, theta_d, limited
+    return mass * a, phi_d, theta_d, limited
 
 
 def acceleration_from_thrust(thrust: np.ndarray, eta: np.ndarray, mass: np.ndarray) -> np.ndarray:
     """Forward eq. (16): ``g_W - (u / m) R(eta) e3`` (the acceleration the thrust gives, without f_ext)."""
-    k = np.asarray(thrust, dtype=float) / np.asarray(mass, dtype=float)
+    k = batched("thrust", thrust) / batched("mass", mass)
     return np.array([0.0, 0.0, G]) - k[..., None] * thrust_direction_W(eta)

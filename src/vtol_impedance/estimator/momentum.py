@@ -61,7 +61,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from ..errors import InputError, as_finite, positive, scalar
+from ..errors import InputError, as_finite, batched, instance, positive, scalar
 from ..model.dynamics import generalized_momentum, momentum_rate_angular, momentum_rate_linear
 from ..model.kinematics import wrap_angle
 
@@ -77,8 +77,10 @@ class EstimatorBandwidthWarning(UserWarning):
 
 
 def _six(name: str, value: float | np.ndarray) -> np.ndarray:
-    arr = np.broadcast_to(positive(name, value), (6,)).astype(float)
-    return arr
+    arr = positive(name, value)
+    if arr.shape not in ((), (1,), (6,)):
+        raise InputError(f"{name} must be one number or 6 (one per channel), got shape {arr.shape}")
+    return np.broadcast_to(arr, (6,)).astype(float)
 
 
 @dataclass(frozen=True, eq=False)
@@ -251,6 +253,7 @@ def _channel(poles: tuple[complex, ...], Ts: float) -> tuple[np.ndarray, np.ndar
 
 def design(params: EstimatorParams, Ts: float) -> EstimatorDesign:
     """Exact zero-order-hold discretisation of ``G_i(s)`` for the sampling period ``Ts`` (s)."""
+    instance("params", params, EstimatorParams)
     Ts = scalar("Ts", Ts, lo=0.0, lo_open=True)
     poles = params.channel_poles()
     worst = float(np.max(np.abs(poles)) * Ts)
@@ -315,6 +318,9 @@ def initial_state(des: EstimatorDesign, batch_shape: tuple[int, ...] = ()) -> Es
         Zero filter states ``(*batch_shape, 6, n)``; the first :func:`estimator_step` only records the
         momentum and returns a zero wrench.
     """
+    instance("des", des, EstimatorDesign)
+    if not isinstance(batch_shape, tuple) or not all(isinstance(b, int | np.integer) and b >= 0 for b in batch_shape):
+        raise InputError(f"batch_shape must be a tuple of whole numbers >= 0, got {batch_shape!r}")
     n = des.Ad.shape[-1]
     z3 = np.zeros(batch_shape + (3,))
     z6 = np.zeros(batch_shape + (6,))
@@ -391,8 +397,11 @@ def estimator_step(
     ----------
     Ruggiero et al. 2014, eqs. (6)-(13).
     """
+    instance("des", des, EstimatorDesign)
+    instance("state", state, EstimatorState)
+    eta = batched("eta", eta, (3,))
     q = generalized_momentum(v_W, eta, eta_dot, mass, I_B)  # eq. (6)
-    cmd = np.concatenate([np.asarray(thrust_prev, dtype=float)[..., None], np.asarray(tau_B_prev, dtype=float)], -1)
+    cmd = np.concatenate([batched("thrust_prev", thrust_prev)[..., None], batched("tau_B_prev", tau_B_prev, (3,))], -1)
     if not state.started:  # the history starts filled with the present
         act_hist = np.broadcast_to(cmd[..., None, :], cmd.shape[:-1] + (des.H, 4)).copy()
         eta_hist = np.broadcast_to(eta[..., None, :], eta.shape[:-1] + (des.H, 3)).copy()

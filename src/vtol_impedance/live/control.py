@@ -41,7 +41,7 @@ from ..control.attitude_filter import filter_step
 from ..control.impedance import ControllerParams, compile_controllers, initial_controller_state, position_step
 from ..control.signals import Measurement, Reference
 from ..conventions import G
-from ..errors import InputError, scalar
+from ..errors import InputError, instance, per_axis, scalar
 from ..model.kinematics import euler_rate_matrix_Q, quat_from_euler, wrap_angle
 from .estimator import Tick
 from .link import MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, MAV_RESULT, Link
@@ -88,7 +88,7 @@ class ControlSettings:
             raise InputError(f"--control variant must be pdc (reject) or comply, got {self.variant!r}")
         if self.on_loss not in ("hold", "land"):
             raise InputError(f"--on-loss must be hold or land, got {self.on_loss!r}")
-        c = np.asarray(self.comply, dtype=float)
+        c = per_axis("comply", self.comply)
         if c.shape != (3,) or np.any((c < 0) | (c > 1)):
             raise InputError(f"comply fractions must be 3 values in [0, 1], got {self.comply!r}")
         for name, lo, hi in (
@@ -116,7 +116,7 @@ class OuterLoop:
     """
 
     def __init__(self, params: ControllerParams) -> None:
-        self.params = params
+        self.params = instance("params", params, ControllerParams)
         self.P = compile_controllers(params)
         self.reset()
 
@@ -166,7 +166,12 @@ class OffboardController:
         mass: float,
         rate_hz: float,
     ) -> None:
-        self.s = settings
+        self.s = instance("settings", settings, ControlSettings)
+        instance("loop", loop, OuterLoop)
+        instance("profile", profile, AutopilotProfile)
+        instance("thrust_map", thrust_map, ThrustMap)
+        mass = scalar("mass", mass, lo=0.0, lo_open=True)
+        rate_hz = scalar("rate_hz", rate_hz, lo=0.0, lo_open=True)
         self.loop = loop
         self.profile = profile
         self.map = thrust_map

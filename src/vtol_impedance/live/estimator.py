@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..errors import InputError, SingularityError, scalar
+from ..errors import InputError, SingularityError, choice, instance, path_like, scalar
 from ..estimator.momentum import EstimatorParams
 from ..runtime import Estimator
 from .streams import GATING, Decoder, Sample, ThrustMap, VehicleClock, command_role
@@ -55,11 +55,14 @@ class EstimatorSettings:
     backend: str = "compiled"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rate_hz", scalar("estimator rate", self.rate_hz, lo=1.0, hi=1000.0))
-        object.__setattr__(self, "max_gap_s", scalar("max gap", self.max_gap_s, lo=0.0, hi=10.0, lo_open=True))
-        object.__setattr__(self, "command_stale_s", scalar("command age", self.command_stale_s, lo=0.0, lo_open=True))
+        object.__setattr__(self, "rate_hz", scalar("rate_hz (estimator rate)", self.rate_hz, lo=1.0, hi=1000.0))
+        object.__setattr__(self, "max_gap_s", scalar("max_gap_s", self.max_gap_s, lo=0.0, hi=10.0, lo_open=True))
+        object.__setattr__(
+            self, "command_stale_s", scalar("command_stale_s", self.command_stale_s, lo=0.0, lo_open=True)
+        )
         if not isinstance(self.params, EstimatorParams):
             raise InputError(f"params must be an EstimatorParams, got {type(self.params).__name__}")
+        choice("backend", self.backend, ("compiled", "numpy"))
 
     def to_dict(self) -> dict[str, Any]:
         return {"rate_hz": self.rate_hz, "params": self.params.to_dict(), "max_gap_s": self.max_gap_s,
@@ -124,7 +127,10 @@ class LiveEstimator:
         n_rotors: int,
         settings: EstimatorSettings | None = None,
     ) -> None:
-        self.settings = settings or EstimatorSettings()
+        self.settings = EstimatorSettings() if settings is None else instance("settings", settings, EstimatorSettings)
+        instance("thrust_map", thrust_map, ThrustMap)
+        instance("sources", sources, dict)
+        n_rotors = scalar("n_rotors", n_rotors, lo=1, integer=True)
         s = self.settings
         self.estimator = Estimator(mass, inertia_B, 1.0 / s.rate_hz, s.params, backend=s.backend)
         self.map = thrust_map
@@ -272,7 +278,9 @@ def replay(folder: str | Path, backend: str | None = None) -> tuple[list[Tick], 
 
     from .link import mavutil
 
-    folder = Path(folder)
+    folder = path_like("folder", folder)
+    if backend is not None:
+        choice("backend", backend, ("compiled", "numpy"))
     try:
         cfg = json.loads((folder / "live.json").read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:

@@ -29,7 +29,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from ..errors import InputError, scalar
+from ..errors import InputError, instance, scalar
 from ..io import RunFolder
 from ..model.vehicle import check_inertia, load_preset
 from .control import ControlSettings, OffboardController, OuterLoop
@@ -91,6 +91,9 @@ class LiveSettings:
     control: ControlSettings | None = None
 
     def __post_init__(self) -> None:
+        instance("estimator", self.estimator, EstimatorSettings)
+        if self.control is not None:
+            instance("control", self.control, ControlSettings)
         parse_address(self.connect)
         if self.autopilot != "auto":
             profile(self.autopilot)
@@ -786,6 +789,7 @@ def run_live(settings: LiveSettings, stop: Any = None, stream: IO[str] | None = 
     Exit codes in the result: 0 the session ended normally (duration, Ctrl-C, ``stop``, the pilot took
     over); 3 control was handed back by a safety check (watchdog, fence, a hand-over that failed). A setup
     failure raises :class:`~.link.LiveError` and writes no run folder."""
+    instance("settings", settings, LiveSettings)
     sess = Session(settings, stream, warn)
     code = 0
     try:

@@ -430,15 +430,18 @@ class ThrustMap:
     E: np.ndarray = field(default_factory=lambda: np.zeros((4, 4)), repr=False)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "mass", scalar("mass", self.mass, lo=0.0, lo_open=True))
         if (self.hover is None) == (self.max_thrust is None):
-            raise InputError("a thrust map needs exactly one of the hover thrust (0..1) or the maximum thrust (N)")
+            raise InputError(
+                "a thrust map needs exactly one of the hover thrust (hover, 0..1) or the maximum thrust (max_thrust, N)"
+            )
         if self.hover is not None:
             object.__setattr__(self, "hover", scalar("hover thrust", self.hover, lo=0.02, hi=1.0, lo_open=True))
         if self.max_thrust is not None:
-            object.__setattr__(self, "max_thrust", scalar("max thrust", self.max_thrust, lo=0.0, lo_open=True))
+            object.__setattr__(self, "max_thrust", scalar("max_thrust", self.max_thrust, lo=0.0, lo_open=True))
         if self.rotor_constant is not None:
             object.__setattr__(
-                self, "rotor_constant", scalar("rotor constant", self.rotor_constant, lo=0.0, lo_open=True)
+                self, "rotor_constant", scalar("rotor_constant", self.rotor_constant, lo=0.0, lo_open=True)
             )
 
     @classmethod

@@ -18,6 +18,9 @@ from .verdict import LogRefused, Verdict, judge
 def read_log(path, **csv_options) -> RawLog:
     """Read a log by its extension (``.ulg``, ``.bin``, ``.tlog``, else CSV through :func:`read_csv`), without
     the convention checks of :func:`read_any`."""
+    from ..errors import path_like
+
+    path_like("path", path)
     fmt = log_format(path)
     if fmt == "ulog":
         return read_ulog(path)

@@ -210,6 +210,9 @@ def _windows(sigs: list[Signal], lo: float, hi: float, rate: float) -> list[np.n
 
 def evidence(raw: RawLog) -> Evidence:
     """Score one reading of a log (world NED / body FRD, SI) against physics (module docstring)."""
+    from ..errors import instance
+
+    instance("raw", raw, RawLog)
     notes: list[str] = []
     thrust_sig = raw.thrust
     if thrust_sig is None and raw.rotor_speed is not None:  # rotor speeds only: thrust ~ sum of squares
@@ -399,6 +402,12 @@ def check_conventions(
     """Test the log ``raw`` (read under ``declared``) against physics; ``reread`` reads it under other
     conventions (``relevant`` fields). Returns the log to use and the report; raises
     :class:`~vtol_impedance.errors.InputError` on a contradiction (module docstring)."""
+    from ..errors import choice, instance
+
+    instance("raw", raw, RawLog)
+    choice("mode", mode, MODES)
+    if declared is not None:
+        instance("declared", declared, Conventions)
     if mode not in MODES:
         raise InputError(f"conventions mode must be one of {', '.join(MODES)}, got {mode!r}")
     if mode == "unchecked":

@@ -157,6 +157,11 @@ def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> 
 
 def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None = None) -> CsvTable:
     """Parse a CSV log once: every known role's column as floats (NaN where empty)."""
+    from ..errors import instance, path_like
+
+    path_like("path", path)
+    if columns is not None:
+        instance("columns", columns, dict)
     path = Path(path)
     if not path.is_file():
         raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
@@ -275,6 +280,11 @@ def table_to_raw(
     """The table's signals in world NED / body FRD, SI units, read under ``conv``. ``cache`` (a dict kept
     between calls on the same table) reuses every signal whose conventions did not change: the convention
     checks read one table under hundreds of conventions."""
+    from ..errors import choice, instance
+
+    instance("table", table, CsvTable)
+    instance("conv", conv, Conventions)
+    choice("rotor_speed_unit", rotor_speed_unit, tuple(ROTOR_SPEED_UNITS))
     c = table.cols
     notes = list(table.notes)
     if rotor_speed_unit not in ROTOR_SPEED_UNITS:
@@ -372,6 +382,15 @@ def read_csv(
     The conventions are the keyword arguments or ``conventions`` (which then wins). ``time_unit``
     defaults to seconds for a ``t_s`` column and microseconds for ``timestamp_us``.
     """
+    from ..errors import instance, path_like
+
+    path_like("path", path)
+    if columns is not None:
+        instance("columns", columns, dict)
+    if conventions is not None:
+        instance("conventions", conventions, Conventions)
+    if not isinstance(angle_unit, str) or angle_unit not in ANGLE_UNITS:
+        raise InputError(f"angle unit (angle_unit) must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     if angle_unit not in ANGLE_UNITS:
         raise InputError(f"angle unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     table = read_csv_table(path, columns)

@@ -200,6 +200,10 @@ def fit_hover_thrust(flight: FlightLog, mass: float, segment: Any) -> tuple[floa
     tuple of float
         ``(hover thrust (normalised), rms residual of the balance in N)``.
     """
+    from ..errors import instance
+
+    instance("flight", flight, FlightLog)
+    mass = scalar("mass", mass, lo=0.0, lo_open=True)
     sel = _segment("hover segment", segment, flight.t, 0.5)
     if flight.thrust is None:
         raise InputError("the log has no thrust command to fit a hover thrust on")
@@ -567,6 +571,13 @@ def commands_in_si(
     ``on_ground``: the vehicle stands on the ground (a bench test): no hover window is looked for and the
     thrust is not checked against the weight (the ground carries the rest).
     """
+    from ..errors import choice, instance
+
+    instance("flight", flight, FlightLog)
+    mass = scalar("mass", mass, lo=0.0, lo_open=True)
+    if hover_thrust is not None:
+        scalar("hover_thrust", hover_thrust, lo=0.0, hi=1.0, lo_open=True)
+    choice("thrust_from", thrust_from, THRUST_SOURCES)
     raw = flight.raw
     info: dict[str, Any] = {}
     notes: list[str] = []
@@ -893,6 +904,14 @@ def estimate(
     """Estimate the external wrench along a resampled log (see the module docstring). ``inertia``
     ``None``: the force only. ``on_ground``: a log that never leaves the ground (a bench test); the
     force is then the ground reaction plus the external force (:func:`commands_in_si`)."""
+    from ..errors import choice, instance
+
+    instance("flight", flight, FlightLog)
+    if params is not None:
+        instance("params", params, EstimatorParams)
+    if hover_thrust is not None:
+        scalar("hover_thrust", hover_thrust, lo=0.0, hi=1.0, lo_open=True)
+    choice("backend", backend, BACKENDS)
     mass = float(scalar("mass", mass, lo=0.0, lo_open=True))
     I_B = None if inertia is None else check_inertia(inertia)
     if backend not in BACKENDS:

@@ -74,18 +74,20 @@ class Conventions:
     }
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "world", _choice("world frame", self.world, WORLDS))
-        object.__setattr__(self, "body", _choice("body frame", self.body, BODIES))
-        object.__setattr__(self, "angle_unit", _choice("angle unit", self.angle_unit, ANGLE_UNITS))
-        object.__setattr__(self, "quat_order", _choice("quaternion order", self.quat_order, QUAT_ORDERS))
+        object.__setattr__(self, "world", _choice("world frame (world)", self.world, WORLDS))
+        object.__setattr__(self, "body", _choice("body frame (body)", self.body, BODIES))
+        object.__setattr__(self, "angle_unit", _choice("angle unit (angle_unit)", self.angle_unit, ANGLE_UNITS))
+        object.__setattr__(self, "quat_order", _choice("quaternion order (quat_order)", self.quat_order, QUAT_ORDERS))
         object.__setattr__(
-            self, "quat_direction", _choice("quaternion direction", self.quat_direction, QUAT_DIRECTIONS)
+            self,
+            "quat_direction",
+            _choice("quaternion direction (quat_direction)", self.quat_direction, QUAT_DIRECTIONS),
         )
-        object.__setattr__(self, "time_unit", _choice("time unit", self.time_unit, tuple(TIME_UNITS)))
+        object.__setattr__(self, "time_unit", _choice("time unit (time_unit)", self.time_unit, tuple(TIME_UNITS)))
         vw = self.world if self.velocity_world is None else self.velocity_world
-        object.__setattr__(self, "velocity_world", _choice("velocity world frame", vw, WORLDS))
+        object.__setattr__(self, "velocity_world", _choice("velocity world frame (velocity_world)", vw, WORLDS))
         ru = self.angle_unit if self.rate_unit is None else self.rate_unit
-        object.__setattr__(self, "rate_unit", _choice("rate unit", ru, ANGLE_UNITS))
+        object.__setattr__(self, "rate_unit", _choice("rate unit (rate_unit)", ru, ANGLE_UNITS))
 
     def with_(self, **changes: str) -> Conventions:
         """A copy with some fields changed (``velocity_world``/``rate_unit`` follow ``world``/``angle_unit``

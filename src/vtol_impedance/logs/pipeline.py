@@ -34,6 +34,9 @@ CHECK_ROWS = 30000
 
 def log_format(path: str | os.PathLike[str]) -> str:
     """``"ulog"``, ``"dataflash"``, ``"tlog"`` or ``"csv"`` from the file name."""
+    from ..errors import path_like
+
+    path_like("path", path)
     return FORMATS.get(Path(path).suffix.lower(), "csv")
 
 
@@ -88,6 +91,13 @@ def read_any(
     (which skips only the conventions' check against physics: the thrust-carries-the-weight check of the
     estimate still runs). ``sysid``/``compid``: the vehicle of a tlog with several
     (:func:`~vtol_impedance.logs.mavlog.read_tlog`)."""
+    from ..errors import choice, instance, path_like
+    from .checks import MODES
+
+    choice("conventions", conventions, MODES)
+    path_like("path", path)
+    if columns is not None:
+        instance("columns", columns, dict)
     path = Path(path)
     if not path.is_file():
         raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
@@ -227,6 +237,12 @@ def estimate_file(
     (:mod:`.airframe`) unless ``airframe="multirotor"``. The estimate's columns are then tested against
     physics (:mod:`.verdict`): a log they contradict raises :class:`~vtol_impedance.logs.verdict.LogRefused`
     unless ``force``, which records the override in ``info["verdict"]`` and the warnings."""
+    from ..errors import path_like
+
+    path_like("path", path)
+    rate_hz = scalar("resampling rate (rate_hz, Hz)", rate_hz, lo=1.0, hi=10000.0)
+    if mass is not None:
+        mass = scalar("mass (kg)", mass, lo=0.0, hi=MAX_MASS_KG, lo_open=True)
     airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:

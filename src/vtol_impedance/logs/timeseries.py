@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, SingularityError
+from ..errors import InputError, SingularityError, batched, instance, scalar
 from ..model.kinematics import (
     check_euler_regular,
     euler_from_rotation,
@@ -67,6 +67,17 @@ class Signal:
     t: np.ndarray
     values: np.ndarray
     hold: bool = False  # zero-order hold (a command) instead of interpolation
+
+    def __post_init__(self) -> None:  # types and shapes; NaN rows are a reader's to report, clean() drops them
+        instance("name", self.name, str)
+        instance("source", self.source, str)
+        self.t = batched("t", self.t)
+        self.values = batched("values", self.values)
+        if self.t.ndim != 1 or self.values.ndim != 2 or self.values.shape[0] != self.t.shape[0]:
+            raise InputError(
+                f"signal {self.name}: t must be (N,) and values (N, k), "
+                f"got t {self.t.shape}, values {self.values.shape}"
+            )
 
 
 @dataclass
@@ -106,6 +117,15 @@ class RawLog:
     vehicle_source: str = ""
     #: what the reader chose and why (the source of each signal), printed and kept in the report
     choices: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for name in ("velocity_W", "attitude", "omega_B"):
+            instance(name, getattr(self, name), Signal)
+        for name in ("thrust", "torque_B", "hover", "rotor_speed"):
+            if getattr(self, name) is not None:
+                instance(name, getattr(self, name), Signal)
+        instance("thrust_unit", self.thrust_unit, str)
+        instance("torque_unit", self.torque_unit, str)
 
     def signals(self) -> list[Signal]:
         """Every signal that goes onto the grid (the commands and rotor speeds present)."""
@@ -181,6 +201,8 @@ def typical_period(t: np.ndarray) -> float:
 
 def default_max_gap(sigs: list[Signal]) -> tuple[float, str]:
     """``(max_gap_s, why)`` from the signals' typical periods (see the module docstring)."""
+    if not isinstance(sigs, list | tuple) or not sigs or not all(isinstance(s, Signal) for s in sigs):
+        raise InputError(f"sigs must be a non-empty list of Signal, got {sigs!r:.80}")
     periods = {s.name: typical_period(s.t) for s in sigs}
     slow = max(periods, key=periods.get)
     lo, hi = MAX_GAP_BOUNDS_S
@@ -236,6 +258,16 @@ def resample(
     ``max_gap_s``: dropouts up to this long are bridged, longer ones restart the estimator; ``None``
     (default): from the log's rates (:func:`default_max_gap`).
     """
+    from ..errors import instance
+
+    instance("raw", raw, RawLog)
+    rate_hz = scalar("resampling rate (rate_hz, Hz)", rate_hz, lo=1.0, hi=10000.0)
+    if max_gap_s is not None:
+        max_gap_s = scalar("max gap (max_gap_s)", max_gap_s, lo=0.0, lo_open=True)
+    if t_start is not None:
+        t_start = scalar("t_start", t_start)
+    if t_end is not None:
+        t_end = scalar("t_end", t_end)
     if not (np.isfinite(rate_hz) and 1.0 <= rate_hz <= 10000.0):
         raise InputError(f"resampling rate must be within [1, 10000] Hz, got {rate_hz}")
     notes = list(raw.notes)

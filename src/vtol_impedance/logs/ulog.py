@@ -128,6 +128,9 @@ def rotor_geometry(params: dict[str, float]) -> tuple[np.ndarray, np.ndarray] | 
 def torque_per_unit(params: dict[str, float]) -> tuple[np.ndarray, int] | None:
     """``(k (3,), n_rotors)``: N m of body torque per unit normalised torque, per newton of a rotor's thrust
     at full command, from PX4's control-allocation parameters; ``None`` when they are absent."""
+    from ..errors import instance
+
+    instance("params", params, dict)
     got = _pca_matrix(params)
     if got is None:
         return None
@@ -238,6 +241,9 @@ def fastest(
 
 def read_ulog(path: str | os.PathLike[str]) -> RawLog:
     """Read a PX4 ULog into world NED / body FRD signals (see the module docstring for the topics)."""
+    from ..errors import path_like
+
+    path_like("path", path)
     path = Path(path)
     if not path.is_file():
         raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..conventions import E3, GRAVITY_W
+from ..errors import batched
 from .kinematics import (
     euler_rate_matrix_Q,
     euler_rate_matrix_Q_dot,
@@ -32,8 +33,9 @@ def transpose(A: np.ndarray) -> np.ndarray:
 
 def inertia_matrix_M(eta: np.ndarray, I_B: np.ndarray) -> np.ndarray:
     """``M(eta) = Q^T I_B Q``, eq. (3b); symmetric positive definite away from theta = +-pi/2."""
+    I_B = batched("I_B", I_B, (3, 3))
     Q = euler_rate_matrix_Q(eta)
-    return transpose(Q) @ np.asarray(I_B, dtype=float) @ Q  # eq. (3b)
+    return transpose(Q) @ I_B @ Q  # eq. (3b)
 
 
 def coriolis_matrix_C(eta: np.ndarray, eta_dot: np.ndarray, I_B: np.ndarray) -> np.ndarray:
@@ -48,9 +50,10 @@ def coriolis_matrix_C(eta: np.ndarray, eta_dot: np.ndarray, I_B: np.ndarray) -> 
     ``C e_eta_dot``, both of which need (7); with the printed ``C`` the estimator would report a
     spurious moment whenever the vehicle rotates. ``tests/test_model.py`` checks (7) numerically.
     """
+    I_B = batched("I_B", I_B, (3, 3))
     Q = euler_rate_matrix_Q(eta)
     Qd = euler_rate_matrix_Q_dot(eta, eta_dot)
-    I_B = np.asarray(I_B, dtype=float)
+    eta_dot = batched("eta_dot", eta_dot, (3,))
     QT = transpose(Q)
     h_B = matvec(I_B, matvec(Q, eta_dot))  # body angular momentum
     return QT @ transpose(skew(h_B)) @ Q + QT @ I_B @ Qd  # C of eq. (3b), satisfying (7)
@@ -60,8 +63,8 @@ def generalized_momentum(
     v_W: np.ndarray, eta: np.ndarray, eta_dot: np.ndarray, mass: np.ndarray, I_B: np.ndarray
 ) -> np.ndarray:
     """``q = [m p_dot; M(eta) eta_dot]``, eq. (6); returns ``(..., 6)``."""
-    lin = np.asarray(mass, dtype=float)[..., None] * np.asarray(v_W, dtype=float)
-    ang = matvec(inertia_matrix_M(eta, I_B), eta_dot)
+    lin = batched("mass", mass)[..., None] * batched("v_W", v_W, (3,))
+    ang = matvec(inertia_matrix_M(eta, I_B), batched("eta_dot", eta_dot, (3,)))
     return np.concatenate([lin, ang], -1)  # eq. (6)
 
 
@@ -77,6 +80,7 @@ def momentum_rate_known(
 
     ``beta = [-u R(eta) e3 + m g_W;  Q^T tau_B + C^T eta_dot]``, so that ``q_dot = beta + [f_ext_W; tau_ext_eta]``.
     """
+    tau_B = batched("tau_B", tau_B, (3,))
     return np.concatenate(  # eq. (8)
         [momentum_rate_linear(eta, thrust, mass), momentum_rate_angular(eta, eta_dot, tau_B, I_B)], -1
     )
@@ -86,7 +90,7 @@ def momentum_rate_linear(eta: np.ndarray, thrust: np.ndarray, mass: np.ndarray) 
     """The linear part of ``beta`` in eq. (8): ``-u R(eta) e3 + m g_W`` (world NED, N)."""
     R = rotation_zyx(eta)
     # eq. (8), linear part
-    return -np.asarray(thrust, dtype=float)[..., None] * R[..., :, 2] + np.asarray(mass)[..., None] * GRAVITY_W
+    return -batched("thrust", thrust)[..., None] * R[..., :, 2] + batched("mass", mass)[..., None] * GRAVITY_W
 
 
 def momentum_rate_angular(eta: np.ndarray, eta_dot: np.ndarray, tau_B: np.ndarray, I_B: np.ndarray) -> np.ndarray:
@@ -98,13 +102,14 @@ def momentum_rate_angular(eta: np.ndarray, eta_dot: np.ndarray, tau_B: np.ndarra
 
 def euler_moment_from_body(tau_B: np.ndarray, eta: np.ndarray) -> np.ndarray:
     """Generalized moment in Euler coordinates ``tau_eta = Q(eta)^T tau_B``."""
-    return matvec(transpose(euler_rate_matrix_Q(eta)), tau_B)
+    return matvec(transpose(euler_rate_matrix_Q(eta)), batched("tau_B", tau_B, (3,)))
 
 
 def body_moment_from_euler(tau_eta: np.ndarray, eta: np.ndarray) -> np.ndarray:
     """Body-frame moment ``tau_B = Q(eta)^{-T} tau_eta`` (needs theta != +-pi/2)."""
+    tau_eta = batched("tau_eta", tau_eta, (3,))
     QT = transpose(euler_rate_matrix_Q(eta))
-    return np.linalg.solve(QT, np.asarray(tau_eta, dtype=float)[..., None])[..., 0]
+    return np.linalg.solve(QT, tau_eta[..., None])[..., 0]
 
 
 def thrust_direction_W(eta: np.ndarray) -> np.ndarray:

@@ -14,12 +14,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..conventions import SINGULARITY_COS_EPS
-from ..errors import SingularityError
+from ..errors import SingularityError, batched
 
 
 def skew(v: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix ``S(v)`` with ``S(v) w = v x w``; ``v`` is ``(..., 3)``."""
-    v = np.asarray(v, dtype=float)
+    v = batched("v", v, (3,))
     z = np.zeros_like(v[..., 0])
     return np.stack(
         [
@@ -42,7 +42,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def rotation_zyx(eta: np.ndarray) -> np.ndarray:
     """Rotation ``R_WB = Rz(psi) Ry(theta) Rx(phi)`` from ZYX Euler angles ``eta = [phi, theta, psi]``."""
-    eta = np.asarray(eta, dtype=float)
+    eta = batched("eta", eta, (3,))
     c = np.cos(eta)
     s = np.sin(eta)
     cf, ct, cp = c[..., 0], c[..., 1], c[..., 2]
@@ -70,7 +70,7 @@ def check_euler_regular(eta: np.ndarray) -> None:
 
 def euler_rate_matrix_T(eta: np.ndarray) -> np.ndarray:
     """``T(eta)`` with ``omega_W = T(eta) eta_dot``, eq. (1b)."""
-    eta = np.asarray(eta, dtype=float)
+    eta = batched("eta", eta, (3,))
     ct, st = np.cos(eta[..., 1]), np.sin(eta[..., 1])
     cp, sp = np.cos(eta[..., 2]), np.sin(eta[..., 2])
     z, o = np.zeros_like(ct), np.ones_like(ct)
@@ -86,7 +86,7 @@ def euler_rate_matrix_T(eta: np.ndarray) -> np.ndarray:
 
 def euler_rate_matrix_Q(eta: np.ndarray) -> np.ndarray:
     """``Q(eta) = R_WB^T T(eta)`` with ``omega_B = Q(eta) eta_dot``, eq. (1c)."""
-    eta = np.asarray(eta, dtype=float)
+    eta = batched("eta", eta, (3,))
     cf, sf = np.cos(eta[..., 0]), np.sin(eta[..., 0])
     ct, st = np.cos(eta[..., 1]), np.sin(eta[..., 1])
     z, o = np.zeros_like(cf), np.ones_like(cf)
@@ -102,8 +102,8 @@ def euler_rate_matrix_Q(eta: np.ndarray) -> np.ndarray:
 
 def euler_rate_matrix_Q_dot(eta: np.ndarray, eta_dot: np.ndarray) -> np.ndarray:
     """Time derivative ``Q_dot(eta, eta_dot)`` of :func:`euler_rate_matrix_Q`."""
-    eta = np.asarray(eta, dtype=float)
-    eta_dot = np.asarray(eta_dot, dtype=float)
+    eta = batched("eta", eta, (3,))
+    eta_dot = batched("eta_dot", eta_dot, (3,))
     cf, sf = np.cos(eta[..., 0]), np.sin(eta[..., 0])
     ct, st = np.cos(eta[..., 1]), np.sin(eta[..., 1])
     df, dt = eta_dot[..., 0], eta_dot[..., 1]

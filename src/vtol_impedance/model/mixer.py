@@ -12,6 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import InputError, batched
+
 #: Default bound on how far the allocator may move the collective thrust to make room for roll and
 #: pitch, as a fraction of the (feasible) requested thrust.
 THRUST_SHIFT_MAX = 0.25
@@ -19,14 +21,18 @@ THRUST_SHIFT_MAX = 0.25
 
 def mix(f: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (4): rotor forces ``f (..., n)`` to total thrust ``u (...)`` and body torque ``tau_B (..., 3)``."""
-    w = np.einsum("...ij,...j->...i", np.asarray(E, dtype=float), np.asarray(f, dtype=float))
+    E = batched("E", E, (4, -1))
+    f = batched("f", f, (-1,))
+    if f.shape[-1] != E.shape[-1]:
+        raise InputError(f"f has {f.shape[-1]} rotor forces but E {E.shape} has {E.shape[-1]} columns")
+    w = np.einsum("...ij,...j->...i", E, f)
     return w[..., 0], w[..., 1:]  # eq. (4)
 
 
 def unmix(thrust: np.ndarray, tau_B: np.ndarray, E_pinv: np.ndarray) -> np.ndarray:
     """Inverse of eq. (4) without limits: ``(u, tau_B)`` to the least-squares rotor forces ``(..., n)``."""
-    w = np.concatenate([np.asarray(thrust, dtype=float)[..., None], np.asarray(tau_B, dtype=float)], -1)
-    return np.einsum("...ij,...j->...i", np.asarray(E_pinv, dtype=float), w)
+    w = np.concatenate([batched("thrust", thrust)[..., None], batched("tau_B", tau_B, (3,))], -1)
+    return np.einsum("...ij,...j->...i", batched("E_pinv", E_pinv, (-1, 4)), w)
 
 
 class Allocation(NamedTuple):
@@ -87,11 +93,19 @@ def allocate(
     Within limits this equals :func:`unmix`. Works for any geometry whose thrust shares ``p_u`` are
     positive (checked when the vehicle is built), including non-square ones (hexarotor).
     """
-    u = np.asarray(thrust, dtype=float)
-    tau_B = np.asarray(tau_B, dtype=float)
-    Ep = np.asarray(E_pinv, dtype=float)
-    fmin = np.asarray(f_min, dtype=float)
-    fmax = np.asarray(f_max, dtype=float)
+    u = batched("thrust", thrust)
+    tau_B = batched("tau_B", tau_B, (3,))
+    Ep = batched("E_pinv", E_pinv, (-1, 4))
+    if batched("E", E, (4, -1)).shape[-1] != Ep.shape[-2]:
+        raise InputError(f"E {np.shape(E)} and E_pinv {Ep.shape} are not for the same rotors")
+    fmin = batched("f_min", f_min, (Ep.shape[-2],))
+    fmax = batched("f_max", f_max, (Ep.shape[-2],))
+    if not isinstance(thrust_shift_max, np.ndarray) and not (
+        isinstance(thrust_shift_max, float | int)
+        and not isinstance(thrust_shift_max, bool)
+        and 0 <= thrust_shift_max < np.inf
+    ):
+        raise InputError(f"thrust_shift_max must be a number >= 0, got {thrust_shift_max!r}")
     shape = np.broadcast_shapes(u.shape, tau_B.shape[:-1], Ep.shape[:-2], fmin.shape[:-1], np.shape(thrust_shift_max))
     n = Ep.shape[-2]
     pu = np.broadcast_to(Ep[..., :, 0], shape + (n,))

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..conventions import G
-from ..errors import InputError, as_finite, check_keys, scalar
+from ..errors import InputError, as_finite, check_keys, choice, positive, scalar
 from ..io import read_toml
 
 #: Rotor layouts built from an arm length, see :func:`layout_positions`.
@@ -132,6 +132,8 @@ def layout_positions(layout: str, arm_length: float) -> tuple[np.ndarray, np.nda
       (+, +, -, -) (the common quad-X numbering of flight stacks).
     * ``"hex"``: six rotors every 60 deg from forward, turning towards the right; spins alternate from +.
     """
+    choice("layout", layout, LAYOUTS)
+    arm_length = scalar("arm_length", arm_length, lo=0.0, lo_open=True)
     if layout == "plus":
         ang = np.radians([180.0, -90.0, 0.0, 90.0])
         spins = np.array([1, -1, 1, -1])
@@ -154,8 +156,14 @@ def effectiveness(positions_B: np.ndarray, spins: np.ndarray, drag_factor: float
     Column ``i`` is ``[1, r_i x (-e3) + s_i c e3]`` = ``[1, -r_iy, r_ix, s_i c]``. Batched over leading
     axes of ``positions_B (..., n, 3)``, ``spins (..., n)`` and ``drag_factor (...)``.
     """
-    r = np.asarray(positions_B, dtype=float)
-    s = np.asarray(spins, dtype=float) * np.asarray(drag_factor, dtype=float)[..., None]
+    r = as_finite("positions_B", positions_B)
+    if r.ndim < 2 or r.shape[-1] != 3:
+        raise InputError(f"positions_B must have shape (..., n, 3), got {r.shape}")
+    spins = as_finite("spins", spins, r.shape[-2:-1])
+    c = positive("drag_factor", drag_factor)
+    if c.shape not in ((), r.shape[:-2]):
+        raise InputError(f"drag_factor of shape {c.shape} does not match the batch of positions_B {r.shape}")
+    s = spins * c[..., None]
     return np.stack([np.ones(r.shape[:-1]), -r[..., 1], r[..., 0], s], axis=-2)  # eq. (4) for any layout
 
 
@@ -355,6 +363,9 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
         For each of ``layout``, ``arm_length``, ``f_max`` (also per rotor) and ``drag_factor`` the table leaves
         out.
     """
+    from ..errors import instance
+
+    instance("data", data, dict)
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a table, got {data!r}")
     check_keys(source, data, PRESET_KEYS)
@@ -442,7 +453,7 @@ def preset_names() -> list[str]:
 def load_preset(name: str = "pelican") -> VehicleParams:
     """A vehicle preset shipped in ``vtol_impedance/presets/NAME.toml``, or a vehicle TOML file by path."""
     if not isinstance(name, str):
-        raise InputError(f"vehicle must be a preset name or a .toml path, got {name!r}")
+        raise InputError(f"vehicle preset must be a preset name or a .toml path, got {name!r}")
     if name.endswith(".toml"):
         path = Path(name)
         data = read_toml(path, "vehicle file")

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..control.gains import ImpedanceGains
 from ..control.impedance import ControllerParams
-from ..errors import InputError, scalar
+from ..errors import InputError, choice, per_axis, scalar
 from ..estimator.momentum import EstimatorParams
 from ..io import source_digest
 from ..model.vehicle import VehicleParams
@@ -181,8 +181,8 @@ def design(
     timing = Timing() if timing is None else timing
     if not isinstance(timing, Timing):
         raise InputError(f"timing must be a Timing, got {type(timing).__name__}")
-    kp = tuple(float(v) for v in np.broadcast_to(np.asarray(Kp, dtype=float), (3,)))
-    dp = tuple(float(v) for v in np.broadcast_to(np.asarray(Dp, dtype=float), (3,)))
+    kp = tuple(float(v) for v in per_axis("Kp", Kp, lo=0.0, lo_open=True))
+    dp = tuple(float(v) for v in per_axis("Dp", Dp, lo=0.0, lo_open=True))
     rate = scalar("rate", rate, lo=0.0, lo_open=True)
     key = json.dumps(
         [vehicle.to_dict(), kp, dp, rate, timing.velocity_delay, timing.attitude_delay, timing.rotor_tau, code_key()],
@@ -392,6 +392,10 @@ def designed_controller(
     margin short of its threshold on the design's plant set, so that PD+C may be worse than PD there) is
     issued as a :class:`DesignWarning` before the controller is returned; the :class:`DesignError` of a
     loop no bandwidth can hold names the gains that can."""
+    from ..control.impedance import VARIANTS
+
+    choice("variant", variant, sorted(VARIANTS))
+    per_axis("Ki", Ki, lo=0.0)
     d = design(vehicle, Kp, Dp, rate, timing)
     for note in d.notes:
         warnings.warn(f"designed_controller: {note}", DesignWarning, stacklevel=2)

@@ -108,7 +108,7 @@ MAX_LOOP_STATES = 250
 def equivalent_rotor_tau(tau_up: float, tau_down: float) -> float:
     """The first-order time constant the linear model uses for a rotor that spins up with ``tau_up`` and
     down with ``tau_down`` (s): their mean (module docstring)."""
-    return 0.5 * (float(tau_up) + float(tau_down))
+    return 0.5 * (scalar("tau_up", tau_up, lo=0.0) + scalar("tau_down", tau_down, lo=0.0))
 
 
 def rotor_lag_describing_function(tau_up: float, tau_down: float, omega: float, periods: int = 30) -> complex:
@@ -117,7 +117,10 @@ def rotor_lag_describing_function(tau_up: float, tau_down: float, omega: float, 
     ``f_dot = (c - f) / tau`` with ``tau = tau_up`` while ``c > f`` and ``tau_down`` otherwise, integrated
     exactly between switches on a fine grid; amplitude-independent (the system is homogeneous).
     """
+    tau_up = scalar("tau_up", tau_up, lo=0.0)
+    tau_down = scalar("tau_down", tau_down, lo=0.0)
     omega = scalar("omega", omega, lo=0.0, lo_open=True)
+    periods = int(scalar("periods", periods, lo=1.0, integer=True))
     n = 4000
     T = 2.0 * np.pi / omega
     dt = T / n

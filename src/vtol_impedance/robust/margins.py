@@ -30,7 +30,7 @@ import control as ct
 import numpy as np
 import scipy.linalg
 
-from ..errors import scalar
+from ..errors import InputError, as_finite, instance, scalar
 from .linear import LOOPS, LinearLoop
 
 #: Frequencies at which loops are evaluated: from this, rad/s, to the Nyquist frequency.
@@ -198,6 +198,16 @@ def _refine(fn: Any, a: float, b: float) -> float:
 def loop_margins(name: str, L: ct.StateSpace, omega: np.ndarray | None = None) -> LoopMargins:
     """Margins of the loop ``L`` (discrete, closed by ``1 + L``) from its frequency response: every
     crossing on the grid ``omega`` is refined by bisection on the exact response."""
+    instance("name", name, str)
+    instance("L", L, ct.StateSpace)
+    if not L.isdtime(strict=True) or L.ninputs != 1 or L.noutputs != 1:
+        raise InputError(
+            f"L must be a discrete single-input single-output loop, got {L.ninputs}x{L.noutputs}, dt={L.dt}"
+        )
+    if omega is not None:
+        omega = as_finite("omega", omega)
+        if omega.ndim != 1 or omega.size < 2 or not np.all(omega > 0):
+            raise InputError(f"omega must be 2 or more frequencies > 0 (rad/s), got {omega.tolist()}")
     resp = FrequencyResponse(L)
     if omega is None:
         omega = np.logspace(np.log10(OMEGA_MIN), np.log10(np.pi / resp.Ts), N_OMEGA)
@@ -244,6 +254,10 @@ def margins(loop: LinearLoop, label: str = "", loops: tuple[str, ...] | None = N
     thread count (a sweep's rows are the same in this process and on Dask workers)."""
     from threadpoolctl import threadpool_limits
 
+    instance("loop", loop, LinearLoop)
+    instance("label", label, str)
+    if loops is not None and (not isinstance(loops, tuple | list) or not set(loops) <= set(LOOPS)):
+        raise InputError(f"loops must be a tuple of names from {LOOPS}, got {loops!r}")
     with threadpool_limits(limits=1, user_api="blas"):
         poles = loop.poles()
         loops = {name: loop_margins(name, loop.loop(name)) for name in (LOOPS if loops is None else loops)}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import ScenarioError
+from ..errors import ScenarioError, instance, path_like
 from ..io import read_toml
 from .registry import get
 from .spec import ScenarioSpec, apply_mapping, set_value
@@ -13,7 +13,9 @@ from .spec import ScenarioSpec, apply_mapping, set_value
 
 def load_toml(path: str | Path, base: ScenarioSpec | None = None) -> ScenarioSpec:
     """Read a scenario file. ``base = "case-a-payload"`` at the top starts from a registered scenario."""
-    path = Path(path)
+    path = path_like("path", path)
+    if base is not None:
+        instance("base", base, ScenarioSpec)
     data = read_toml(path, "scenario file", ScenarioError)
     base_name = data.pop("base", None)
     if base_name is not None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from ..errors import ScenarioError
+from ..errors import ScenarioError, instance
 from .spec import ScenarioSpec
 
 _VERSIONED = re.compile(r"^(?P<base>.+)-v(?P<ver>\d+)$")
@@ -62,12 +62,15 @@ DEFAULT = Registry()
 
 def register(spec: ScenarioSpec) -> None:
     """Register ``spec`` in :data:`DEFAULT`, so that ``get``, the CLI and sweeps know it by name."""
+    instance("spec", spec, ScenarioSpec)
     DEFAULT.register(spec)
 
 
 def get(name: str) -> ScenarioSpec:
     """The registered scenario ``name``: ``"case-a-payload-v1"``, or ``"case-a-payload"`` for the latest
     version. Raises :class:`~vtol_impedance.errors.ScenarioError` naming the valid scenarios."""
+    if not isinstance(name, str):
+        raise ScenarioError(f"unknown scenario {name!r}: name must be the str name of a registered scenario")
     return DEFAULT.get(name)
 
 

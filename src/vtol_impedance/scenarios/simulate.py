@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..errors import scalar
-from ..sim.loop import ProgressFn, run_closed_loop
+from ..errors import choice, function, instance, scalar
+from ..sim.loop import BACKENDS, ProgressFn, run_closed_loop
 from ..sim.result import Result
 from .registry import get
 from .spec import ScenarioSpec, check_variants, checked
@@ -24,10 +24,13 @@ def simulate(
     The result's ``config`` holds the full scenario, the task ``window`` used for metrics and the phases.
     ``backend`` and ``log`` are passed to :func:`~vtol_impedance.sim.loop.run_closed_loop`.
     """
-    spec = get(scenario) if isinstance(scenario, str) else scenario
+    spec = get(scenario) if isinstance(scenario, str) else instance("scenario", scenario, ScenarioSpec)
     variants = check_variants(variants)
-    b, ctrls = checked(spec, variants)
     seed = spec.seed if seed is None else scalar("seed", seed, lo=0, hi=2**63 - 1, integer=True)
+    choice("backend", backend, BACKENDS)
+    if progress is not None:
+        function("progress", progress)
+    b, ctrls = checked(spec, variants)
     return run_closed_loop(
         b.plant,
         ctrls,

@@ -9,18 +9,20 @@ against analytic numbers.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 import tomllib
+import typing
 import warnings
 from dataclasses import dataclass, field, fields, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ..control.gains import Impedance, ImpedanceGains
 from ..control.impedance import ATTITUDE_FILTER_WN, PAPER_KI, VARIANTS, ControllerParams, compile_controllers
 from ..control.reference import Circle, Hold, MinJerk, Trajectory
-from ..errors import InputError, ScenarioError
+from ..errors import InputError, ScenarioError, as_finite, flag, instance, scalar
 from ..estimator.momentum import EstimatorParams
 from ..model.mixer import THRUST_SHIFT_MAX
 from ..model.vehicle import load_preset
@@ -30,6 +32,40 @@ from ..sim.plant import PlantParams
 from ..sim.sensors import SensorParams
 
 Vec3 = tuple[float, float, float]
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _check_fields(obj: Any) -> None:
+    """Refuse a section's value of the wrong type (or a number outside the range its ``_positive`` and
+    ``_nonneg`` fields name), naming the field: a spec is checked where it is made, not mid-run."""
+    pos, nonneg = getattr(obj, "_positive", ()), getattr(obj, "_nonneg", ())
+    for f in fields(obj):
+        hint, v, name = _hints(type(obj))[f.name], getattr(obj, f.name), f.name
+        if hint is bool:
+            flag(name, v)
+        elif hint is str:
+            instance(name, v, str)
+        elif hint is int:
+            scalar(name, v, lo=0 if name in nonneg else None, integer=True)
+        elif hint in (float, float | None) or hint in (Vec3, float | Vec3):
+            if v is None and hint is not float:
+                continue
+            arr = as_finite(name, v)
+            shapes = {float: ((),), float | None: ((),), Vec3: ((3,),)}.get(hint, ((), (3,)))
+            if arr.shape not in shapes:
+                raise InputError(
+                    f"{name} must be {' or '.join('one number' if s == () else '3 numbers' for s in shapes)}, got {v!r}"
+                )
+            if name in pos and not np.all(arr > 0):
+                raise InputError(f"{name} must be > 0, got {v!r}")
+            if name in nonneg and not np.all(arr >= 0):
+                raise InputError(f"{name} must be >= 0, got {v!r}")
+        elif dataclasses.is_dataclass(hint):
+            instance(name, v, hint)
 
 
 @dataclass(frozen=True)
@@ -61,6 +97,12 @@ class TrajectorySpec:
     move_duration: float = 3.0
     move_hold: float = 5.0  # then hold there, s
 
+    _positive: ClassVar[tuple[str, ...]] = ("takeoff_duration", "circle_radius", "land_duration", "move_duration")
+    _nonneg: ClassVar[tuple[str, ...]] = ("takeoff_at", "hover_duration", "settle_duration", "land_hold", "move_hold")
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
+
 
 @dataclass(frozen=True)
 class PayloadSpec:
@@ -68,6 +110,11 @@ class PayloadSpec:
 
     mass: float = 0.110
     offset_B: Vec3 = (0.01, 0.0, 0.03)
+
+    _nonneg: ClassVar[tuple[str, ...]] = ("mass",)
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
 
 
 @dataclass(frozen=True)
@@ -84,6 +131,12 @@ class PlantSpec:
     ground: bool = True
     pendulum_mass: float = 0.0  # kg on a rigid link hung from the centre of mass (0: none)
     pendulum_length: float = 0.5  # m
+
+    _positive: ClassVar[tuple[str, ...]] = ("inertia_scale", "arm_length_scale", "drag_factor_scale", "pendulum_length")
+    _nonneg: ClassVar[tuple[str, ...]] = ("rotor_tau_up", "rotor_tau_down", "rotor_drag", "pendulum_mass")
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
 
 
 @dataclass(frozen=True)
@@ -124,6 +177,17 @@ class ControlSpec:
     integral_limit: float = 3.0
     thrust_shift_max: float = THRUST_SHIFT_MAX
 
+    _positive: ClassVar[tuple[str, ...]] = (
+        "rate", "Kp", "Dp", "zeta_o", "estimator_zeta", "tilt_max_deg", "wn_o", "wn_o_yaw", "estimator_wn",
+        "attitude_filter_wn",
+    )  # fmt: skip
+    _nonneg: ClassVar[tuple[str, ...]] = (
+        "Ki", "rotor_tau", "integral_limit", "thrust_shift_max", "estimator_order", "velocity_delay", "attitude_delay",
+    )  # fmt: skip
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
+
 
 #: The paper's controller (Sec. VI.A; the attitude filter's bandwidth, which the paper does not give, is
 #: this project's earlier default): what ``vtol-impedance paper`` flies, as ``--set`` assignments.
@@ -161,6 +225,12 @@ class InteractionSpec:
     comply_attitude: Vec3 = (0.0, 0.0, 0.0)
     switches: tuple[tuple[float, str, str], ...] = ()
     blend_s: float = 0.5
+
+    _positive: ClassVar[tuple[str, ...]] = ("M", "M_o")
+    _nonneg: ClassVar[tuple[str, ...]] = ("D", "K", "D_o", "K_o", "blend_s")
+
+    def __post_init__(self) -> None:
+        _check_fields(self)
 
 
 def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
@@ -215,7 +285,11 @@ class ScenarioSpec:
     interaction: InteractionSpec = field(default_factory=InteractionSpec)
     disturbances: tuple[dict[str, Any], ...] = ()
 
+    _positive: ClassVar[tuple[str, ...]] = ("plant_rate",)
+    _nonneg: ClassVar[tuple[str, ...]] = ("duration", "seed")
+
     def __post_init__(self) -> None:
+        _check_fields(self)
         check_name(self.name)
         if not all(isinstance(d, dict) for d in self.disturbances):
             raise ScenarioError("disturbances must be a list of tables with a 'kind'")
@@ -300,6 +374,7 @@ def build_trajectory(ts: TrajectorySpec) -> tuple[Trajectory, tuple[float, float
 
 def build(spec: ScenarioSpec) -> Built:
     """Turn a spec into plant, trajectory, disturbances and sensors (the controller is built separately)."""
+    instance("spec", spec, ScenarioSpec)
     vehicle = load_preset(spec.vehicle)
     traj, window, phases = build_trajectory(spec.trajectory)
     duration = spec.duration if spec.duration > 0 else traj.duration
@@ -355,6 +430,8 @@ def resolved_control(spec: ScenarioSpec) -> ControlSpec:
 
 def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
     """The nominal controller of a scenario: the preset vehicle, never the true plant."""
+    instance("spec", spec, ScenarioSpec)
+    check_variants(variant)
     c = resolved_control(spec)
     vehicle = load_preset(spec.vehicle)
     w = np.array([c.wn_o, c.wn_o, c.wn_o_yaw])
@@ -397,10 +474,14 @@ def check_variants(variants: Any, unique: bool = False) -> list[str]:
     """``variants`` as a list of known controller names, or a clear error; ``unique``: each once (the
     command line's comparisons: a repeat is the same flight twice under one label; the API allows copies,
     a batch of identical vehicles)."""
+    if not isinstance(variants, str | list | tuple):
+        raise InputError(f"variants must be a controller name or a list of them, got {variants!r}")
     variants = [variants] if isinstance(variants, str) else list(variants)
     bad = [v for v in variants if not isinstance(v, str) or v not in VARIANTS]
     if bad or not variants:
-        raise InputError(f"unknown controller variant(s) {bad or variants}; choose from {sorted(VARIANTS)}")
+        raise InputError(
+            f"unknown controller variant(s) in variants: {bad or variants}; choose from {sorted(VARIANTS)}"
+        )
     twice = sorted({v for v in variants if variants.count(v) > 1})
     if unique and twice:
         raise InputError(f"controller variant(s) {twice} given more than once; each is flown once per run")
@@ -411,7 +492,7 @@ def checked(spec: ScenarioSpec, variants: tuple[str, ...] | list[str]) -> tuple[
     """:func:`check` without the controller design, returning what a run needs: the built scenario and one
     controller per variant (the run designs them once)."""
     if not isinstance(spec, ScenarioSpec):
-        raise ScenarioError(f"expected a ScenarioSpec or a registered name, got {type(spec).__name__}")
+        raise ScenarioError(f"spec must be a ScenarioSpec or a registered name, got {type(spec).__name__}")
     rate, plant_rate = spec.control.rate, spec.plant_rate
     ratio = plant_rate / rate
     if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-9 * ratio:
@@ -622,6 +703,7 @@ def get_value(spec: ScenarioSpec, key: str) -> Any:
 def set_value(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
     """Return a copy of ``spec`` with the dotted ``key`` (``payload.mass``, ``disturbances.0.mean_force``, or
     one component of a vector value, ``payload.offset_B[0]``) set."""
+    instance("spec", spec, ScenarioSpec)
     if not isinstance(key, str) or not key:
         raise ScenarioError(f"a scenario key is a dotted name such as 'payload.mass', got {key!r}")
     m = _INDEXED.match(key)
@@ -700,6 +782,9 @@ def parse_value(text: str) -> Any:
 
 def apply_overrides(spec: ScenarioSpec, assignments: list[str] | tuple[str, ...]) -> ScenarioSpec:
     """Apply ``key=value`` strings, as given to ``--set``."""
+    instance("spec", spec, ScenarioSpec)
+    if not isinstance(assignments, list | tuple) or not all(isinstance(a, str) for a in assignments):
+        raise InputError(f"assignments must be a list of 'key=value' strings, got {assignments!r:.80}")
     for a in assignments:
         if "=" not in a:
             raise ScenarioError(f"--set expects key=value, got {a!r}")

@@ -174,6 +174,8 @@ class RampWrench(ConstantWrench):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        scalar("t_start", self.t_start)
+        scalar("t_end", self.t_end)
         if not self.t_end > self.t_start:
             raise InputError(f"ramp needs t_end > t_start, got {self.t_start} .. {self.t_end}")
 
@@ -198,7 +200,9 @@ class SinusoidWrench(ConstantWrench):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        positive("freq_hz", self.freq_hz)
+        scalar("freq_hz", self.freq_hz, lo=0.0, lo_open=True)
+        scalar("phase", self.phase)
+        scalar("t_on", self.t_on)
 
     def profile(self, t: float) -> float:
         return float(np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase)) if t >= self.t_on else 0.0
@@ -230,7 +234,8 @@ class Push(ConstantWrench):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        positive("push duration", self.duration)
+        scalar("push duration", self.duration, lo=0.0, lo_open=True)
+        scalar("t_on", self.t_on)
 
     def profile(self, t: float) -> float:
         s = (t - self.t_on) / self.duration
@@ -329,10 +334,11 @@ class FanJet(Disturbance):
             raise InputError("fan direction_W must be non-zero")
         object.__setattr__(self, "direction_W", tuple(d / np.linalg.norm(d)))
         object.__setattr__(self, "cop_offset_B", _vec("cop_offset_B", self.cop_offset_B))
-        positive("fan mean_force", self.mean_force, allow_zero=True)
-        positive("fan ref_distance", self.ref_distance)
-        positive("fan width", self.width)
-        positive("fan turbulence", self.turbulence, allow_zero=True)
+        scalar("fan mean_force", self.mean_force, lo=0.0)
+        scalar("fan ref_distance", self.ref_distance, lo=0.0, lo_open=True)
+        scalar("fan t_on", self.t_on)
+        scalar("fan width", self.width, lo=0.0, lo_open=True)
+        scalar("fan turbulence", self.turbulence, lo=0.0)
         object.__setattr__(self, "turbulence_band", check_band("fan turbulence_band", self.turbulence_band))
         scalar("fan t_on (s from the flight's start)", self.t_on, lo=0.0)
 
@@ -397,7 +403,7 @@ class Wind(Disturbance):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "velocity_W", _vec("velocity_W", self.velocity_W))
-        positive("wind drag", self.drag, allow_zero=True)
+        scalar("wind drag", self.drag, lo=0.0)
         speed = float(np.linalg.norm(self.velocity_W))
         if speed > MAX_WIND_M_S:
             raise InputError(
@@ -440,11 +446,11 @@ class Wall(Disturbance):
         if np.linalg.norm(n) == 0:
             raise InputError("wall normal_W must be non-zero")
         object.__setattr__(self, "normal_W", tuple(n / np.linalg.norm(n)))
-        positive("wall stiffness", self.stiffness)
-        positive("wall damping", self.damping, allow_zero=True)
-        positive("wall friction", self.friction, allow_zero=True)
-        positive("wall radius", self.radius, allow_zero=True)
-        positive("wall slip_speed", self.slip_speed)
+        scalar("wall stiffness", self.stiffness, lo=0.0, lo_open=True)
+        scalar("wall damping", self.damping, lo=0.0)
+        scalar("wall friction", self.friction, lo=0.0)
+        scalar("wall radius", self.radius, lo=0.0)
+        scalar("wall slip_speed", self.slip_speed, lo=0.0, lo_open=True)
 
     def gap(self, p_W: np.ndarray) -> np.ndarray:
         """Distance from the contact sphere to the wall, m (negative: in contact)."""
@@ -561,7 +567,7 @@ class Gust(Disturbance):
         object.__setattr__(self, "direction_W", tuple(d / np.linalg.norm(d)))
         for name in ("mean_speed", "amplitude", "start", "sigma_w", "drag"):
             positive(f"gust {name}", getattr(self, name), allow_zero=True)
-        positive("gust length", self.length)
+        scalar("gust length", self.length, lo=0.0, lo_open=True)
         scalar("gust altitude", self.altitude, lo=0.0, hi=DRYDEN_MAX_ALTITUDE_M, lo_open=True)
         peak = self.mean_speed + self.amplitude + 3.0 * self.sigma_w
         if peak > MAX_WIND_M_S:

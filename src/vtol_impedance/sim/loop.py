@@ -323,6 +323,8 @@ def run_closed_loop(
     Result
         Arrays ``(B, N, ...)`` on the control ticks, the failures and the configuration.
     """
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress must be callable, got {type(progress).__name__}")
     controllers, plants, disturbances, sensors, labels, seeds, duration, plant_rate = _checked_inputs(
         plant, controllers, trajectory, duration, disturbances, sensors, plant_rate, seed, labels, window, backend
     )
@@ -359,6 +361,13 @@ def _checked_inputs(
     """The arguments of :func:`run_closed_loop`, checked before any work and normalised to one per vehicle."""
     if isinstance(controllers, ControllerParams):
         controllers = [controllers]
+    if isinstance(controllers, str) or not hasattr(controllers, "__iter__"):
+        raise InputError(f"controllers must be a sequence of ControllerParams, got {type(controllers).__name__}")
+    if isinstance(plant, str) or not (isinstance(plant, PlantParams) or hasattr(plant, "__iter__")):
+        raise InputError(f"plant must be a PlantParams or a sequence of them, got {type(plant).__name__}")
+    for name, v in (("disturbances", disturbances), ("labels", labels)):
+        if v is not None and (isinstance(v, str) or not hasattr(v, "__iter__")):
+            raise InputError(f"{name} must be a sequence, got {type(v).__name__}")
     controllers = list(controllers)
     B = len(controllers)
     if B == 0 or not all(isinstance(c, ControllerParams) for c in controllers):

@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..conventions import GRAVITY_W, G
-from ..errors import InputError, as_finite, positive, scalar
+from ..errors import InputError, as_finite, batched, instance, positive, scalar
 from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
 from ..model.vehicle import MAX_ROTORS, VehicleParams, effectiveness
@@ -189,9 +189,9 @@ def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
     are read once.
     """
     single = isinstance(params, PlantParams)
-    plist = [params] if single else list(params)
+    plist = [params] if single else list(params) if hasattr(params, "__iter__") and not isinstance(params, str) else []
     if not plist or not all(isinstance(p, PlantParams) for p in plist):
-        raise InputError("give one PlantParams or a non-empty list of them")
+        raise InputError(f"params must be one PlantParams or a non-empty list of them, got {params!r:.80}")
     nr = {p.vehicle.n_rotors for p in plist}
     if len(nr) > 1:
         raise InputError(f"plants in one batch must have the same number of rotors, got {sorted(nr)}")
@@ -370,6 +370,7 @@ def plant_derivative(
     P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray, t: float = 0.0, dist: DisturbanceFn | None = None
 ) -> np.ndarray:
     """``x_dot`` of the true plant for held rotor commands ``f_cmd (..., n)`` and disturbances ``dist``."""
+    x, f_cmd = _step_args(P, x, f_cmd, t)
     q = x[..., QUAT]
     w = x[..., OMEGA]
     f = x[..., ROTOR]
@@ -422,11 +423,24 @@ def disturbance_at(P: PlantArrays, t: float, x: np.ndarray, dist: DisturbanceFn 
     return held
 
 
+def _step_args(P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """The checks of a step's arguments: types and shapes, cheap (NaN passes, as in the batched math)."""
+    if type(P) is not PlantArrays:
+        instance("P", P, PlantArrays)
+    n = P.spins.shape[-1]
+    if type(t) is not float:
+        scalar("t", t)
+    return batched("x", x, (state_size(n),)), batched("f_cmd", f_cmd, (n,))
+
+
 def rk4_step(
     P: PlantArrays, x: np.ndarray, f_cmd: np.ndarray, t: float, dt: float, dist: DisturbanceFn | None = None
 ) -> np.ndarray:
     """One classical Runge-Kutta step with the rotor command and the disturbances (evaluated at the
     start, :func:`disturbance_at`) held; renormalises the quaternion."""
+    x, f_cmd = _step_args(P, x, f_cmd, t)
+    if type(dt) is not float or not dt > 0.0:
+        scalar("dt", dt, lo=0.0, lo_open=True)
     held = disturbance_at(P, t, x, dist)
     k1 = plant_derivative(P, x, f_cmd, t, held)
     k2 = plant_derivative(P, x + 0.5 * dt * k1, f_cmd, t + 0.5 * dt, held)

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, as_finite, instance
 from ..io import write_with
 from ..records import SIGNALS, rows_to_data, signal_shape
 
@@ -72,6 +72,15 @@ class Result:
     config: dict[str, Any] = field(default_factory=dict)
     failures: list[dict[str, Any] | None] = field(default_factory=list)
     metrics: list[dict[str, Any]] | None = None
+
+    def __post_init__(self) -> None:
+        self.t = as_finite("t", self.t)
+        if self.t.ndim != 1:
+            raise InputError(f"t must be one time per sample, shape (N,), got {self.t.shape}")
+        if not isinstance(self.labels, list | tuple) or not all(isinstance(x, str) for x in self.labels):
+            raise InputError(f"labels must be a list of names, got {self.labels!r:.80}")
+        instance("data", self.data, dict)
+        instance("config", self.config, dict)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.data[name]

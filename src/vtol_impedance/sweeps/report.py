@@ -92,6 +92,9 @@ def _columns(table) -> dict[str, np.ndarray]:
 def summarise(folder: Path, metric: str = "rms_ep_cm") -> dict[str, Any]:
     """Per point and controller: the axis values, mean, std, min and max of ``metric`` over the seeds, and
     the share of failed flights (failed flights are left out of the statistics)."""
+    from ..errors import path_like
+
+    folder = path_like("folder", folder)
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
     if not (Path(folder) / SWEEP_FILE).is_file():
@@ -317,6 +320,12 @@ def plot_margin_check(s: dict[str, Any], path: Path) -> Path | None:
 
 def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, y: str | None = None) -> list[Path]:
     """Summary CSV, figures, ``report.html`` and ``manifest.json`` into the sweep folder."""
+    from ..errors import instance, path_like
+
+    folder = path_like("folder", folder)
+    for name, v in (("metric", metric), ("x", x), ("y", y)):
+        if v is not None:
+            instance(name, v, str)
     from ..analysis.report import write_html
 
     folder = Path(folder)

@@ -80,6 +80,15 @@ def run_units(
 ) -> tuple[dict, dict | None]:
     """Fly ``units`` and return the flight rows and (when kept) the decimated traces, as column dicts;
     ``on_unit(flights)`` is called after each unit (progress)."""
+    from ..errors import choice, instance
+
+    instance("sweep", sweep, Sweep)
+    if isinstance(units, str) or not hasattr(units, "__iter__"):
+        raise InputError(f"units must be a sequence of Unit, got {units!r:.80}")
+    units = list(units)
+    if not all(isinstance(u, Unit) for u in units):
+        raise InputError(f"units must be a sequence of Unit, got {units!r:.80}")
+    choice("backend", backend, ("compiled", "numpy"))
     from ..analysis.metrics import compute_metrics
     from ..scenarios import simulate
 
@@ -168,10 +177,11 @@ class SweepFolder:
     """The folder of one sweep: its description, lock and the chunk files (see the module docstring)."""
 
     def __init__(self, sweep: Sweep, folder: Path, restart: bool = False, where: Path | None = None) -> None:
+        from ..errors import instance, path_like
         from ..io import check_output_folder
 
-        self.sweep = sweep
-        self.folder = Path(folder).absolute()
+        self.sweep = instance("sweep", sweep, Sweep)
+        self.folder = path_like("folder", folder).absolute()
         if self.folder.exists() and not self.folder.is_dir():
             raise InputError(f"output {self.folder} is a file, not a folder")
         if self.folder.exists() and any(self.folder.iterdir()) and not (self.folder / SWEEP_FILE).exists():
@@ -407,6 +417,11 @@ def execute(
 def read_dataset(folder: Path, digest: str | None = None):
     """The flights of a sweep folder as one pyarrow table, in unit order; with ``digest``, every chunk must
     say it belongs to that sweep."""
+    from ..errors import instance, path_like
+
+    folder = path_like("folder", folder)
+    if digest is not None:
+        instance("digest", digest, str)
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -446,6 +461,15 @@ def run_sweep(
     show_progress: bool = True,
 ) -> tuple[Path, int]:
     """Run (or resume) a sweep into ``out``; returns the folder and how many chunks were computed now."""
+    from ..errors import choice, instance, path_like, scalar
+
+    instance("sweep", sweep, Sweep)
+    out = path_like("out", out)
+    if workers is not None:
+        scalar("workers", workers, lo=1, integer=True)
+    if scheduler is not None:
+        instance("scheduler", scheduler, str)
+    choice("backend", backend, ("compiled", "numpy"))
     note = Executor(workers, scheduler).note  # validates the choice before touching the folder
     if note:
         print(f"note: {note}", file=sys.stderr)

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from ..control.impedance import VARIANTS
-from ..errors import InputError, ScenarioError, check_keys, scalar
+from ..errors import InputError, ScenarioError, check_keys, flag, instance, path_like, scalar
 from ..estimator.momentum import EstimatorBandwidthWarning
 from ..io import read_toml
 from ..scenarios import get, load_toml, set_value
@@ -62,6 +62,8 @@ MAX_FLIGHTS = 200_000
 def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
     """``set_value`` (which takes one component of a vector value, ``payload.offset_B[0]``) plus joint
     keys: ``"plant.rotor_tau_up,plant.rotor_tau_down"`` set from a list of as many values."""
+    instance("spec", spec, ScenarioSpec)
+    instance("key", key, str)
     if "," in key:
         keys = [k.strip() for k in key.split(",")]
         if not isinstance(value, list | tuple) or len(value) != len(keys):
@@ -84,6 +86,18 @@ class Axis:
     hi: float | None = None
     n: int | None = None
     log: bool = False
+
+    def __post_init__(self) -> None:
+        instance("key", self.key, str)
+        flag("log", self.log)
+        if self.values is None and (self.lo is None or self.hi is None):
+            raise InputError(f"axis {self.key!r}: give values, or a range lo .. hi")
+        if self.lo is not None:
+            scalar("lo", self.lo, lo=0.0 if self.log else None, lo_open=self.log)
+        if self.hi is not None:
+            scalar("hi", self.hi, lo=0.0 if self.log else None, lo_open=self.log)
+        if self.n is not None:
+            scalar("n", self.n, lo=1, integer=True)
 
     def grid(self) -> list[Any]:
         """The axis's values in grid and zip mode."""
@@ -207,6 +221,8 @@ class Sweep:
 
 def unit_seed(sweep_seed: int, point: int, repeat: int) -> int:
     """The seed of a unit: from the sweep seed and the unit's indices only."""
+    for name, v in (("sweep_seed", sweep_seed), ("point", point), ("repeat", repeat)):
+        scalar(name, v, lo=0, hi=2**63 - 1, integer=True)
     s = np.random.SeedSequence(int(sweep_seed), spawn_key=(int(point), int(repeat)))
     hi, lo = (int(x) for x in s.generate_state(2, np.uint32))
     return ((hi << 32) | lo) & (2**63 - 1)
@@ -230,6 +246,7 @@ def from_dict(
 ) -> Sweep:  # fmt: skip
     """Validate a sweep description and resolve its points (see the module docstring); ``on_point(1)``
     is called after each point is checked (progress: a check designs the point's controller)."""
+    instance("data", data, dict)
     check_keys("sweep", data, KEYS)
     name = check_name(data.get("name", "sweep"))
     base = _base(data, where)
@@ -351,6 +368,7 @@ def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
 def load(path_or_name: str | Path, check_points: bool = True, on_point: Callable[[int], None] | None = None) -> Sweep:
     """A sweep file, or the name of a built-in study (see :func:`builtin_names`); ``check_points=False``
     skips checking every point's scenario (which designs the controllers: work, see ``sweeps.budget``)."""
+    path_like("path_or_name", path_or_name)
     path = Path(path_or_name)
     if not path.suffix and not os.path.lexists(path):  # a link loop is a path, named as such below
         path = _BUILTIN / f"{path_or_name}.toml"
