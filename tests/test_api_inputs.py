@@ -551,6 +551,11 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         lambda: dict(flight=flight(), mass=1.2, segment=(0.1, 1.5)),
         {"flight": Obj(logs.FlightLog), "mass": "pos", "segment": "mapping"},
     ),
+    "logs.fit_hover_windows": (lambda: dict(flight=flight(), mass=1.2), {"flight": Obj(logs.FlightLog), "mass": "pos"}),
+    "logs.judge": (
+        lambda: dict(flight=flight(), thrust_N=np.full(flight().t.shape, 11.77), mass=1.2),
+        {"flight": Obj(logs.FlightLog), "thrust_N": Arr(flight().t.shape), "mass": "pos"},
+    ),
     "logs.log_format": (lambda: dict(path=csv_file()), {"path": "path"}),
     "logs.read_any": (lambda: dict(path=csv_file()), {"path": "path", "conventions": "choice", "world": "choice"}),
     "logs.read_csv": (lambda: dict(path=csv_file()), {"path": "path", "world": "choice", "columns": "mapping"}),
@@ -664,6 +669,13 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
     ),
     # io
     "io.atomic_path": (lambda: dict(path=Path("no-such-folder/x")), {"path": "path"}),
+    "io.source_digest": (lambda: dict(sources=[csv_file()]), {"sources": "mapping"}),
+    "io.explain_path": (lambda: dict(path=csv_file(), need="file"), {"path": "path", "need": "choice"}),
+    "io.input_file": (lambda: dict(path=csv_file(), what="log file"), {"path": "path", "what": "text"}),
+    "io.read_toml": (lambda: dict(path=csv_file(), what="a file"), {"path": "path", "what": "text"}),
+    "io.parse_toml": (lambda: dict(text="a = 1", where="a text"), {"text": "text", "where": "text"}),
+    "io.user_path": (lambda: dict(filename=Path("results/.x.staging-1")), {"filename": "path"}),
+    "io.check_folder_path": (lambda: dict(final=Path("no-such-folder")), {"final": "path"}),
     "io.write_text": (lambda: dict(path=Path("no-such-folder/x"), text="x"), {"path": "path", "text": "text"}),
     "io.write_with": (
         lambda: dict(path=Path("no-such-folder/x"), writer=lambda f: None),
@@ -752,6 +764,7 @@ EXEMPT = {
     "robust.LoopSizeError": "an exception class", "live.LiveError": "an exception class",
     "estimator.EstimatorBandwidthWarning": "a warning class", "runtime.ControllerWarning": "a warning class",
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
+    "model.VehicleDefaultWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
     "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",
     "scenarios.Registry": "no parameters",
     "sim.Disturbance": "an abstract base class without parameters",
@@ -763,7 +776,7 @@ EXEMPT = {
         "model.Allocation", "model.RotorGeometry", "estimator.EstimatorDesign", "estimator.EstimatorState",
         "control.ControlOutput", "control.ControllerArrays", "control.ControllerState", "runtime.EstimatorOutput",
         "robust.Design", "robust.LoopMargins", "robust.MarginReport", "robust.LinearLoop", "robust.OperatingPoint",
-        "logs.ConventionReport", "logs.FlightLog", "logs.LogEstimate", "live.LiveResult", "live.Tick",
+        "logs.ConventionReport", "logs.FlightLog", "logs.LogEstimate", "logs.Verdict", "live.LiveResult", "live.Tick",
         "sweeps.Sweep", "sweeps.Unit")},
 }  # fmt: skip
 

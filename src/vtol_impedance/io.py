@@ -81,6 +81,11 @@ def source_digest(sources: Iterable[str | os.PathLike[str]]) -> str:
     Every cache the package keeps on disk (the compiled kernels, the robust designs) is keyed by it, so an
     edit of that code or an installed upgrade is never answered from entries the old code wrote.
     """
+    from .errors import InputError, path_like
+
+    if isinstance(sources, str | bytes | os.PathLike) or not hasattr(sources, "__iter__"):
+        raise InputError(f"sources must be a sequence of file paths, got {sources!r:.80}")
+    sources = [path_like("sources[]", p) for p in sources]
     import hashlib
 
     from . import __version__
@@ -110,7 +115,10 @@ def explain_path(path: str | os.PathLike[str], need: str = "file") -> str | None
     """
     import errno
 
-    path = Path(path)
+    from .errors import choice, path_like
+
+    path = path_like("path", path)
+    choice("need", need, ("file", "folder"))
     parts = [path, *path.parents][::-1]  # from the root (or the first relative part) down to ``path``
     if not path.is_absolute():
         parts = [p for p in parts if str(p) != "."]
@@ -169,8 +177,9 @@ def explain_path(path: str | os.PathLike[str], need: str = "file") -> str | None
 def input_file(path: str | os.PathLike[str], what: str) -> Path:
     """``path`` as a :class:`~pathlib.Path` when it is a readable file, else
     :class:`~vtol_impedance.errors.InputError` naming ``what`` it is (``"log file"``), the path and why."""
-    from .errors import InputError
+    from .errors import InputError, instance
 
+    instance("what", what, str)
     if not isinstance(path, str | os.PathLike):
         raise InputError(f"{what} must be a path (str or os.PathLike), got {type(path).__name__} {path!r}")
     why = explain_path(path, "file")
@@ -183,8 +192,10 @@ def read_toml(path: str | os.PathLike[str], what: str, error: type[Exception] | 
     """The TOML file at ``path`` as a dict, or ``error`` (default
     :class:`~vtol_impedance.errors.InputError`) naming ``what`` it is, the path and why: unreadable (see
     :func:`explain_path`), not UTF-8, malformed, or nested deeper than the reader can follow."""
-    from .errors import InputError
+    from .errors import InputError, instance, path_like
 
+    path = path_like("path", path)
+    instance("what", what, str)
     error = error or InputError
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -199,8 +210,10 @@ def parse_toml(text: str, where: str, error: type[Exception] | None = None) -> d
     """``tomllib.loads(text)``, with a malformed or too deeply nested text an ``error`` naming ``where``."""
     import tomllib
 
-    from .errors import InputError
+    from .errors import InputError, instance
 
+    instance("text", text, str)
+    instance("where", where, str)
     error = error or InputError
     try:
         return tomllib.loads(text)
@@ -219,7 +232,9 @@ def user_path(filename: str | os.PathLike[str]) -> str:
     becomes ``NAME`` in the same place."""
     import re
 
-    text = os.fspath(filename)
+    from .errors import path_like
+
+    text = os.fspath(path_like("filename", filename))
     text = re.sub(r"(^|/)\.([^/]+?)\.(?:staging|old)-[^/]+", r"\1\2", text)
     return re.sub(r"(^|/)\.([^/]+?)\.[^/.]+\.tmp$", r"\1\2", text)
 
@@ -284,9 +299,9 @@ def check_folder_path(final: str | os.PathLike[str]) -> Path:
     """``final`` as a :class:`~pathlib.Path` when it can be (or become) an output folder, else
     :class:`~vtol_impedance.errors.InputError` naming what is in the way (:func:`explain_path`). Cheap:
     commands call it before any work."""
-    from .errors import InputError
+    from .errors import InputError, path_like
 
-    final = Path(final)
+    final = path_like("final", final)
     why = explain_path(final, "folder")
     if why:
         raise InputError(f"cannot use {final} as the output folder: {why}; choose another --out")

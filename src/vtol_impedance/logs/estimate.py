@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from ..conventions import G
+from ..conventions import SINGULARITY_COS_EPS, G
 from ..errors import InputError, positive, scalar
 from ..estimator.momentum import EstimatorParams, design
 from ..estimator.series import causal, momentum_residual, zero_phase
@@ -320,6 +320,10 @@ def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
         the standard deviation of two), at least the median of their own standard errors
         (``rms of 0.25 s averages / m g * hover / sqrt(length / 0.25 s)``); ``sd_rel``: ``sd / hover``.
     """
+    from ..errors import instance
+
+    instance("flight", flight, FlightLog)
+    mass = scalar("mass", mass, lo=0.0, lo_open=True)
     weight = mass * G
     wins = []
     a_z_all = np.gradient(flight.v_W[:, 2], flight.t)
@@ -819,6 +823,16 @@ def _torque_from_commands(
     return None
 
 
+def _body_moment(tau_eta: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """``tau_B = Q^{-T} tau_eta`` per sample, NaN where the pitch is at the ZYX singularity (+-90 deg within
+    :data:`~vtol_impedance.conventions.SINGULARITY_COS_EPS`): a flip passes through it, and the body moment
+    has no Euler-coordinate source there (the Euler-coordinate moment is kept)."""
+    regular = np.abs(np.cos(eta[:, 1])) >= SINGULARITY_COS_EPS
+    out = np.full(np.shape(tau_eta), np.nan)
+    out[regular] = body_moment_from_euler(tau_eta[regular], eta[regular])
+    return out
+
+
 def peak_impulse_response(des: Any) -> np.ndarray:
     """``(6,)``: the largest value of each channel's impulse response (1/s), ``wn / e`` for the paper's G."""
     out = np.zeros(6)
@@ -943,15 +957,15 @@ def estimate(
         from ..compiled.estimator import run_log
 
         out = run_log(des, mass, I_use, flight.v_W, flight.eta, flight.eta_dot, thrust, tau_in, flight.restart)
-        f_W, tau_eta, tau_B = out[:, :3], out[:, 3:6], out[:, 6:9]
+        f_W, tau_eta, tau_B = out[:, :3], out[:, 3:6], _body_moment(out[:, 3:6], flight.eta)
     else:
         r = causal(des, w, flight.restart)
         f_W, tau_eta = r[:, :3], r[:, 3:]
-        tau_B = body_moment_from_euler(tau_eta, flight.eta)
+        tau_B = _body_moment(tau_eta, flight.eta)
     f_zp = tau_zp = None
     if zero_phase_too:
         r = zero_phase(des, w, flight.restart)
-        f_zp, tau_zp = r[:, :3], body_moment_from_euler(r[:, 3:], flight.eta)
+        f_zp, tau_zp = r[:, :3], _body_moment(r[:, 3:], flight.eta)
     if tau is None:
         tau_eta = tau_B = tau_zp = None
     _gap_bounds(flight, thrust, tau, des)

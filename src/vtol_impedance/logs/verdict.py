@@ -278,6 +278,13 @@ def judge(
     -------
     Verdict
     """
+    from ..errors import as_finite, instance, scalar
+
+    instance("flight", flight, FlightLog)
+    thrust_N = as_finite("thrust_N", thrust_N)
+    if thrust_N.shape != flight.t.shape:
+        raise InputError(f"thrust_N must have the flight's shape {flight.t.shape}, got {thrust_N.shape}")
+    mass = scalar("mass", mass, lo=0.0, lo_open=True)
     segs = _segments(flight, int(2 * BAND_S[1] * flight.rate_hz))
     tests: list[PhysicsTest] = []
     reasons: list[str] = []

@@ -14,6 +14,7 @@ import numpy as np
 from ..conventions import E3, GRAVITY_W
 from ..errors import batched
 from .kinematics import (
+    check_euler_regular,
     euler_rate_matrix_Q,
     euler_rate_matrix_Q_dot,
     rotation_zyx,
@@ -106,8 +107,14 @@ def euler_moment_from_body(tau_B: np.ndarray, eta: np.ndarray) -> np.ndarray:
 
 
 def body_moment_from_euler(tau_eta: np.ndarray, eta: np.ndarray) -> np.ndarray:
-    """Body-frame moment ``tau_B = Q(eta)^{-T} tau_eta`` (needs theta != +-pi/2)."""
+    """Body-frame moment ``tau_B = Q(eta)^{-T} tau_eta`` (eq. (5b) read in the body frame).
+
+    Raises :class:`~vtol_impedance.errors.SingularityError` at theta = +-pi/2, where ``Q`` has no inverse (a
+    solve there returned moments of 1e16 N m instead of an error).
+    """
     tau_eta = batched("tau_eta", tau_eta, (3,))
+    eta = batched("eta", eta, (3,))
+    check_euler_regular(eta)
     QT = transpose(euler_rate_matrix_Q(eta))
     return np.linalg.solve(QT, tau_eta[..., None])[..., 0]
 

@@ -122,9 +122,10 @@ class ConstantWrench(Disturbance):
     def __post_init__(self) -> None:
         object.__setattr__(self, "force_W", _vec("force_W", self.force_W))
         object.__setattr__(self, "torque_B", _vec("torque_B", self.torque_B))
-        for key, t in self._timing().items():  # seconds from the flight's start: before it, nothing would act
-            if key.startswith("t_") and t != float("inf"):
-                scalar(f"{self.kind} {key} (s from the flight's start)", t, lo=0.0)
+        for f in fields(self):  # seconds from the flight's start: before it, nothing would act
+            t = getattr(self, f.name)
+            if f.name.startswith("t_") and t != float("inf"):
+                scalar(f"{self.kind} {f.name} (s from the flight's start)", t, lo=0.0)
 
     def profile(self, t: float) -> float:
         """Scale of the wrench at time ``t``."""

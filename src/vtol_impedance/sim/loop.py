@@ -71,7 +71,7 @@ from .plant import (
     rk4_step,
     rotor_wrench,
 )
-from .result import STEADY_TAIL_S, Result, metrics_row, window_mask_of
+from .result import STEADY_TAIL_S, Result, compute_metrics, metrics_row, window_mask_of
 from .sensors import NoiseSource, SensorParams, SensorSuite, latency_steps, rounded_latencies
 
 #: Bytes of random numbers per block (NumPy backend); the compiled one, which draws as it goes, returns
@@ -698,8 +698,6 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
 
     failures = _failures(fail_code, fail_time)
     if s.dec == 0:
-        from ..analysis.metrics import compute_metrics
-
         data = rows_to_data(logs, PA.spins.shape[-1])
         res = Result(np.arange(s.N) * s.Ts, [""] * B, data, {"window": list(s.window[:2])}, failures)
         return logs[:, :0], compute_metrics(res), failures

@@ -14,7 +14,17 @@ from ..errors import InputError, as_finite, instance
 from ..io import write_with
 from ..records import SIGNALS, rows_to_data, signal_shape
 
-__all__ = ["SIGNALS", "STEADY_TAIL_S", "Result", "metrics_row", "rows_to_data", "signal_shape", "window_mask_of"]
+__all__ = [
+    "SIGNALS",
+    "STEADY_TAIL_S",
+    "Result",
+    "compute_metrics",
+    "metrics_row",
+    "rows_to_data",
+    "signal_shape",
+    "window_mask",
+    "window_mask_of",
+]
 
 SCHEMA_VERSION = 1
 
@@ -134,3 +144,69 @@ class Result:
             if v.shape[:2] != (B, len(t)):
                 raise InputError(f"{path}: signal {k} has shape {v.shape}, expected ({B}, {len(t)}, ...)")
         return cls(t, header["labels"], data, header["config"], header["failures"], header.get("metrics"))
+
+
+def _check(result: Result, window: Any) -> None:
+    instance("result", result, Result)
+    if window is not None and (isinstance(window, str) or as_finite("window", window).shape[-1:] not in ((2,), (3,))):
+        raise InputError(f"window must be (t0, t1) in seconds, got {window!r}")
+
+
+def window_mask(result: Result, window: tuple[float, float] | None = None) -> np.ndarray:
+    """Samples inside the task window (default: the one stored in the result's config).
+
+    A run cut shorter than the window's start (``--duration``) falls back to the whole run.
+    """
+    _check(result, window)
+    return window_mask_of(result.t, window if window is not None else result.config.get("window"))
+
+
+def _rms(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+
+def compute_metrics(result: Result, window: tuple[float, float] | None = None) -> list[dict[str, Any]]:
+    """One row per vehicle: position/velocity error statistics, estimation error, saturation.
+
+    ``ss_ep_cm`` is the mean ``|e_p|`` over the last :data:`STEADY_TAIL_S` seconds of the window;
+    the estimation error compares the estimate with the lumped wrench the nominal model misses
+    (``f_lumped_W``, ``tau_lumped_eta``). A run logged with ``log="metrics"`` already carries them.
+    """
+    _check(result, window)
+    if not result.data:
+        if result.metrics is None:
+            raise InputError("the result has neither traces nor metrics")
+        return [dict(m) for m in result.metrics]
+    m = window_mask(result, window)
+    t = result.t[m]
+    tail = t >= (t[-1] - STEADY_TAIL_S)
+    ep = np.linalg.norm(result.e_p[:, m], axis=-1)
+    ev = np.linalg.norm(result.e_v[:, m], axis=-1)
+    f_err = np.linalg.norm(result["f_hat_W"][:, m] - result["f_lumped_W"][:, m], axis=-1)
+    tau_err = np.linalg.norm(result["tau_hat_eta"][:, m] - result["tau_lumped_eta"][:, m], axis=-1)
+    # any limit: the rotor allocation or the tilt/lift bound of eq. (16)
+    limited = (
+        result["saturated"]
+        if "tilt_limited" not in result.data
+        else np.fmax(result["saturated"], result["tilt_limited"])
+    )
+    sat = limited[:, m]
+    rows = []
+    for b, label in enumerate(result.labels):
+        alive = np.isfinite(ep[b])
+        has = bool(np.any(alive))
+        rows.append(
+            metrics_row(
+                label,
+                rms_ep=_rms(ep[b]),
+                max_ep=float(np.max(ep[b][alive])) if has else float("nan"),
+                ss_ep=float(np.mean(ep[b][tail & alive])) if np.any(tail & alive) else float("nan"),
+                rms_ev=_rms(ev[b]),
+                rms_f=_rms(f_err[b]),
+                rms_tau=_rms(tau_err[b]),
+                sat=float(np.mean(sat[b][alive])) if has else float("nan"),
+                failure=result.failures[b] if b < len(result.failures) else None,
+            )
+        )
+    return rows
