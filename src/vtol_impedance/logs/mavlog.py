@@ -193,9 +193,9 @@ def _with_motor_outputs(
 ) -> tuple[str, np.ndarray, np.ndarray] | None:
     """The thrust source: ``thrust`` (a :func:`_pick` result or ``None``) or ArduCopter's motor outputs ``table``
     (message ``msg``, PWM fields ``field.format(channel)``) read through its thrust curve (:mod:`.ardupilot`),
-    as their mean rotor thrust (0..1, the space of ``CTUN.ThO``); the faster, ``thrust`` on a tie, recorded in
-    ``choices``. ``volt``: ``(t, V, source)`` of the battery voltage. Outputs the curve cannot read (a parameter
-    not in the log) are refused with a note naming it."""
+    as their mean rotor thrust (0..1, the space of ``CTUN.ThO``); the faster, ``thrust`` on a tie unless it is
+    ``VFR_HUD``'s whole percent, recorded in ``choices``. ``volt``: ``(t, V, source)`` of the battery voltage.
+    Outputs the curve cannot read (a parameter not in the log) are refused with a note naming it."""
     found = []
     if thrust is not None:
         found.append((*thrust, 1.0 / typical_period(thrust[1])))
@@ -220,7 +220,9 @@ def _with_motor_outputs(
                     )
                 v = np.interp(t, volt[0][ok], volt[1][ok])[:, None]
             T = curve.thrust(pwm, v).mean(axis=1, keepdims=True)
-            found.append((f"{msg}.{','.join(cols)} (ArduCopter thrust curve)", t, T, 1.0 / typical_period(t)))
+            mine = (f"{msg}.{','.join(cols)} (ArduCopter thrust curve)", t, T, 1.0 / typical_period(t))
+            coarse = thrust is not None and thrust[0].startswith("VFR_HUD")
+            found.insert(0, mine) if coarse else found.append(mine)
             choices.append(
                 f"motor outputs {msg}: PWM read as thrust through ArduCopter's curve ({curve.describe()}"
                 + (f", voltage from {volt[2]}" if v is not None else "")  # type: ignore[index]
