@@ -154,10 +154,12 @@ def _tlog(path, params):
 
 
 def _fz(path, mass: float = MASS, settle: float = 5.0) -> tuple[float, object]:
-    """Mean estimated NED z force (N) after ``settle`` s, and the log as read."""
+    """Mean estimated NED z force (N) after ``settle`` s, and the log as read; the issue's bar for the spread
+    (95 % of the errors within 0.10 N) checked on the way."""
     raw, _ = read_any(path)
     est = estimate(resample(raw, 50.0), mass, None, thrust_from="commands")
     keep = est.t > est.t[0] + settle  # past the estimator's start-up
+    assert np.percentile(np.abs(est.f_W[keep, 2] - PAYLOAD_N), 95) < 0.10
     return float(np.mean(est.f_W[keep, 2])), raw
 
 
@@ -220,6 +222,7 @@ def test_live_ardupilot_servo_outputs_read_the_payload_through_the_curve(tmp_pat
     e = read_csv(res.folder / "estimate.csv")
     last = e["t_s"] > e["t_s"][-1] - 1.5
     assert np.mean(e["fz_W_N"][last]) == pytest.approx(PAYLOAD_N, abs=0.05)
+    assert np.percentile(np.abs(e["fz_W_N"][last] - PAYLOAD_N), 95) < 0.10
     assert abs(np.mean(e["fx_W_N"][last])) < 0.05 and abs(np.mean(e["fy_W_N"][last])) < 0.05
     # the run folder replays to the same numbers (the curve is in live.json) ...
     ticks, _ = replay(res.folder)
