@@ -18,7 +18,9 @@ What it is made of (nothing new about the physics):
 It starts hovering at the scenario's altitude above the origin, armed, in position hold (a pilot has taken
 off), streams at the autopilot's default rates (:mod:`.streams`) and at the rates asked with
 ``MAV_CMD_SET_MESSAGE_INTERVAL``, answers ``COMMAND_LONG`` (arm, mode, message interval), ``PARAM_REQUEST_READ``
-(the hover thrust) and ``TIMESYNC``, and sends a heartbeat at 1 Hz. The link can lose, repeat, reorder and
+(the hover thrust; as ArduCopter, its motor parameters too) and ``TIMESYNC``, and sends a heartbeat at 1 Hz.
+As ArduCopter it drives its motors through ArduCopter's thrust curve with the default parameters
+(:class:`~vtol_impedance.logs.MotorCurve`); as PX4 its PWM is linear in thrust. The link can lose, repeat, reorder and
 delay packets (:class:`Impairments`), both ways. ``speed`` runs the simulation faster than real time (the
 vehicle's clock runs with it).
 """
@@ -46,6 +48,8 @@ from ..control.impedance import (
 from ..control.signals import Reference
 from ..conventions import G
 from ..errors import InputError, scalar
+from ..logs.ardupilot import DEFAULTS as MOTOR_DEFAULTS
+from ..logs.ardupilot import MotorCurve
 from ..model.kinematics import euler_from_rotation, quat_from_euler, quat_to_rotation
 from ..records import REASONS
 from ..scenarios.spec import ScenarioSpec, build, controller_params
@@ -259,6 +263,12 @@ class SimAutopilot:
         self.f_max = np.asarray(g.f_max, dtype=float)
         self.u_max = float(self.f_max.sum())
         self.hover = float((self.PA.mass + self.PA.pend_m) * G / self.u_max)
+        # ArduCopter drives its motors through its thrust curve (its default parameters); PX4's outputs are linear
+        ardu = self.profile.mav_autopilot == 3
+        self.motor_curve = MotorCurve.from_params(MOTOR_DEFAULTS) if ardu else None
+        self.params = {self.profile.hover_param: self.hover, **(MOTOR_DEFAULTS if ardu else {})}
+        if ardu:  # a quadrotor's outputs 1..4 are its motors 1..4
+            self.params.update({f"SERVO{i}_FUNCTION": 32.0 + i for i in range(1, len(self.f_max) + 1)})
         self.t = 0.0
         self.ticks = 0  # simulated time is ticks * Ts: no drift of a running sum
         self.clock_offset_s = BOOT_S
@@ -387,8 +397,8 @@ class SimAutopilot:
         elif typ == "PARAM_REQUEST_READ" and mine:
             pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
             pid = pid.rstrip("\x00")
-            if pid == self.profile.hover_param:
-                self._send(self.mavlink.MAVLink_param_value_message(pid.encode(), self.hover, 9, 1, 0), wall)
+            if pid in self.params:
+                self._send(self.mavlink.MAVLink_param_value_message(pid.encode(), self.params[pid], 9, 1, 0), wall)
         elif typ == "COMMAND_LONG" and mine:
             self._command(m, wall, src)
 
@@ -525,8 +535,9 @@ class SimAutopilot:
                     norm = float(np.clip(out.thrust_request / self.u_max, 0, 1)) if out is not None else 0.0
                 msg = mav.MAVLink_attitude_target_message(ms, 0, [float(c) for c in q], 0.0, 0.0, 0.0, norm)
             elif name == "SERVO_OUTPUT_RAW":
-                pwm = [int(round(1000 + 1000 * np.clip(f / fm, 0, 1))) for f, fm in zip(f_cmd, self.f_max, strict=True)]
-                pwm = (pwm + [0] * 16)[:16]
+                frac = np.clip(np.asarray(f_cmd) / self.f_max, 0.0, 1.0)
+                width = self.motor_curve.pwm(frac) if self.motor_curve is not None else 1000.0 + 1000.0 * frac
+                pwm = ([int(round(w)) for w in width] + [0] * 16)[:16]
                 msg = mav.MAVLink_servo_output_raw_message(us % 2**32, 0, *pwm)
             elif name in ("ESC_STATUS", "ESC_TELEMETRY_1_TO_4"):
                 f_act = np.clip(self.x[ROTOR], 0.0, None)

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import InputError, SingularityError, choice, instance, path_like, scalar
 from ..estimator.momentum import EstimatorParams
+from ..logs.ardupilot import MotorCurve
 from ..runtime import Estimator
 from .streams import GATING, Decoder, Sample, ThrustMap, VehicleClock, command_role
 
@@ -136,7 +137,7 @@ class LiveEstimator:
         self.map = thrust_map
         self.sources = dict(sources)
         self.command = command_role(self.sources)
-        self.decoder = Decoder(self.sources, n_rotors)
+        self.decoder = Decoder(self.sources, n_rotors, thrust_map.motor_curve, thrust_map.motor_channels)
         self.clock = VehicleClock()
         self.period_us = int(round(1e6 / s.rate_hz))
         self.max_gap_us = int(round(s.max_gap_s * 1e6))
@@ -265,7 +266,10 @@ def estimator_from_config(cfg: dict[str, Any]) -> LiveEstimator:
     """The :class:`LiveEstimator` a session used, from the ``estimator`` section of its ``live.json``."""
     e = cfg["estimator"]
     m = e["thrust_map"]
-    tmap = ThrustMap(m["mass"], m["hover"], m["max_thrust"], m["rotor_constant"], np.asarray(e["effectiveness"]))
+    curve = MotorCurve.from_dict(m["motor_curve"]) if m.get("motor_curve") else None
+    chans = tuple(m["motor_channels"]) if m.get("motor_channels") else None
+    tmap = ThrustMap(m["mass"], m["hover"], m["max_thrust"], m["rotor_constant"], np.asarray(e["effectiveness"]),
+                     curve, chans)  # fmt: skip
     return LiveEstimator(e["mass"], np.asarray(e["inertia_B"]), tmap, e["sources"], int(e["n_rotors"]),
                          EstimatorSettings.from_dict(e["settings"]))  # fmt: skip
 

@@ -9,7 +9,8 @@ Order of a session (each step bounded in time, each failure a :class:`~.link.Liv
 3. ask for the streams with ``MAV_CMD_SET_MESSAGE_INTERVAL`` at the estimator's rate, read the hover thrust
    parameter, exchange ``TIMESYNC`` for the link's latency, and measure what arrives for ``probe_s`` (up to
    ``stream_timeout_s`` when something is missing); choose the source of each role; a missing one is an
-   error listing it with the way to get it;
+   error listing it with the way to get it; ArduCopter's motor outputs need its thrust-curve parameters
+   (:meth:`Session.motor_outputs_or_refuse`), else they are refused by name;
 4. run: every vehicle message goes to the :class:`~.estimator.LiveEstimator`; each tick is written to
    ``estimate.csv``, shown, optionally sent back (``NAMED_VALUE_FLOAT`` ``fx``..``tz``, ``DEBUG_VECT``
    ``f_hat_W``) and, with ``control``, handed to the :class:`~.control.OffboardController`;
@@ -31,6 +32,7 @@ import numpy as np
 
 from ..errors import InputError, instance, scalar
 from ..io import RunFolder
+from ..logs.ardupilot import CURVE_PARAMS, MotorCurve, motor_channels
 from ..model.vehicle import check_inertia, load_preset
 from .control import ControlSettings, OffboardController, OuterLoop
 from .display import Screen, StreamRow, View
@@ -188,6 +190,8 @@ class Session:
         self.profile: AutopilotProfile | None = None
         self.target: tuple[int, int] | None = None
         self.params: dict[str, float] = {}
+        self.motor_curve: MotorCurve | None = None
+        self.motor_channels: tuple[int, ...] | None = None
         self.acks: list[tuple[int, str]] = []
         self.latency = _Latency()
         self.events: list[tuple[float, str]] = []
@@ -447,6 +451,54 @@ class Session:
             self.pump(0.4)
         return self.params.get(name)
 
+    def read_params(self, names: list[str] | tuple[str, ...]) -> None:
+        """Ask for the parameters of ``names`` not yet known, up to 4 times 0.4 s apart (answers land in
+        ``self.params``)."""
+        link = self.link
+        assert link is not None and self.target is not None
+        for _ in range(4):
+            todo = [n for n in names if n not in self.params]
+            if not todo:
+                return
+            for name in todo:
+                link.send(
+                    link.mavlink.MAVLink_param_request_read_message(self.target[0], self.target[1], name.encode(), -1)
+                )
+            self.pump(0.4)
+
+    def motor_outputs_or_refuse(self, sources: dict[str, str]) -> dict[str, str]:
+        """ArduCopter's ``SERVO_OUTPUT_RAW``, when it is the thrust source, is read through its thrust curve
+        (:class:`~vtol_impedance.logs.ardupilot.MotorCurve`) from the vehicle's parameters; when one is not
+        answered the outputs are refused, naming it, and the thrust comes from ``ATTITUDE_TARGET`` (or, when
+        that does not arrive either, the session stops with the reason)."""
+        assert self.profile is not None
+        if self.profile.mav_autopilot != 3 or command_role(sources) != "outputs":
+            return sources
+        if sources["outputs"] != "SERVO_OUTPUT_RAW":
+            return sources
+        self.read_params([*CURVE_PARAMS, *(f"SERVO{c}_FUNCTION" for c in range(1, 9))])
+        more = ["MOT_BAT_VOLT_MIN"] if self.params.get("MOT_BAT_VOLT_MAX", 0.0) > 0.0 else []
+        if not 0 < self.params.get("MOT_PWM_MIN", 1.0) < self.params.get("MOT_PWM_MAX", 2.0):
+            more += ["RC3_MIN", "RC3_MAX"]  # ArduCopter's PWM range when MOT_PWM_MIN/MAX are unset
+        self.read_params(more)
+        try:
+            self.motor_curve = MotorCurve.from_params(self.params)
+        except InputError as exc:
+            rest = {r: m for r, m in sources.items() if r != "outputs"}
+            if "thrust" not in rest:
+                raise LiveError(f"{exc}, and no other thrust source (ATTITUDE_TARGET) arrives") from None
+            self.event(f"motor outputs refused: {exc}; thrust from {rest['thrust']} (no moment)")
+            return rest
+        n = self.vehicle.n_rotors
+        chans = motor_channels(self.params, 8)
+        if chans is not None and len(chans) == n:
+            self.motor_channels = tuple(chans)
+            where = f"motors on channels {', '.join(map(str, chans))} (SERVOn_FUNCTION)"
+        else:
+            where = f"motors taken as channels 1..{n}: SERVO1..8_FUNCTION name {len(chans or [])} motor(s)"
+        self.event(f"SERVO_OUTPUT_RAW read through ArduCopter's thrust curve: {self.motor_curve.describe()}; {where}")
+        return sources
+
     def probe(self) -> None:
         s = self.s
         link = self.link
@@ -479,6 +531,7 @@ class Session:
                 f"the vehicle does not send the streams the estimate needs (asked for at {s.estimator.rate_hz:g} Hz, "
                 f"waited {el:.1f} s):\n  " + "\n  ".join(lines) + f"\n  it sends: {have}"
             )
+        sources = self.motor_outputs_or_refuse(sources)
         keep = command_role(sources)
         self.sources = {r: m for r, m in sources.items() if r in GATING or r == keep}
         self.release_unused()
@@ -497,8 +550,9 @@ class Session:
             if s.hover_thrust is not None:
                 kw = {"rotor_constant": s.rotor_constant, "hover": s.hover_thrust}
             return ThrustMap.for_vehicle(self.vehicle, self.mass, **kw)
+        kw = {"motor_curve": self.motor_curve, "motor_channels": self.motor_channels} if role == "outputs" else {}
         if s.max_thrust is not None:
-            return ThrustMap.for_vehicle(self.vehicle, self.mass, max_thrust=s.max_thrust)
+            return ThrustMap.for_vehicle(self.vehicle, self.mass, max_thrust=s.max_thrust, **kw)
         hover = s.hover_thrust if s.hover_thrust is not None else self.read_hover()
         if hover is None:
             raise LiveError(
@@ -507,7 +561,7 @@ class Session:
             )
         if not 0.02 < hover < 1.0:
             raise LiveError(f"hover thrust {hover:g} is outside (0.02, 1): give --hover-thrust or --max-thrust")
-        return ThrustMap.for_vehicle(self.vehicle, self.mass, hover=hover)
+        return ThrustMap.for_vehicle(self.vehicle, self.mass, hover=hover, **kw)
 
     def start_estimator(self, tmap: ThrustMap) -> None:
         self.map = tmap

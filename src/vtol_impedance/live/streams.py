@@ -15,7 +15,9 @@ velocity   ``LOCAL_POSITION_NED`` (x, y, z, vx, vy, vz)     ``p_W`` (m), ``v_W``
 thrust     ``ATTITUDE_TARGET.thrust`` (0..1)                ``u = thrust * m g / hover`` (N) with the
                                                             hover thrust, or ``thrust * U_max``
 outputs    ``SERVO_OUTPUT_RAW`` (servoN_raw, PWM us) or     rotor forces ``f_i = c_i * unit`` with the
-           ``ACTUATOR_OUTPUT_STATUS`` (actuator[])          same map; ``[u, tau_B] = E f`` (eq. (4))
+           ``ACTUATOR_OUTPUT_STATUS`` (actuator[])          same map; ``[u, tau_B] = E f`` (eq. (4));
+                                                            ArduCopter's PWM through its thrust curve
+                                                            (:mod:`~vtol_impedance.logs.ardupilot`)
 rpm        ``ESC_STATUS.rpm`` (PX4) or                      ``f_i = k_f omega_i^2`` (N, rotor constant
            ``ESC_TELEMETRY_1_TO_4.rpm`` (ArduPilot)         ``k_f`` given); ``[u, tau_B] = E f``
 =========  ==============================================  ==========================================
@@ -38,6 +40,7 @@ import numpy as np
 
 from ..conventions import G
 from ..errors import InputError, scalar
+from ..logs.ardupilot import MotorCurve
 from ..model.kinematics import euler_from_rotation, quat_to_rotation
 from ..model.vehicle import VehicleParams
 
@@ -219,7 +222,8 @@ ARDUPILOT = AutopilotProfile(
             4.0,
             True,
             _LOST_OUT,
-            "SRn_RC_CHAN; PWM between MOT_PWM_MIN and MAX, linear thrust with MOT_THST_EXPO = 0",
+            "SRn_RC_CHAN; PWM read through ArduCopter's thrust curve (MOT_THST_EXPO, MOT_SPIN_MIN/MAX, "
+            "MOT_PWM_MIN/MAX, MOT_BAT_VOLT_MAX/MIN with SYS_STATUS's voltage)",
         ),
         StreamSpec(
             "ESC_TELEMETRY_1_TO_4",
@@ -348,17 +352,35 @@ def _velocity(msg: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Decoder:
-    """Turns the chosen source messages into :class:`Sample` values; ``sources`` maps role -> message."""
+    """Turns the chosen source messages into :class:`Sample` values; ``sources`` maps role -> message.
 
-    def __init__(self, sources: dict[str, str], n_rotors: int) -> None:
+    ``curve``: ArduCopter's thrust curve, through which ``SERVO_OUTPUT_RAW`` PWM becomes rotor thrust (0..1 of
+    the rotor's maximum), with the battery voltage of the latest ``SYS_STATUS`` when it compensates (outputs
+    wait for the first voltage); without it, PWM 1000..2000 us is read as linear in thrust (PX4). ``channels``:
+    the output channel (1-based) of each motor in order (ArduCopter's ``SERVOn_FUNCTION``), else 1..n."""
+
+    def __init__(
+        self,
+        sources: dict[str, str],
+        n_rotors: int,
+        curve: MotorCurve | None = None,
+        channels: tuple[int, ...] | None = None,
+    ) -> None:
         self.sources = dict(sources)
         self.by_message = {m: r for r, m in self.sources.items() if m}
         self.n_rotors = n_rotors
+        self.curve = curve
+        self.channels = tuple(channels) if channels else tuple(range(1, n_rotors + 1))
         self._esc = np.full(max(n_rotors, 4), np.nan)
+        self._volt: float | None = None
 
     def decode(self, msg: Any, clock: VehicleClock) -> tuple[Sample | None, str | None]:
         """``(sample or None, clock jump or None)`` for one message of the vehicle."""
         typ = msg.get_type()
+        if typ == "SYS_STATUS" and self.curve is not None:
+            mv = getattr(msg, "voltage_battery", 65535)
+            if 0 < mv < 65535:  # UINT16_MAX: not known
+                self._volt = mv * 1e-3
         role = self.by_message.get(typ)
         if role is None:
             return None, None
@@ -386,7 +408,11 @@ class Decoder:
             return (float(msg.thrust),)
         if role == "outputs":
             if msg.get_type() == "SERVO_OUTPUT_RAW":
-                raw = np.array([getattr(msg, f"servo{i + 1}_raw") for i in range(n)], dtype=float)
+                raw = np.array([getattr(msg, f"servo{c}_raw", 0) for c in self.channels[:n]], dtype=float)
+                if self.curve is not None:
+                    if self.curve.compensates and self._volt is None:
+                        return None
+                    return (self.curve.thrust(raw, self._volt),)
             else:
                 raw = np.asarray(msg.actuator[:n], dtype=float)
                 if np.all(np.abs(raw) <= 1.5):  # normalised outputs, not PWM
@@ -418,9 +444,11 @@ class ThrustMap:
     ``hover``: the autopilot's normalised hover thrust (``MPC_THR_HOVER``, ``MOT_THST_HOVER``): thrust ``t``
     (0..1) becomes ``u = t m g / hover`` (the thrust that held the *nominal* weight at hover: a payload the
     autopilot learnt into its hover thrust is absorbed, not estimated); or ``max_thrust`` (N): ``u = t U``.
-    Outputs ``c_i`` (0..1) become ``f_i = c_i u_full / n`` with the same full-scale thrust (linear thrust
-    curves); rotor speeds ``omega_i`` (rad/s) ``f_i = k_f omega_i^2`` with ``rotor_constant`` ``k_f``
-    (N s^2/rad^2). ``[u, tau_B] = E f`` with the nominal vehicle's effectiveness (eq. (4)).
+    Outputs ``c_i`` (0..1 of a rotor's maximum thrust) become ``f_i = c_i u_full / n`` with the same full-scale
+    thrust (``motor_curve``: ArduCopter's, through which the decoder reads the PWM of the channels
+    ``motor_channels``); rotor speeds ``omega_i``
+    (rad/s) ``f_i = k_f omega_i^2`` with ``rotor_constant`` ``k_f`` (N s^2/rad^2). ``[u, tau_B] = E f`` with the
+    nominal vehicle's effectiveness (eq. (4)).
     """
 
     mass: float
@@ -428,6 +456,8 @@ class ThrustMap:
     max_thrust: float | None = None
     rotor_constant: float | None = None
     E: np.ndarray = field(default_factory=lambda: np.zeros((4, 4)), repr=False)
+    motor_curve: MotorCurve | None = None
+    motor_channels: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mass", scalar("mass", self.mass, lo=0.0, lo_open=True))
@@ -473,7 +503,9 @@ class ThrustMap:
 
     def to_dict(self) -> dict[str, Any]:
         return {"mass": self.mass, "hover": self.hover, "max_thrust": self.max_thrust,
-                "rotor_constant": self.rotor_constant, "full_thrust_N": self.full_thrust}  # fmt: skip
+                "rotor_constant": self.rotor_constant, "full_thrust_N": self.full_thrust,
+                "motor_curve": None if self.motor_curve is None else self.motor_curve.to_dict(),
+                "motor_channels": None if self.motor_channels is None else list(self.motor_channels)}  # fmt: skip
 
 
 def choose_sources(rates: dict[str, float], min_hz: float, use_rpm: bool) -> tuple[dict[str, str], list[str]]:

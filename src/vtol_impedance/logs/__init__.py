@@ -5,6 +5,7 @@ Sample logs with a known wrench ship in :mod:`vtol_impedance.logs.samples`."""
 
 from pathlib import Path
 
+from .ardupilot import MotorCurve
 from .checks import ConventionReport, check_conventions, evidence
 from .csvlog import read_csv, read_csv_table, table_to_raw
 from .estimate import LogEstimate, check_inertia, commands_in_si, estimate, fit_hover_thrust, fit_hover_windows
@@ -38,6 +39,7 @@ __all__ = [
     "FlightLog",
     "LogEstimate",
     "LogRefused",
+    "MotorCurve",
     "RawLog",
     "Signal",
     "Verdict",

@@ -11,7 +11,10 @@ present wins (within 20 %, the earlier in the list), and the choice is reported.
 attitude        ``ATT.Roll, Pitch, Yaw`` or ``ANG.Roll, Pitch, Yaw`` (deg, ZYX, body to NED)
 body rates      ``RATE.R, P, Y`` (deg/s, AHRS-corrected gyro) or ``IMU.GyrX/Y/Z`` (rad/s, first IMU)
 velocity (NED)  ``XKF1.VN, VE, VD`` (EKF3, core 0) or ``NKF1.VN, VE, VD`` (EKF2, core 0), m/s
-thrust          ``CTUN.ThO`` (throttle out, 0..1, in ArduPilot's linearised thrust space)
+thrust          ``CTUN.ThO`` (throttle out, 0..1, in ArduPilot's linearised thrust space), or the motor
+                outputs ``RCOU.Cn`` (PWM, us; the channels ``SERVOn_FUNCTION`` 33..40) read through ArduCopter's
+                thrust curve (:mod:`.ardupilot`, with ``BAT.Volt`` when ``MOT_BAT_VOLT_MAX`` is set): the
+                faster, ``CTUN`` on a tie; refused, naming the parameter, when one the curve needs is not logged
 hover thrust    ``CTUN.ThH`` (learned hover throttle, per sample), else the parameter ``MOT_THST_HOVER``
                 (a QuadPlane's ``Q_M_THST_HOVER``)
 torque          ``RATE.ROut, POut, YOut`` (normalised; N m only with ``--torque-scale``: ArduPilot logs no
@@ -30,7 +33,9 @@ body rates      ``ATTITUDE.rollspeed, pitchspeed, yawspeed`` (or the quaternion 
                 ``HIGHRES_IMU.xgyro..`` (rad/s)
 velocity (NED)  ``LOCAL_POSITION_NED.vx, vy, vz`` (m/s) or ``GLOBAL_POSITION_INT.vx, vy, vz`` (cm/s)
 thrust          ``ATTITUDE_TARGET.thrust`` (0..1; PX4 streams it), ``ACTUATOR_CONTROL_TARGET.controls[3]``
-                (PX4 < 1.14), else ``VFR_HUD.throttle`` (percent, whole numbers: coarse)
+                (PX4 < 1.14), else ``VFR_HUD.throttle`` (percent, whole numbers: coarse); from ArduPilot
+                also ``SERVO_OUTPUT_RAW.servoN_raw`` (PWM) through its thrust curve as for ``RCOU`` (with
+                ``SYS_STATUS.voltage_battery``), when the tlog holds the parameters (``PARAM_VALUE``)
 torque          ``ACTUATOR_CONTROL_TARGET.controls[0..2]`` (normalised, PX4 < 1.14)
 rotor speeds    ``ESC_STATUS.rpm`` (by ``index``) or ``ESC_TELEMETRY_1_TO_4.rpm`` (ArduPilot)
 parameters      ``PARAM_VALUE`` (when the ground station downloaded them): ``MPC_THR_HOVER``,
@@ -59,6 +64,7 @@ import numpy as np
 from ..errors import InputError
 from ..io import explain_path
 from .airframe import classify
+from .ardupilot import MotorCurve, motor_channels
 from .frames import ROTOR_SPEED_UNITS, eta_ned_frd, euler_rotation, quaternion_rotation
 from .timeseries import RawLog, Signal, typical_period
 from .ulog import RATE_TIE, esc_gap_note, fastest, rotor_geometry, torque_per_unit, vehicle_from_params
@@ -176,6 +182,61 @@ def _pick(
     return fastest(role, found, choices)
 
 
+def _with_motor_outputs(
+    thrust: tuple[str, np.ndarray, np.ndarray] | None,
+    table: dict[str, np.ndarray],
+    msg: str,
+    field: str,
+    params: dict[str, float],
+    volt: tuple[np.ndarray, np.ndarray, str] | None,
+    choices: list[str],
+    notes: list[str],
+) -> tuple[str, np.ndarray, np.ndarray] | None:
+    """The thrust source: ``thrust`` (a :func:`_pick` result or ``None``) or ArduCopter's motor outputs ``table``
+    (message ``msg``, PWM fields ``field.format(channel)``) read through its thrust curve (:mod:`.ardupilot`),
+    as their mean rotor thrust (0..1, the space of ``CTUN.ThO``); the faster, ``thrust`` on a tie unless it is
+    ``VFR_HUD``'s whole percent, recorded in ``choices``. ``volt``: ``(t, V, source)`` of the battery voltage.
+    Outputs the curve cannot read (a parameter not in the log) are refused with a note naming it."""
+    found = []
+    if thrust is not None:
+        found.append((*thrust, 1.0 / typical_period(thrust[1])))
+    if "_t" in table and len(table["_t"]) >= 2:
+        try:
+            curve = MotorCurve.from_params(params)
+            chans = motor_channels(params)
+            if chans is None:
+                raise InputError("ArduCopter motor outputs need SERVOn_FUNCTION (33..40: Motor1..8) to find the motors")
+            cols = [field.format(c) for c in chans]
+            if any(c not in table for c in cols):
+                raise InputError(f"{msg} has no {next(c for c in cols if c not in table)} (a motor's channel)")
+            order = np.argsort(table["_t"], kind="stable")
+            t, pwm = table["_t"][order], np.column_stack([table[c][order] for c in cols])
+            v = None
+            if curve.compensates:
+                ok = np.isfinite(volt[1]) if volt is not None else np.zeros(0, bool)
+                if volt is None or ok.sum() < 1:
+                    raise InputError(
+                        f"MOT_BAT_VOLT_MAX is {curve.bat_volt_max:g} V (battery compensation on) and the log has no "
+                        f"battery voltage ({'BAT.Volt' if msg == 'RCOU' else 'SYS_STATUS.voltage_battery'})"
+                    )
+                v = np.interp(t, volt[0][ok], volt[1][ok])[:, None]
+            T = curve.thrust(pwm, v).mean(axis=1, keepdims=True)
+            mine = (f"{msg}.{','.join(cols)} (ArduCopter thrust curve)", t, T, 1.0 / typical_period(t))
+            coarse = thrust is not None and thrust[0].startswith("VFR_HUD")
+            found.insert(0, mine) if coarse else found.append(mine)
+            choices.append(
+                f"motor outputs {msg}: PWM read as thrust through ArduCopter's curve ({curve.describe()}"
+                + (f", voltage from {volt[2]}" if v is not None else "")  # type: ignore[index]
+                + ")"
+            )
+        except InputError as exc:
+            other = f"thrust from {thrust[0]}" if thrust is not None else "no other thrust source"
+            notes.append(f"motor outputs {msg} refused as thrust: {exc}; {other}")
+    if not found:
+        return None
+    return fastest("thrust", found, choices)
+
+
 def _attitude_signal(src: str, t: np.ndarray, vals: np.ndarray, kind: str) -> Signal:
     if kind == "euler_deg":
         R = euler_rotation(*np.radians(vals).T)
@@ -260,7 +321,7 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
         raise
     except Exception as exc:
         raise InputError(f"{path} is not a readable DataFlash log ({type(exc).__name__}: {exc})") from None
-    wanted = ["ATT", "ANG", "RATE", "IMU", "XKF1", "NKF1", "CTUN", "ESC", "PARM", "MSG", "VER"]
+    wanted = ["ATT", "ANG", "RATE", "IMU", "XKF1", "NKF1", "CTUN", "ESC", "PARM", "MSG", "VER", "RCOU", "BAT"]
     wanted += [f"ESC{i}" for i in range(1, 9)]
     tabs: dict[str, _Table] = defaultdict(_Table)
     params: dict[str, float] = {}
@@ -327,7 +388,12 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
         tables,
         choices,
     )
-    thrust = _pick("thrust", [("CTUN", ["ThO"], 1.0, {})], tables, choices)
+    thrust = _pick("thrust", [("CTUN", ["ThO"], 1.0, {})], tables, [])
+    bat = tables.get("BAT", {})
+    inst = bat.get("Inst", bat.get("Instance"))
+    sel = inst == params.get("MOT_BAT_IDX", 0.0) if inst is not None else slice(None)
+    volt = (bat["_t"][sel], bat["Volt"][sel], "BAT.Volt") if "Volt" in bat and "_t" in bat else None
+    thrust = _with_motor_outputs(thrust, tables.get("RCOU", {}), "RCOU", "C{}", params, volt, choices, notes)
     torque = _pick("torque", [("RATE", ["ROut", "POut", "YOut"], 1.0, {})], tables, choices)
     rotor = _esc_dataflash(tables, choices)
     missing = [
@@ -341,7 +407,9 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
     ]
     if thrust is None and rotor is None:
         ctun = "; this log's CTUN has no ThO field" if "CTUN" in tables else ""
-        missing.append(("thrust", f"CTUN.ThO (throttle out{ctun}) or ESC (rotor speeds)"))
+        refused = "".join(f" ({n})" for n in notes if "refused as thrust" in n)
+        need = f"CTUN.ThO (throttle out{ctun}), RCOU (motor outputs{refused}) or ESC (rotor speeds)"
+        missing.append(("thrust", need))
     if missing:
         have = ", ".join(f"{k} ({len(v['_t'])})" for k, v in sorted(tables.items()) if "_t" in v) or "none of interest"
         kind = classify({"firmware": version}, params)
@@ -421,7 +489,7 @@ def _tlog_frames(path: Path) -> tuple[int, int, str | None]:
 TLOG_TYPES = [
     "ATTITUDE", "ATTITUDE_QUATERNION", "HIGHRES_IMU", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT",
     "ATTITUDE_TARGET", "ACTUATOR_CONTROL_TARGET", "VFR_HUD", "ESC_STATUS", "ESC_TELEMETRY_1_TO_4",
-    "PARAM_VALUE", "HEARTBEAT", "AUTOPILOT_VERSION",
+    "PARAM_VALUE", "HEARTBEAT", "AUTOPILOT_VERSION", "SERVO_OUTPUT_RAW", "SYS_STATUS",
 ]  # fmt: skip
 
 
@@ -534,8 +602,19 @@ def read_tlog(path: str | os.PathLike[str], sysid: int | None = None, compid: in
             ("VFR_HUD", ["throttle"], 0.01, {}),
         ],
         tables,
-        choices,
+        [] if autopilot == 3 else choices,
     )
+    if autopilot == 3:  # ArduPilot: its motor outputs through its thrust curve (PX4's are not read)
+        sys_status = tables.get("SYS_STATUS", {})
+        volt = None
+        if "voltage_battery" in sys_status:
+            mv = np.where(sys_status["voltage_battery"] >= 65535, np.nan, sys_status["voltage_battery"])  # unknown
+            volt = (sys_status["_t"], mv * 1e-3, "SYS_STATUS.voltage_battery")
+        out = tables.get("SERVO_OUTPUT_RAW", {})
+        if "port" in out:  # the first eight outputs (port 0) only
+            keep = out["port"] == 0
+            out = {k: v[keep] for k, v in out.items()}
+        thrust = _with_motor_outputs(thrust, out, "SERVO_OUTPUT_RAW", "servo{}_raw", params, volt, choices, notes)
     torque = _pick(
         "torque",
         [("ACTUATOR_CONTROL_TARGET", [f"controls[{i}]" for i in range(3)], 1.0, {"group_mlx": 0})],
@@ -556,6 +635,7 @@ def read_tlog(path: str | os.PathLike[str], sysid: int | None = None, compid: in
             + ". Request "
             + "; ".join(dict.fromkeys(STREAM_ADVICE[r][1] for r in missing))
             + f". The tlog has: {have or 'none of these messages'}"
+            + "".join(f". {n}" for n in notes if "refused as thrust" in n)
         )
     for role, sig_t in (("attitude", att.t), ("body rates", rates[1]), ("velocity", vel[1])):
         hz = 1.0 / typical_period(sig_t)

@@ -41,12 +41,14 @@ SAMPLES: dict[str, tuple[str, str]] = {
     ),
     "ardupilot": (
         "arducopter.bin",
-        "ArduPilot DataFlash (ArduCopter 4.x messages): ATT, RATE, XKF1, CTUN (ThO, ThH), ESC rotor speeds, PARM",
+        "ArduPilot DataFlash (ArduCopter 4.x messages): ATT, RATE, XKF1, CTUN (ThO, ThH), RCOU motor outputs "
+        "(PWM by ArduCopter's default thrust curve), ESC rotor speeds, PARM",
     ),
     "tlog": (
         "telemetry.tlog",
         "MAVLink 2 telemetry (ArduPilot streams): ATTITUDE 25 Hz, LOCAL_POSITION_NED 10 Hz, VFR_HUD throttle 10 Hz, "
-        "ESC_TELEMETRY_1_TO_4, PARAM_VALUE MOT_THST_HOVER",
+        "SERVO_OUTPUT_RAW 10 Hz (PWM by ArduCopter's default thrust curve), ESC_TELEMETRY_1_TO_4, PARAM_VALUE "
+        "MOT_THST_HOVER and the motor parameters",
     ),
 }
 TRUTH_FILE = "truth.csv"

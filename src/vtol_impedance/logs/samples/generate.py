@@ -68,6 +68,7 @@ def flight_arrays(r) -> dict[str, np.ndarray]:
         "u_norm": thrust * hover / (MASS_KG * 9.81),
         "u_const": thrust * HOVER_PARAM / (MASS_KG * 9.81),
         "rpm": np.sqrt(np.maximum(f_rotor, 0.0) / K_T) * 60.0 / (2.0 * np.pi),
+        "f_cmd": r["f_rotor_cmd"][0],
         "f_lumped_W": f_lumped,
         "f_rotor_W": f_rot,
         "tau_lumped_eta": r["tau_lumped_eta"][0],
@@ -87,6 +88,22 @@ def ca_params() -> dict[str, float]:
     for i in range(len(pos)):
         p.update({f"CA_ROTOR{i}_PX": pos[i, 0], f"CA_ROTOR{i}_PY": pos[i, 1], f"CA_ROTOR{i}_KM": km[i]})
     return p
+
+
+def _pwm(f_cmd: np.ndarray, hover: np.ndarray | float) -> np.ndarray:
+    """The PWM (whole us) ArduCopter sends for rotor commands ``f_cmd`` (N) with its default thrust curve, the
+    rotor's maximum thrust being what makes ``hover`` the hover thrust of the nominal weight."""
+    from ..ardupilot import MotorCurve
+
+    T = f_cmd * f_cmd.shape[1] * np.reshape(hover, (-1, 1)) / (MASS_KG * 9.81)
+    return np.round(MotorCurve().pwm(T))
+
+
+def _ardupilot_params() -> dict[str, float]:
+    """ArduCopter's motor parameters at their defaults, with outputs 1..4 driving motors 1..4."""
+    from ..ardupilot import DEFAULTS
+
+    return {**DEFAULTS, **{f"SERVO{i}_FUNCTION": 32.0 + i for i in range(1, 5)}}
 
 
 def _every(t: np.ndarray, hz: float, phase: float = 0.0) -> np.ndarray:
@@ -220,6 +237,12 @@ def write_ardupilot_sample(fa: dict[str, np.ndarray], out: Path) -> Path:
         DFMessage("PARM", "QNf", {"TimeUS": [int(us[0])] * 3, "Name": ["MOT_THST_HOVER", "FRAME_CLASS", "FRAME_TYPE"],
                                   "Value": [HOVER_PARAM, 1.0, 0.0]}),
     ]  # fmt: skip
+    par = _ardupilot_params()
+    msgs.append(DFMessage("PARM", "QNf", {"TimeUS": [int(us[0])] * len(par), "Name": list(par),
+                                          "Value": list(par.values())}))  # fmt: skip
+    pwm = _pwm(fa["f_cmd"][a25], fa["hover"][a25])
+    rcou = {"TimeUS": us[a25] + 1000, **{f"C{c}": pwm[:, c - 1] for c in range(1, 5)}}
+    msgs.append(DFMessage("RCOU", "QHHHHHHHH", {**rcou, **{f"C{c}": z for c in range(5, 9)}}))
     n = fa["rpm"].shape[1]
     esc_t, esc_i, esc_rpm = [], [], []
     for i in range(n):
@@ -250,6 +273,10 @@ def write_tlog_sample(fa: dict[str, np.ndarray], out: Path) -> Path:
     param = {"param_id": b"MOT_THST_HOVER", "param_value": HOVER_PARAM, "param_type": 9, "param_count": 1,
              "param_index": 0}  # fmt: skip
     msgs.append((unix0 + boot[0] - 0.5, "PARAM_VALUE", param))
+    par = _ardupilot_params()
+    for k, (name, value) in enumerate(par.items()):
+        msgs.append((unix0 + boot[0] - 0.4 + 0.001 * k, "PARAM_VALUE", {**param, "param_id": name.encode(),
+                                                                        "param_value": value}))  # fmt: skip
     beat = {"type": 2, "autopilot": 3, "base_mode": 217, "custom_mode": 5, "system_status": 4, "mavlink_version": 3}
     for i in _every(t, 1.0):
         msgs.append((recv(i), "HEARTBEAT", beat))
@@ -267,6 +294,12 @@ def write_tlog_sample(fa: dict[str, np.ndarray], out: Path) -> Path:
         hud = {"airspeed": 0.0, "groundspeed": 0.0, "heading": 0, "alt": 1.0, "climb": 0.0,
                "throttle": int(round(100 * fa["u_const"][i]))}  # fmt: skip
         msgs.append((recv(i), "VFR_HUD", hud))
+    sel = _every(t, 10.0, 0.08)
+    pwm = _pwm(fa["f_cmd"][sel], HOVER_PARAM)
+    for k, i in enumerate(sel):
+        servo = {"time_usec": int(round(boot[i] * 1e6)), "port": 0, **{f"servo{c}_raw": 0 for c in range(1, 9)}}
+        servo.update({f"servo{c}_raw": int(pwm[k, c - 1]) for c in range(1, 5)})
+        msgs.append((recv(i), "SERVO_OUTPUT_RAW", servo))
     n = fa["rpm"].shape[1]
     for i in _every(t, 10.0, 0.06):
         rpm = [int(round(x)) for x in fa["rpm"][i, :4]] + [0] * max(0, 4 - n)
