@@ -55,6 +55,7 @@ class Vehicle:
         self.vehicle_ms = kw.pop("vehicle_ms", lambda t: int(t * 1000))  # its clock
         self.events = kw.pop("events", [])  # (t, fn(vehicle))
         self.foreign_acks = kw.pop("foreign_acks", False)
+        self.rates_locked = False  # True: requests no longer change the rates
         assert not kw, kw
         self.k = dict.fromkeys(self.rates, 0)
         self.pending: list[tuple[float, object]] = []  # (arrival time, msg) for us
@@ -73,7 +74,7 @@ class Vehicle:
         if typ == "COMMAND_LONG" and msg.target_system == 1:
             if msg.command == MAV.MAV_CMD_SET_MESSAGE_INTERVAL:
                 name = MAV.mavlink_map[int(msg.param1)].msgname
-                if name in self.rates:
+                if name in self.rates and not self.rates_locked:
                     self.rates[name] = 0.0 if msg.param2 <= 0 else 1e6 / msg.param2
                     self.next_due[name] = t
             if self.foreign_acks:  # another station's ACK first: the same command, DENIED, to system 42
@@ -385,3 +386,22 @@ def test_simulated_autopilot_options_are_range_checked(kw, message):
         SimSettings("udpout:127.0.0.1:9", **kw)
     ok = {k: v for k, v in kw.items() if k not in ("events", "inject_on", "impairments", "system", "component")}
     SimSettings("udpout:127.0.0.1:9", **ok)  # the rest of it is accepted
+
+
+def test_a_stream_that_stops_is_reported_missing_and_back(scripted):
+    """ATTITUDE_TARGET (the thrust) stops at 4 s, with re-requests ignored, and resumes at 7 s: missing after
+    1 s without a sample (nothing arrived), named in live.json while it lasts, then back."""
+
+    def stop(v: Vehicle) -> None:
+        v.rates["ATTITUDE_TARGET"], v.rates_locked = 0.0, True
+
+    def resume(v: Vehicle) -> None:
+        v.rates["ATTITUDE_TARGET"], v.next_due["ATTITUDE_TARGET"] = 50.0, v.clock.t
+
+    res, veh = scripted(9.0, events=[(4.0, stop), (7.0, resume)])
+    text = events(res)
+    assert "the thrust stream (ATTITUDE_TARGET) is missing: no usable sample for 1 s: nothing arrived" in text
+    assert "the thrust stream (ATTITUDE_TARGET) is back" in text
+    t_missing = next(e["t_s"] for e in res.summary["events"] if "is missing" in e["text"])
+    assert 5.0 < t_missing < 5.0 + 0.05  # the last sample just before 4 s, plus the 1 s
+    assert res.summary["missing_streams"] == {} and res.exit_code == 0

@@ -383,6 +383,7 @@ class Session:
             self.unusable[role] = f"{typ}'s vehicle time goes backwards"
         elif est.counts["samples"] > c0["samples"]:
             self.usable_at[role] = now
+            self.unusable.pop(role, None)  # a reason given later is about what happens then
             if role in self.missing:
                 del self.missing[role]
                 self.event(f"the {role} stream ({typ}) is back")
@@ -422,7 +423,8 @@ class Session:
 
     def no_estimate_reason(self) -> str:
         """Why a session produced no tick: each stream's latest problem, the clock's jumps."""
-        parts = [f"{role} ({self.sources.get(role, '?')}): {why}" for role, why in sorted(self.unusable.items())]
+        why_by_role = {**self.missing, **self.unusable}
+        parts = [f"{role} ({self.sources.get(role, '?')}): {why}" for role, why in sorted(why_by_role.items())]
         est = self.est
         if est is not None and est.counts["clock_jumps"]:
             parts.append(f"the vehicle clock jumped {est.counts['clock_jumps']} times")
