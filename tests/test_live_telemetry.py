@@ -172,6 +172,7 @@ def scripted(monkeypatch, tmp_path):
     def fly(duration: float, display: str = "none", stream=None, **kw):
         clock = Clock()
         vehicle = Vehicle(clock, **kw)
+        fly.vehicles.append(vehicle)
 
         def open_(self) -> None:
             self.folder = RunFolder(tmp_path / "run")
@@ -185,6 +186,7 @@ def scripted(monkeypatch, tmp_path):
                                 out=str(tmp_path / "run"), estimator=EstimatorSettings(backend="numpy"))  # fmt: skip
         return run_live(settings, stream=stream), vehicle
 
+    fly.vehicles = []
     return fly
 
 
@@ -321,7 +323,9 @@ def test_the_hover_parameter_read_is_retried_with_back_off_and_succeeds_on_the_t
 
 def test_an_unanswered_parameter_read_gives_up_after_the_documented_window(scripted):
     with pytest.raises(LiveError, match="MPC_THR_HOVER"):
-        _, veh = scripted(30.0, answer_param_on=0)
+        scripted(30.0, answer_param_on=0)
+    t = np.array([t for t, _ in scripted.vehicles[-1].sent("PARAM_REQUEST_READ")])
+    np.testing.assert_allclose(t - t[0], [0.0, 0.3, 0.9, 2.1, 4.1, 6.1], atol=3 * POLL_S)
 
 
 def test_acks_for_another_station_are_ignored(scripted):

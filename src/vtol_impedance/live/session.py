@@ -234,7 +234,7 @@ class Session:
         self.acks_ignored = 0
         self._est_t0 = 0.0
         self._interval_acks = 0
-        self.param_requests: list[float] = []
+        self.param_requests: dict[str, list[float]] = {}  # parameter -> request times (s into the session)
         self.written: dict[str, Any] = {}
         self._warm_up()
 
@@ -539,25 +539,32 @@ class Session:
                 link.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, float(mid), 0.0)
             del self.requested[name]
 
-    def read_hover(self) -> float | None:
+    def read_param(self, name: str) -> float | None:
+        """One parameter of the vehicle (``PARAM_REQUEST_READ``), retried with back-off: requests at 0, 0.3,
+        0.9, 2.1, 4.1 and 6.1 s (:data:`PARAM_FIRST_WAIT_S` doubling up to :data:`PARAM_MAX_WAIT_S`) within
+        :data:`PARAM_READ_WINDOW_S`; ``None`` (and an event) when unanswered."""
         link = self.link
-        assert link is not None and self.profile is not None and self.target is not None
-        name = self.profile.hover_param
-        t_end = self.now() + PARAM_READ_WINDOW_S
+        assert link is not None and self.target is not None
+        t_next = self.now()  # the schedule is kept from the first request: no poll's lateness accumulates
+        t_end = t_next + PARAM_READ_WINDOW_S
         wait = PARAM_FIRST_WAIT_S
+        sent = self.param_requests.setdefault(name, [])
         while name not in self.params and self.now() < t_end:
             link.send(
                 link.mavlink.MAVLink_param_request_read_message(self.target[0], self.target[1], name.encode(), -1)
             )
-            self.param_requests.append(self.now() - self.t0)
-            until = min(self.now() + wait, t_end)
-            while name not in self.params and self.now() < until:
+            sent.append(self.now() - self.t0)
+            t_next = min(t_next + wait, t_end)
+            while name not in self.params and self.now() < t_next:
                 self.pump(POLL_S)
             wait = min(2.0 * wait, PARAM_MAX_WAIT_S)
         if name not in self.params:
-            n = len(self.param_requests)
-            self.event(f"{name} not read: {n} requests over {PARAM_READ_WINDOW_S:g} s unanswered")
+            self.event(f"{name} not read: {len(sent)} requests over {PARAM_READ_WINDOW_S:g} s unanswered")
         return self.params.get(name)
+
+    def read_hover(self) -> float | None:
+        assert self.profile is not None
+        return self.read_param(self.profile.hover_param)
 
     def probe(self) -> None:
         s = self.s
