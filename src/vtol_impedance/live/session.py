@@ -570,11 +570,12 @@ class Session:
         s = self.s
         link = self.link
         assert link is not None
-        # the asked rates start once the vehicle has the requests: wait for its acknowledgements (bounded) so
-        # that the window does not rank the default rates on a slow link, then rate each stream from its first
-        # arrival in the window (a stream that starts late is not diluted by the wait)
+        # the asked rates start once the vehicle has the requests: wait for its first acknowledgement (a round
+        # trip; bounded; one lost ACK of several does not stall it) so that the window does not rank the
+        # default rates on a slow link, then rate each stream from its first arrival in the window (a stream
+        # that starts late is not diluted by the wait)
         t_ack_end = self.now() + s.stream_timeout_s
-        while self._interval_acks < len(self.requested) and self.now() < t_ack_end:
+        while self._interval_acks == 0 and self.requested and self.now() < t_ack_end:
             self.pump(POLL_S)
         since = self.now()
         self.pump(s.probe_s)
