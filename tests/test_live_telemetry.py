@@ -298,7 +298,7 @@ def test_a_throttled_stream_is_asked_for_again_and_named(scripted):
     assert again and again[0][1].param2 == pytest.approx(1e6 / 50.0)
     assert t_throttle < again[0][0] < t_throttle + 3.0
     assert res.summary["stream_rerequests"]["LOCAL_POSITION_NED"] >= 1
-    assert "LOCAL_POSITION_NED arrives at" in events(res) and "asked for it again" in events(res)
+    assert "LOCAL_POSITION_NED arrives at" in events(res) and "asked for 50 Hz again" in events(res)
     t = estimate_rows(res.folder)[:, 0]
     assert np.sum(t > t.max() - 1.0) >= 45  # a 50 Hz estimate again in the last second
     assert res.exit_code == 0

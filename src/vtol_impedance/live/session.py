@@ -66,12 +66,15 @@ LISTEN_S = 1.1
 POLL_S = 0.005
 #: A stream of the estimate with no usable sample for this long is reported missing, with the reason.
 STREAM_MISSING_S = 1.0
-#: A used stream measured (over :data:`RATE_WINDOW_S`) below this fraction of the rate asked for is asked for
-#: again; the first time :data:`REREQUEST_FIRST_S` after the last request, then at doubling intervals up to
-#: :data:`REREQUEST_MAX_S` while it stays low (an autopilot that cannot send faster is not flooded).
+#: Window (s) over which a used stream's rate is measured while the session runs.
 RATE_WINDOW_S = 2.0
+#: A used stream below this fraction of the rate asked for (or of the rate the probe measured, when the
+#: vehicle never reached the asked one: a slow radio is not a change) is asked for again.
 RATE_LOW_FRACTION = 0.5
+#: Seconds after the last request before a stream is asked for again; the wait then doubles while it stays
+#: low, up to :data:`REREQUEST_MAX_S` (an autopilot that cannot send faster is not flooded).
 REREQUEST_FIRST_S = 2.0
+#: Longest wait (s) between two requests of a stream that stays low.
 REREQUEST_MAX_S = 30.0
 #: A parameter read is retried with back-off: first after :data:`PARAM_FIRST_WAIT_S`, the wait doubling up to
 #: :data:`PARAM_MAX_WAIT_S`, for at most :data:`PARAM_READ_WINDOW_S` in all (6 requests: at 0, 0.3, 0.9, 2.1,
@@ -408,7 +411,9 @@ class Session:
             if not hz or now - self.requested_at.get(msg, self._est_t0) < max(wait, RATE_WINDOW_S):
                 continue
             measured = link.stats.rate(msg, now, RATE_WINDOW_S)
-            if measured >= RATE_LOW_FRACTION * hz:
+            # against what the vehicle showed it can send (a link or autopilot slower than asked is not a change)
+            expected = min(hz, self.probe_rates.get(msg) or hz)
+            if measured >= RATE_LOW_FRACTION * expected:
                 self._rerequest_wait.pop(msg, None)
                 continue
             mid = link.message_id(msg)
@@ -418,8 +423,8 @@ class Session:
             self.requested_at[msg] = now
             self.rerequests[msg] = self.rerequests.get(msg, 0) + 1
             self._rerequest_wait[msg] = min(2.0 * wait, REREQUEST_MAX_S)
-            self.event(f"{msg} arrives at {measured:.1f} Hz, under the {hz:g} Hz asked for (another ground station "
-                       "changed it?): asked for it again")  # fmt: skip
+            self.event(f"{msg} arrives at {measured:.1f} Hz, under half the {expected:.3g} Hz it came at (asked: "
+                       f"{hz:g} Hz; another ground station lowered it?): asked for {hz:g} Hz again")  # fmt: skip
 
     def no_estimate_reason(self) -> str:
         """Why a session produced no tick: each stream's latest problem, the clock's jumps."""
