@@ -178,8 +178,16 @@ class SimSettings:
                 if not abs(jump) <= MAX_CLOCK_JUMP_S:
                     raise InputError(f"event {ev!r}: a clock jump is a number of seconds within +-{MAX_CLOCK_JUMP_S:g}")
         object.__setattr__(self, "seed", int(scalar("seed", self.seed, lo=0, hi=2**63 - 1, integer=True)))
-        if not 1 <= int(self.system) <= 254:
-            raise InputError(f"system id must be in 1..254, got {self.system}")
+        # ids are whole numbers; scripted times lie inside the run (one after its end would silently not happen)
+        object.__setattr__(self, "system", int(scalar("system id", self.system, lo=1, hi=254, integer=True)))
+        object.__setattr__(self, "component", int(scalar("component id", self.component, lo=1, hi=255, integer=True)))
+        end = float("inf") if self.duration is None else self.duration
+        for ev in self.events:
+            scalar(f"event {ev!r} time (simulated s)", ev[0], lo=0.0, hi=end)
+        if self.inject_on >= end:
+            raise InputError(
+                f"inject on ({self.inject_on:g} s) must be before the end of the run ({end:g} simulated s)"
+            )
 
 
 class _Channel:

@@ -48,6 +48,8 @@ class View:
     latency_ms: float | None = None
     telemetry_age_ms: float | None = None
     counts: dict[str, int] = field(default_factory=dict)
+    rejected: dict[str, int] = field(default_factory=dict)  # by MESSAGE.field
+    missing: list[str] = field(default_factory=list)  # "role: why"
     others: list[str] = field(default_factory=list)
     estimator: str = ""
     commands: str = ""
@@ -116,6 +118,10 @@ def render(v: View, width: int = 100) -> list[str]:
         f"  lost {c.get('lost', 0)}, repeated {c.get('repeated', 0) + c.get('duplicates', 0)}, late {c.get('late', 0)}"
         f", restarts {c.get('restarts', 0)}, clock jumps {c.get('clock_jumps', 0)}, damaged {c.get('bad_data', 0)}"
     )
+    if v.rejected:
+        lines.append("  rejected (out of range): " + ", ".join(f"{k} {n}" for k, n in sorted(v.rejected.items())))
+    for m in v.missing:
+        lines.append(f"  MISSING {m}")
     lines.append("  other systems: " + (", ".join(v.others) if v.others else "none"))
     lines.append(f"estimator: {v.estimator}")
     lines.append(f"commands:  {v.commands}")
@@ -157,7 +163,12 @@ class Screen:
             ftxt = "--" if f is None else " ".join(f"{x:+.3f}" for x in f)
             t = view.tau_hat_B
             ttxt = "--" if t is None or not np.any(np.isfinite(t)) else " ".join(f"{x:+.4f}" for x in t)
-            self.stream.write(f"[{view.elapsed_s:6.1f} s] f_hat_W N: {ftxt}  tau_hat_B N m: {ttxt}  {view.mode}\n")
+            extra = "".join(f"  MISSING {m}" for m in view.missing)
+            if view.rejected:
+                extra += f"  rejected {sum(view.rejected.values())} (" + ", ".join(sorted(view.rejected)) + ")"
+            self.stream.write(
+                f"[{view.elapsed_s:6.1f} s] f_hat_W N: {ftxt}  tau_hat_B N m: {ttxt}  {view.mode}{extra}\n"
+            )
             self.stream.flush()
             return
         lines = render(view)

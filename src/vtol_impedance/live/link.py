@@ -190,6 +190,15 @@ class LinkStats:
         n = sum(1 for t in d if t > now - window)
         return n / window
 
+    def rate_since(self, message: str, since: float, now: float, min_count: int = 5) -> float:
+        """Rate (Hz) of ``message`` from its first arrival after ``since`` to ``now``: a stream that started
+        late in the window (a request on a slow link) is measured at its own rate, not diluted by the wait;
+        0 with fewer than ``min_count`` arrivals (too few to rank). Bounded by the :data:`ARRIVALS_KEPT` kept."""
+        ts = [t for t in self.arrivals.get(message, ()) if t > since]
+        if len(ts) < min_count or now <= ts[0]:
+            return 0.0
+        return len(ts) / (now - ts[0] + 1e-9)
+
 
 #: Receive buffer asked of the operating system for a network link (the default, about 200 kB, holds only a
 #: few hundred small datagrams: a second of busy work would drop packets).
@@ -204,6 +213,9 @@ class Link:
     :meth:`poll` waits up to ``timeout`` for data, reads what arrived (at most ``max_messages``), records
     every packet, updates the peers from their heartbeats and hands each message to ``on_message``.
     """
+
+    #: The clock of arrivals and heartbeats (monotonic seconds); scripted links in tests replace it.
+    now = staticmethod(time.monotonic)
 
     def __init__(self, address: Address, connect_timeout: float = 10.0) -> None:
         self.address = address
@@ -295,14 +307,14 @@ class Link:
             d = self.stats.arrivals.get(typ)
             if d is None:
                 d = self.stats.arrivals[typ] = deque(maxlen=ARRIVALS_KEPT)
-            d.append(time.monotonic())
+            d.append(self.now())
         if typ == "HEARTBEAT":
             p = self.peers.get(src)
             if p is None:
                 p = self.peers[src] = Peer(src[0], src[1], int(msg.autopilot), int(msg.type))
             p.autopilot, p.mav_type = int(msg.autopilot), int(msg.type)
             p.base_mode, p.custom_mode = int(msg.base_mode), int(msg.custom_mode)
-            p.last_heartbeat = time.monotonic()
+            p.last_heartbeat = self.now()
             p.heartbeats += 1
 
     # ------------------------------------------------------------------ sending
@@ -329,6 +341,14 @@ class Link:
         p = list(params) + [0.0] * (7 - len(params))
         sys_id, comp = self.target or (1, 1)
         self.send(self.mavlink.MAVLink_command_long_message(sys_id, comp, command, 0, *p[:7]))
+
+    def ack_is_ours(self, msg: Any) -> bool:
+        """Whether a ``COMMAND_ACK`` is meant for this tool: MAVLink 2 carries the target of an ACK
+        (``target_system``, ``target_component``); 0 there (MAVLink 1, or an autopilot that leaves them unset)
+        means any, so only a target naming another station makes it someone else's."""
+        ts = int(getattr(msg, "target_system", 0) or 0)
+        tc = int(getattr(msg, "target_component", 0) or 0)
+        return ts in (0, SOURCE_SYSTEM) and tc in (0, SOURCE_COMPONENT)
 
     def message_id(self, name: str) -> int | None:
         return getattr(self.mavlink, f"MAVLINK_MSG_ID_{name}", None)

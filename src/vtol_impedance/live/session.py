@@ -66,6 +66,28 @@ SEND_BACK_HZ = 10.0
 #: After the first vehicle's heartbeat, listen this long for others (heartbeats come at 1 Hz).
 LISTEN_S = 1.1
 POLL_S = 0.005
+#: A stream of the estimate with no usable sample for this long is reported missing, with the reason.
+STREAM_MISSING_S = 1.0
+#: Window (s) over which a used stream's rate is measured while the session runs.
+RATE_WINDOW_S = 2.0
+#: A used stream below this fraction of the rate asked for (or of the rate the probe measured, when the
+#: vehicle never reached the asked one: a slow radio is not a change) is asked for again.
+RATE_LOW_FRACTION = 0.5
+#: Seconds after the last request before a stream is asked for again; the wait then doubles while it stays
+#: low, up to :data:`REREQUEST_MAX_S` (an autopilot that cannot send faster is not flooded).
+REREQUEST_FIRST_S = 2.0
+#: Longest wait (s) between two requests of a stream that stays low.
+REREQUEST_MAX_S = 30.0
+#: A parameter read is retried with back-off: first after :data:`PARAM_FIRST_WAIT_S`, the wait doubling up to
+#: :data:`PARAM_MAX_WAIT_S`, for at most :data:`PARAM_READ_WINDOW_S` in all (6 requests: at 0, 0.3, 0.9, 2.1,
+#: 4.1 and 6.1 s): a radio that drops a few packets in a row, or a round trip of a second, still reads it.
+PARAM_FIRST_WAIT_S = 0.3
+PARAM_MAX_WAIT_S = 2.0
+PARAM_READ_WINDOW_S = 8.0
+#: Fewest samples of a stream in the probe to rank it (a rate from two or three arrivals is noise).
+PROBE_MIN_SAMPLES = 5
+#: Exit code of a session that produced no estimate at all (the reason is its ``end``).
+EXIT_NO_ESTIMATE = 4
 
 
 @dataclass(frozen=True)
@@ -181,7 +203,7 @@ class Session:
         self.inertia_B = np.diag(inertia) if np.ndim(inertia) == 1 else np.asarray(inertia, dtype=float)
         self.screen = Screen(settings.display, stream)
         self.warn = warn or (lambda text: None)
-        self.t0 = time.monotonic()
+        self.t0 = self.now()
         self.link: Link | None = None
         self.folder: RunFolder | None = None
         self.tlog: TlogWriter | None = None
@@ -212,6 +234,17 @@ class Session:
         self.margin_warnings: list[str] = []
         self.proc_s: list[float] = []
         self.end = ""
+        # streams: when each role last gave a usable sample, why the latest one was not, which are missing
+        self.usable_at: dict[str, float] = {}
+        self.unusable: dict[str, str] = {}
+        self.missing: dict[str, str] = {}
+        self.requested_at: dict[str, float] = {}
+        self.rerequests: dict[str, int] = {}
+        self._rerequest_wait: dict[str, float] = {}
+        self.acks_ignored = 0
+        self._est_t0 = 0.0
+        self._interval_acks = 0
+        self.param_requests: dict[str, list[float]] = {}  # parameter -> request times (s into the session)
         self.written: dict[str, Any] = {}
         self._warm_up()
 
@@ -285,6 +318,7 @@ class Session:
                 self._link_lost = False
                 self.reconnects += 1
                 self.event("the vehicle is back: asking for the streams again")
+                self.usable_at = {r: now for r in self.usable_at}  # no "missing" for the outage itself
                 self.request_streams()
             if self.ctrl is not None:
                 peer = link.peers[src]
@@ -292,6 +326,11 @@ class Session:
         elif typ == "COMMAND_ACK":
             from .link import MAV_RESULT
 
+            if not link.ack_is_ours(msg):  # answers another station's command: not ours to act on
+                self.acks_ignored += 1
+                return
+            if int(msg.command) == MAV_CMD_SET_MESSAGE_INTERVAL:
+                self._interval_acks += 1
             self.acks.append((int(msg.command), MAV_RESULT.get(int(msg.result), str(msg.result))))
             del self.acks[:-200]
             if self.ctrl is not None:
@@ -307,7 +346,7 @@ class Session:
         if self.est is None:
             return
         t_arrive = now
-        ticks = self.est.feed(msg)
+        ticks = self._feed(msg, typ, now)
         if typ == "ATTITUDE" or typ == self.sources.get("attitude"):
             t_v = getattr(msg, "time_boot_ms", None)
             if t_v is not None:
@@ -332,6 +371,78 @@ class Session:
             if self.s.send_back and now - self._last_send_back >= 1.0 / SEND_BACK_HZ:
                 self._send_back(tick)
                 self._last_send_back = now
+
+    def _feed(self, msg: Any, typ: str, now: float) -> list[Any]:
+        """Feed the estimator and note, per role, whether the message gave a usable sample, or why not."""
+        est = self.est
+        assert est is not None
+        role = est.decoder.by_message.get(typ)
+        if role is None:
+            return est.feed(msg)
+        c0 = dict(est.counts)
+        ticks = est.feed(msg)
+        d = est.decoder
+        if d.last_rejected is not None:
+            where = d.last_rejected
+            if d.rejected[where] == 1:
+                self.event(f"{where} rejected: {d.why[where]} (each rejection counted in live.json)")
+            self.unusable[role] = f"{where} {d.why[where]}"
+        elif est.counts["repeated"] > c0["repeated"]:
+            self.unusable[role] = f"{typ}'s vehicle time does not advance (a frozen clock?)"
+        elif est.counts["late"] > c0["late"]:
+            self.unusable[role] = f"{typ}'s vehicle time goes backwards"
+        elif est.counts["samples"] > c0["samples"]:
+            self.usable_at[role] = now
+            self.unusable.pop(role, None)  # a reason given later is about what happens then
+            if role in self.missing:
+                del self.missing[role]
+                self.event(f"the {role} stream ({typ}) is back")
+        return ticks
+
+    def watch_streams(self, now: float) -> None:
+        """Report a stream missing after :data:`STREAM_MISSING_S` without a usable sample (with the reason), and
+        ask again for a used stream arriving below :data:`RATE_LOW_FRACTION` of its requested rate."""
+        est, link = self.est, self.link
+        if est is None or link is None or self._link_lost:
+            return
+        for role, msg in self.sources.items():
+            if role not in est.buffers or role in self.missing:
+                continue
+            if now - self.usable_at.get(role, self._est_t0) > STREAM_MISSING_S:
+                why = self.unusable.get(role, "nothing arrived")
+                self.missing[role] = why
+                self.event(f"the {role} stream ({msg}) is missing: no usable sample for {STREAM_MISSING_S:g} s: {why}")
+        for msg in set(self.sources.values()):
+            hz = self.requested.get(msg)
+            wait = self._rerequest_wait.get(msg, REREQUEST_FIRST_S)
+            if not hz or now - self.requested_at.get(msg, self._est_t0) < max(wait, RATE_WINDOW_S):
+                continue
+            measured = link.stats.rate(msg, now, RATE_WINDOW_S)
+            # against what the vehicle showed it can send (a link or autopilot slower than asked is not a change)
+            expected = min(hz, self.probe_rates.get(msg) or hz)
+            if measured >= RATE_LOW_FRACTION * expected:
+                self._rerequest_wait.pop(msg, None)
+                continue
+            mid = link.message_id(msg)
+            if mid is None:
+                continue
+            link.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, float(mid), 1e6 / hz)
+            self.requested_at[msg] = now
+            self.rerequests[msg] = self.rerequests.get(msg, 0) + 1
+            self._rerequest_wait[msg] = min(2.0 * wait, REREQUEST_MAX_S)
+            self.event(f"{msg} arrives at {measured:.1f} Hz, under half the {expected:.3g} Hz it came at (asked: "
+                       f"{hz:g} Hz; another ground station lowered it?): asked for {hz:g} Hz again")  # fmt: skip
+
+    def no_estimate_reason(self) -> str:
+        """Why a session produced no tick: each stream's latest problem, the clock's jumps."""
+        why_by_role = {**self.missing, **self.unusable}
+        parts = [f"{role} ({self.sources.get(role, '?')}): {why}" for role, why in sorted(why_by_role.items())]
+        est = self.est
+        if est is not None and est.counts["clock_jumps"]:
+            parts.append(f"the vehicle clock jumped {est.counts['clock_jumps']} times")
+        if not parts:
+            parts.append("the streams gave no sample for the estimate")
+        return "no estimate was produced: " + "; ".join(parts)
 
     def _send_back(self, tick: Any) -> None:
         link = self.link
@@ -416,6 +527,7 @@ class Session:
         assert link is not None and self.profile is not None
         hz = self.s.estimator.rate_hz
         used = set(self.sources.values())
+        self._interval_acks = 0
         for spec in self.profile.streams:
             if not spec.request or (spec.role == "rpm" and self.s.rotor_constant is None):
                 continue
@@ -426,6 +538,7 @@ class Session:
                 continue
             link.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, float(mid), 1e6 / hz)
             self.requested[spec.message] = hz
+            self.requested_at[spec.message] = self.now()
 
     def release_unused(self) -> None:
         """Give back the streams asked for but not used (interval 0: the autopilot's default): less traffic."""
@@ -438,17 +551,27 @@ class Session:
                 link.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, float(mid), 0.0)
             del self.requested[name]
 
-    def read_hover(self) -> float | None:
+    def read_param(self, name: str) -> float | None:
+        """One parameter of the vehicle (``PARAM_REQUEST_READ``), retried with back-off: requests at 0, 0.3,
+        0.9, 2.1, 4.1 and 6.1 s (:data:`PARAM_FIRST_WAIT_S` doubling up to :data:`PARAM_MAX_WAIT_S`) within
+        :data:`PARAM_READ_WINDOW_S`; ``None`` (and an event) when unanswered."""
         link = self.link
-        assert link is not None and self.profile is not None and self.target is not None
-        name = self.profile.hover_param
-        for _ in range(4):
-            if name in self.params:
-                break
+        assert link is not None and self.target is not None
+        t_next = self.now()  # the schedule is kept from the first request: no poll's lateness accumulates
+        t_end = t_next + PARAM_READ_WINDOW_S
+        wait = PARAM_FIRST_WAIT_S
+        sent = self.param_requests.setdefault(name, [])
+        while name not in self.params and self.now() < t_end:
             link.send(
                 link.mavlink.MAVLink_param_request_read_message(self.target[0], self.target[1], name.encode(), -1)
             )
-            self.pump(0.4)
+            sent.append(self.now() - self.t0)
+            t_next = min(t_next + wait, t_end)
+            while name not in self.params and self.now() < t_next:
+                self.pump(POLL_S)
+            wait = min(2.0 * wait, PARAM_MAX_WAIT_S)
+        if name not in self.params:
+            self.event(f"{name} not read: {len(sent)} requests over {PARAM_READ_WINDOW_S:g} s unanswered")
         return self.params.get(name)
 
     def read_params(self, names: list[str] | tuple[str, ...]) -> None:
@@ -499,16 +622,27 @@ class Session:
         self.event(f"SERVO_OUTPUT_RAW read through ArduCopter's thrust curve: {self.motor_curve.describe()}; {where}")
         return sources
 
+    def read_hover(self) -> float | None:
+        assert self.profile is not None
+        return self.read_param(self.profile.hover_param)
+
     def probe(self) -> None:
         s = self.s
         link = self.link
         assert link is not None
-        counts0 = dict(link.stats.by_type)
-        t_start = self.now()
+        # the asked rates start once the vehicle has the requests: wait for its first acknowledgement (a round
+        # trip; bounded; one lost ACK of several does not stall it) so that the window does not rank the
+        # default rates on a slow link, then rate each stream from its first arrival in the window (a stream
+        # that starts late is not diluted by the wait)
+        t_ack_end = self.now() + s.stream_timeout_s
+        while self._interval_acks == 0 and self.requested and self.now() < t_ack_end:
+            self.pump(POLL_S)
+        since = self.now()
         self.pump(s.probe_s)
         while True:
-            el = self.now() - t_start
-            rates = {k: (v - counts0.get(k, 0)) / el for k, v in link.stats.by_type.items()}
+            now = self.now()
+            el = now - since
+            rates = {m: link.stats.rate_since(m, since, now, PROBE_MIN_SAMPLES) for m in list(link.stats.arrivals)}
             sources, missing = choose_sources(rates, s.min_stream_hz, s.rotor_constant is not None)
             if not missing or el >= s.stream_timeout_s:
                 break
@@ -567,6 +701,7 @@ class Session:
         self.map = tmap
         n = self.vehicle.n_rotors
         self.est = LiveEstimator(self.mass, self.inertia_B, tmap, self.sources, n, self.s.estimator)
+        self._est_t0 = self.now()
         assert self.tlog is not None and self.folder is not None
         self.first_frame_us = self.tlog.last_us + 1
         self._csv = open(self.folder.path("estimate.csv"), "w", encoding="utf-8")  # noqa: SIM115
@@ -678,7 +813,11 @@ class Session:
         v.telemetry_age_ms = float(np.median(self.latency.ages_s[-100:])) * 1e3 if self.latency.ages_s else None
         counts = dict(est.counts) if est is not None else {}
         counts.update(lost=link.stats.lost, duplicates=link.stats.duplicates, bad_data=link.stats.bad_data)
+        if est is not None:
+            counts["rejected"] = counts.get("rejected", 0) + sum(est.decoder.rejected.values())
+            v.rejected = dict(est.decoder.rejected)
         v.counts = counts
+        v.missing = [f"{role}: {why}" for role, why in self.missing.items()]
         v.others = list(self.others.values())
         e = self.s.estimator
         v.estimator = (f"eqs. (6)-(13), {e.rate_hz:g} Hz, wn {float(e.params.wn[0]):g} rad/s, zeta "
@@ -723,6 +862,7 @@ class Session:
             if self._last_vehicle_hb is not None and now - self._last_vehicle_hb > LINK_LOST_S and not self._link_lost:
                 self._link_lost = True
                 self.event(f"no heartbeat from the vehicle for {LINK_LOST_S:g} s: link lost, waiting for it")
+            self.watch_streams(now)
             if self.ctrl is not None:
                 peer = link.peers.get(self.target)  # type: ignore[arg-type]
                 self.ctrl.check(now, link, bool(peer and peer.armed))
@@ -778,6 +918,11 @@ class Session:
             "others": list(self.others.values()),
             "events": [{"t_s": t, "text": text} for t, text in self._all_events()],
             "reconnects": self.reconnects,
+            "rejected": self._rejected(),
+            "missing_streams": dict(self.missing),
+            "stream_rerequests": dict(self.rerequests),
+            "acks_for_other_stations": self.acks_ignored,
+            "param_requests_s": self.param_requests,
         }
         if self.est is not None:
             out["estimator"] = {
@@ -815,6 +960,15 @@ class Session:
             }  # fmt: skip
         return out
 
+    def _rejected(self) -> dict[str, Any]:
+        """Rejections: by ``MESSAGE.field`` where the field is decoded (count, latest reason), and by the
+        estimator (a sample it refused as a whole)."""
+        if self.est is None:
+            return {"fields": {}, "by_estimator": 0}
+        d = self.est.decoder
+        return {"fields": {k: {"count": n, "why": d.why[k]} for k, n in d.rejected.items()},
+                "by_estimator": self.est.counts["rejected"]}  # fmt: skip
+
     def close(self, commit: bool) -> Path | None:
         for fh in (self._csv, self._ctrl_csv):
             if fh is not None:
@@ -841,8 +995,9 @@ def run_live(settings: LiveSettings, stop: Any = None, stream: IO[str] | None = 
     display goes (stdout by default); ``warn``: called with each warning's text (the margin check).
 
     Exit codes in the result: 0 the session ended normally (duration, Ctrl-C, ``stop``, the pilot took
-    over); 3 control was handed back by a safety check (watchdog, fence, a hand-over that failed). A setup
-    failure raises :class:`~.link.LiveError` and writes no run folder."""
+    over); 3 control was handed back by a safety check (watchdog, fence, a hand-over that failed); 4 the
+    session produced no estimate at all (its ``end`` says why: each stream's problem). A setup failure
+    raises :class:`~.link.LiveError` and writes no run folder."""
     instance("settings", settings, LiveSettings)
     sess = Session(settings, stream, warn)
     code = 0
@@ -870,8 +1025,12 @@ def run_live(settings: LiveSettings, stop: Any = None, stream: IO[str] | None = 
             sess.ctrl.state == "failed" or (sess.ctrl.state == "handed_back" and sess.ctrl.reason != end)
         ):
             code = 3
+        if sess.ticks == 0:  # nothing estimated: say why, never exit 0
+            sess.end = f"{end}; {sess.no_estimate_reason()}"
+            sess.event(sess.no_estimate_reason())
+            code = code or EXIT_NO_ESTIMATE
     except BaseException:
         sess.close(commit=False)
         raise
     final = sess.close(commit=True)
-    return LiveResult(final, end, code, sess.written, sess.ticks)
+    return LiveResult(final, sess.end, code, sess.written, sess.ticks)

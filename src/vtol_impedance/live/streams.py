@@ -351,6 +351,91 @@ def _velocity(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     return p_W, v
 
 
+# --------------------------------------------------------------------------- field checks
+
+#: Bounds each decoded field must meet where it enters (MAVLink's documented range where it has one, else a
+#: physical bound no vehicle this tool flies exceeds); a message with a field outside is rejected, counted per
+#: field and named. Angles: MAVLink's -pi..pi (pitch -pi/2..pi/2) with float32 rounding room.
+ANGLE_TOL_RAD = 1e-3
+#: Body rates, rad/s: 4000 deg/s, twice the 2000 deg/s full scale of the usual flight-controller gyros.
+RATE_MAX_RAD_S = 70.0
+#: Position, m (the estimator's own bound on a measurement) and speed, m/s (above any multirotor's).
+POSITION_MAX_M = 1e6
+SPEED_MAX_M_S = 150.0
+#: A quaternion is accepted when its norm is within this of 1 (float32 telemetry is unit to 1e-6).
+QUAT_NORM_TOL = 0.05
+#: An output's PWM pulse, us (servo and ESC pulses are 500..2500 us); 0 is an output not driven.
+PWM_PULSE_US = (500.0, 2500.0)
+#: Rotor speed, rpm (ESC_STATUS is signed, negative for reverse rotation, by MAVLink's definition).
+RPM_MAX = 1e5
+
+
+def _out_of(typ: str, name: str, value: Any, lo: float, hi: float, what: str) -> tuple[str, str] | None:
+    v = np.atleast_1d(np.asarray(value, dtype=float))
+    where = f"{typ}.{name}"
+    bad = ~np.isfinite(v)
+    if np.any(bad):
+        return where, f"{v[bad][0]:g} is not finite"
+    bad = (v < lo) | (v > hi)
+    if np.any(bad):
+        return where, f"{v[bad][0]:g} is outside {what}"
+    return None
+
+
+def _pwm_problem(typ: str, name: str, raw: np.ndarray) -> tuple[str, str] | None:
+    lo, hi = PWM_PULSE_US
+    driven = raw[raw != 0.0]
+    return _out_of(typ, name, driven, lo, hi, f"a PWM pulse ({lo:g}..{hi:g} us, or 0: not driven)")
+
+
+def field_problem(msg: Any, n_rotors: int) -> tuple[str, str] | None:
+    """The first field of ``msg`` this tool reads that is out of its range: ``("MESSAGE.field", why)``, or
+    ``None``. Ranges: the bounds above (module constants); fields not read are not checked."""
+    typ = msg.get_type()
+    checks: list[tuple[str, Any, float, float, str]] = []
+    pi = np.pi + ANGLE_TOL_RAD
+    if typ in ("ATTITUDE", "ATTITUDE_QUATERNION"):
+        rate_rng = (-RATE_MAX_RAD_S, RATE_MAX_RAD_S, f"+-{RATE_MAX_RAD_S:g} rad/s (a gyro's range)")
+        checks += [(n, getattr(msg, n), *rate_rng) for n in ("rollspeed", "pitchspeed", "yawspeed")]
+    if typ == "ATTITUDE":
+        checks += [("roll", msg.roll, -pi, pi, "MAVLink's -pi..pi rad"),
+                   ("pitch", msg.pitch, -np.pi / 2 - ANGLE_TOL_RAD, np.pi / 2 + ANGLE_TOL_RAD,
+                    "MAVLink's -pi/2..pi/2 rad"),
+                   ("yaw", msg.yaw, -pi, pi, "MAVLink's -pi..pi rad")]  # fmt: skip
+    if typ == "ATTITUDE_QUATERNION":
+        q = np.array([msg.q1, msg.q2, msg.q3, msg.q4], dtype=float)
+        checks.append(("q1..q4", q, -1.0 - QUAT_NORM_TOL, 1.0 + QUAT_NORM_TOL, "-1..1"))
+        checks.append(("q norm", np.linalg.norm(q), 1 - QUAT_NORM_TOL, 1 + QUAT_NORM_TOL, f"1 +- {QUAT_NORM_TOL:g}"))
+    if typ in ("LOCAL_POSITION_NED", "ODOMETRY"):
+        p_rng = (-POSITION_MAX_M, POSITION_MAX_M, f"+-{POSITION_MAX_M:g} m")
+        v_rng = (-SPEED_MAX_M_S, SPEED_MAX_M_S, f"+-{SPEED_MAX_M_S:g} m/s (faster than any multirotor)")
+        checks += [(n, getattr(msg, n), *p_rng) for n in ("x", "y", "z")]
+        checks += [(n, getattr(msg, n), *v_rng) for n in ("vx", "vy", "vz")]
+        if typ == "ODOMETRY" and int(msg.child_frame_id) in _BODY_FRAMES:
+            checks.append(("q norm", np.linalg.norm(np.asarray(msg.q, dtype=float)), 1 - QUAT_NORM_TOL,
+                           1 + QUAT_NORM_TOL, f"1 +- {QUAT_NORM_TOL:g}"))  # fmt: skip
+    if typ == "ATTITUDE_TARGET":
+        checks.append(("thrust", msg.thrust, 0.0, 1.0, "MAVLink's 0..1 (normalised thrust)"))
+    for name, value, lo, hi, what in checks:
+        bad = _out_of(typ, name, value, lo, hi, what)
+        if bad is not None:
+            return bad
+    if typ == "SERVO_OUTPUT_RAW":
+        for i in range(n_rotors):
+            bad = _pwm_problem(typ, f"servo{i + 1}_raw", np.array([getattr(msg, f"servo{i + 1}_raw")], dtype=float))
+            if bad is not None:
+                return bad
+    if typ == "ACTUATOR_OUTPUT_STATUS":
+        a = np.asarray(msg.actuator[:n_rotors], dtype=float)
+        bad = _out_of(typ, "actuator", a, -np.inf, np.inf, "")
+        if bad is None and not np.all(np.abs(a) <= 1.5):
+            bad = _pwm_problem(typ, "actuator", a)
+        return bad
+    if typ in ("ESC_STATUS", "ESC_TELEMETRY_1_TO_4"):
+        return _out_of(typ, "rpm", np.asarray(msg.rpm, dtype=float), -RPM_MAX, RPM_MAX, f"+-{RPM_MAX:g} rpm")
+    return None
+
+
 class Decoder:
     """Turns the chosen source messages into :class:`Sample` values; ``sources`` maps role -> message.
 
@@ -373,6 +458,15 @@ class Decoder:
         self.channels = tuple(channels) if channels else tuple(range(1, n_rotors + 1))
         self._esc = np.full(max(n_rotors, 4), np.nan)
         self._volt: float | None = None
+        #: rejected messages by ``MESSAGE.field``, the latest reason of each, and this call's (or None)
+        self.rejected: dict[str, int] = {}
+        self.why: dict[str, str] = {}
+        self.last_rejected: str | None = None
+
+    def _reject(self, where: str, why: str) -> None:
+        self.rejected[where] = self.rejected.get(where, 0) + 1
+        self.why[where] = why
+        self.last_rejected = where
 
     def decode(self, msg: Any, clock: VehicleClock) -> tuple[Sample | None, str | None]:
         """``(sample or None, clock jump or None)`` for one message of the vehicle."""
@@ -388,13 +482,20 @@ class Decoder:
         if t_us is None:
             return None, None
         jump = clock.observe(t_us) if typ != "ESC_TELEMETRY_1_TO_4" else None
+        self.last_rejected = None
         try:
+            bad = field_problem(msg, self.n_rotors)
+            if bad is not None:
+                self._reject(*bad)
+                return None, jump
             value = self._value(role, msg)
-        except (AttributeError, TypeError, ValueError, IndexError, np.linalg.LinAlgError):
+        except (AttributeError, TypeError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+            self._reject(typ, f"does not decode ({type(exc).__name__}: {exc})")
             return None, jump
         if value is None:
             return None, jump
         if not all(np.all(np.isfinite(np.asarray(v, dtype=float))) for v in value):
+            self._reject(typ, "decodes to a value that is not finite")
             return None, jump
         return Sample(role, t_us, value), jump
 
