@@ -553,12 +553,41 @@ def _spaces_in_header(folder: Path) -> str:
     return ", ".join(header.split(",")) + "\n" + "\n".join(rows) + "\n"
 
 
+def _rotor_speeds_only_at_the_start(folder: Path) -> str:
+    """An ESC stream that ran for the first 30 rows only (asked for while a ground station probed)."""
+    header, rows = _sample_rows()
+    cols = header.split(",")
+    rpm = [j for j, c in enumerate(cols) if c.startswith("rpm")]
+    out = []
+    for k, r in enumerate(rows):
+        cells = r.split(",")
+        if k >= 30:
+            for j in rpm:
+                cells[j] = ""
+        out.append(",".join(cells))
+    return header + "\n" + "\n".join(out) + "\n"
+
+
 ACCEPTED = [
     ("csv-with-a-byte-order-mark", _bom),
     ("csv-with-crlf-line-ends", _crlf),
     ("csv-with-extra-columns", _extra_columns),
     ("csv-with-spaces-after-commas", _spaces_in_header),
 ]
+
+
+def test_a_short_optional_stream_is_left_out_not_the_log(tmp_path):
+    """Rotor speeds for 30 rows only: the log is estimated from its commands, and the note says why the rotor
+    speeds are not used (the whole log was refused: "the rotor speeds has 30 samples")."""
+    from vtol_impedance.logs import estimate_file
+
+    log = tmp_path / "log.csv"
+    log.write_text(_rotor_speeds_only_at_the_start(tmp_path), encoding="utf-8")
+    est = estimate_file(log, 1.2)
+    assert est.info.get("thrust_coefficient") is None and np.isfinite(est.f_W).all()
+    assert any("30 sample(s), too few to use" in n and "left out" in n for n in est.notes), est.notes
+    ref = estimate_file(SAMPLE_CSV, 1.2, thrust_from="commands")
+    np.testing.assert_allclose(est.f_W, ref.f_W, atol=1e-9)
 
 
 @pytest.mark.parametrize("maker", [m for _, m in ACCEPTED], ids=[i for i, _ in ACCEPTED])

@@ -60,6 +60,16 @@ MIN_WINDOW_S = 1.0
 
 
 def _long_enough(raw: RawLog, path: Path) -> None:
+    """Refuse a log whose needed signals have fewer than :data:`MIN_LOG_SAMPLES`; an optional one (the torque,
+    the rotor speeds: an ESC stream asked for only while a ground station probed) is left out, noted."""
+    for name in ("torque_B", "rotor_speed"):
+        sig = getattr(raw, name)
+        if sig is not None and len(sig.t) < MIN_LOG_SAMPLES:
+            raw.notes.append(
+                f"{sig.name} ({sig.source}) has {len(sig.t)} sample(s), too few to use (at least {MIN_LOG_SAMPLES}):"
+                " left out"
+            )
+            setattr(raw, name, None)
     short = [(s.name, len(s.t)) for s in raw.signals() if len(s.t) < MIN_LOG_SAMPLES]
     if short:
         name, n = min(short, key=lambda x: x[1])
