@@ -556,6 +556,11 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         lambda: dict(flight=flight(), thrust_N=np.full(flight().t.shape, 11.77), mass=1.2),
         {"flight": Obj(logs.FlightLog), "thrust_N": Arr(flight().t.shape), "mass": "pos"},
     ),
+    "logs.MotorCurve": (
+        lambda: dict(),
+        {"expo": "real", "spin_min": "nonneg", "spin_max": "nonneg", "pwm_min": "nonneg", "pwm_max": "nonneg",
+         "bat_volt_max": "nonneg", "bat_volt_min": "nonneg"},
+    ),  # fmt: skip
     "logs.log_format": (lambda: dict(path=csv_file()), {"path": "path"}),
     "logs.read_any": (lambda: dict(path=csv_file()), {"path": "path", "conventions": "choice", "world": "choice"}),
     "logs.read_csv": (lambda: dict(path=csv_file()), {"path": "path", "world": "choice", "columns": "mapping"}),

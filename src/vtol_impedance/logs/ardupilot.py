@@ -66,17 +66,17 @@ class MotorCurve:
     pwm_from: str = "MOT_PWM_MIN/MAX"
 
     def __post_init__(self) -> None:
-        scalar("MOT_THST_EXPO", self.expo, lo=-1.0, hi=1.0)
-        scalar("MOT_SPIN_MIN", self.spin_min, lo=0.0, hi=1.0)
-        scalar("MOT_SPIN_MAX", self.spin_max, lo=0.0, hi=1.0)
+        scalar("MOT_THST_EXPO (expo)", self.expo, lo=-1.0, hi=1.0)
+        scalar("MOT_SPIN_MIN (spin_min)", self.spin_min, lo=0.0, hi=1.0)
+        scalar("MOT_SPIN_MAX (spin_max)", self.spin_max, lo=0.0, hi=1.0)
         if not self.spin_min < self.spin_max:
             raise InputError(f"MOT_SPIN_MIN ({self.spin_min:g}) must be below MOT_SPIN_MAX ({self.spin_max:g})")
-        scalar(f"{self.pwm_from} minimum", self.pwm_min, lo=0.0, hi=3000.0)
-        scalar(f"{self.pwm_from} maximum", self.pwm_max, lo=0.0, hi=3000.0)
+        scalar(f"{self.pwm_from} minimum (pwm_min)", self.pwm_min, lo=0.0, hi=3000.0)
+        scalar(f"{self.pwm_from} maximum (pwm_max)", self.pwm_max, lo=0.0, hi=3000.0)
         if not self.pwm_min < self.pwm_max:
             raise InputError(f"the PWM range {self.pwm_from} is {self.pwm_min:g}..{self.pwm_max:g} us: not ordered")
-        scalar("MOT_BAT_VOLT_MAX", self.bat_volt_max, lo=0.0, hi=100.0)
-        scalar("MOT_BAT_VOLT_MIN", self.bat_volt_min, lo=0.0, hi=100.0)
+        scalar("MOT_BAT_VOLT_MAX (bat_volt_max)", self.bat_volt_max, lo=0.0, hi=100.0)
+        scalar("MOT_BAT_VOLT_MIN (bat_volt_min)", self.bat_volt_min, lo=0.0, hi=100.0)
 
     @classmethod
     def from_params(cls, params: Mapping[str, float]) -> MotorCurve:
