@@ -124,7 +124,7 @@ class ConstantWrench(Disturbance):
         object.__setattr__(self, "torque_B", _vec("torque_B", self.torque_B))
         for f in fields(self):  # seconds from the flight's start: before it, nothing would act
             t = getattr(self, f.name)
-            if f.name.startswith("t_") and t != float("inf"):
+            if f.name.startswith("t_") and not (f.name in ("t_off", "t_end") and t == float("inf")):  # never off
                 scalar(f"{self.kind} {f.name} (s from the flight's start)", t, lo=0.0)
 
     def profile(self, t: float) -> float:
@@ -203,7 +203,6 @@ class SinusoidWrench(ConstantWrench):
         super().__post_init__()
         scalar("freq_hz", self.freq_hz, lo=0.0, lo_open=True)
         scalar("phase", self.phase)
-        scalar("t_on", self.t_on)
 
     def profile(self, t: float) -> float:
         return float(np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase)) if t >= self.t_on else 0.0
@@ -236,7 +235,6 @@ class Push(ConstantWrench):
     def __post_init__(self) -> None:
         super().__post_init__()
         scalar("push duration", self.duration, lo=0.0, lo_open=True)
-        scalar("t_on", self.t_on)
 
     def profile(self, t: float) -> float:
         s = (t - self.t_on) / self.duration
@@ -337,7 +335,6 @@ class FanJet(Disturbance):
         object.__setattr__(self, "cop_offset_B", _vec("cop_offset_B", self.cop_offset_B))
         scalar("fan mean_force", self.mean_force, lo=0.0)
         scalar("fan ref_distance", self.ref_distance, lo=0.0, lo_open=True)
-        scalar("fan t_on", self.t_on)
         scalar("fan width", self.width, lo=0.0, lo_open=True)
         scalar("fan turbulence", self.turbulence, lo=0.0)
         object.__setattr__(self, "turbulence_band", check_band("fan turbulence_band", self.turbulence_band))
