@@ -7,6 +7,7 @@ and the compiled kernels (:mod:`vtol_impedance.compiled`), so that neither impor
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -53,6 +54,19 @@ def _check_attitude(eta: np.ndarray) -> None:
     if np.any(pitch > MAX_PITCH_RAD):
         raise InputError(_PITCH_RANGE.format(theta=float(np.max(pitch))))
     check_euler_regular(eta)
+
+
+def _euler_rates(eta: np.ndarray, omega_B: np.ndarray) -> np.ndarray | None:
+    """``eta_dot = Q(eta)^-1 omega_B`` of eq. (1c) in closed form for one vehicle (a 3x3 solve costs more
+    than the step); None where it does not exist (a non-finite value, the singularity, a wrong shape)."""
+    if omega_B.shape != (3,) or not (np.isfinite(eta).all() and np.isfinite(omega_B).all()):
+        return None
+    cf, sf, ct, st = math.cos(eta[0]), math.sin(eta[0]), math.cos(eta[1]), math.sin(eta[1])
+    if abs(ct) < 1e-9:
+        return None
+    p, q, r = float(omega_B[0]), float(omega_B[1]), float(omega_B[2])
+    psi_dot = (sf * q + cf * r) / ct
+    return np.array((p + st * psi_dot, cf * q - sf * r, psi_dot))
 
 
 class ControllerWarning(UserWarning):
@@ -169,6 +183,7 @@ class Controller:
             self._step_entry = kernels.checked_step_entry()
         #: What :meth:`step_arrays` calls, in one tuple (one attribute read per call); None with NumPy.
         self._fast: tuple | None = None
+        self._weight = np.asarray(self.arrays.mass) * G
         self.reset()
 
     @property
@@ -249,6 +264,12 @@ class Controller:
     def step(self, meas: Measurement, ref: Reference) -> ControlOutput:
         """One control period (call it every ``Ts``): returns rotor forces, thrust, torque and the estimate."""
         bs = self.arrays.batch_shape
+        if not bs and self._fast is not None:
+            out = self._step_single(meas, ref)
+            if out is not None:
+                self._warn_once(out)
+                return out
+            # refused or unusual: the named checks below say why (the kernel left the state unchanged)
         meas = self._measurement(meas, bs)  # sense: checked, the gyro's rates as Euler rates (1c)
         ref = self._reference(ref, bs)
         if self.backend == "numpy":  # estimate (6)-(13), control (14)-(20), allocate (4)
@@ -297,8 +318,7 @@ class Controller:
                 self._warned.add(field_name)
                 warnings.warn(f"{text}; warned once per cause until reset()", ControllerWarning, stacklevel=3)
         # an estimate beyond the vehicle's weight is rare in flight and common with a frame mistake
-        weight = np.asarray(self.arrays.mass) * G
-        ratio = np.linalg.norm(out.f_hat_W, axis=-1) / weight
+        ratio = np.linalg.norm(out.f_hat_W, axis=-1) / self._weight
         if "f_hat_W" not in self._warned and np.any(ratio > IMPLAUSIBLE_ESTIMATE):
             self._warned.add("f_hat_W")
             warnings.warn(
@@ -309,6 +329,38 @@ class Controller:
                 ControllerWarning,
                 stacklevel=3,
             )
+
+    def _step_single(self, meas: Measurement, ref: Reference) -> ControlOutput | None:
+        """One vehicle through the checked kernel, which tests finiteness, range and the attitude itself
+        (those Python checks cost five times the step). None for anything it did not take."""
+        if type(meas) is not Measurement or type(ref) is not Reference:
+            return None
+        if (meas.eta_dot is None) == (meas.omega_B is None):
+            return None
+        try:
+            vec = [np.asarray(v, dtype=float) for v in (*meas[:3], *ref[:3])]
+            yaw = [np.asarray(v, dtype=float) for v in ref[3:6]]
+            comply = comply6(ref.comply)
+        except (TypeError, ValueError):
+            return None
+        if any(v.shape != (3,) for v in vec) or any(v.shape != () for v in yaw) or comply.shape != (6,):
+            return None
+        if meas.eta_dot is not None:
+            rates = np.asarray(meas.eta_dot, dtype=float)
+        else:
+            rates = _euler_rates(vec[2], np.asarray(meas.omega_B, dtype=float))
+            if rates is None:
+                return None
+        if rates.shape != (3,):
+            return None
+        y = np.concatenate((vec[0], vec[1], vec[2], rates))
+        r = np.concatenate((vec[3], vec[4], vec[5], yaw, comply))
+        entry, p, d, s, h, o, views = self._fast  # type: ignore[misc]
+        if entry(p, d, s, h, 0, y, r, o):
+            return None
+        rec = views[0]
+        out = ControlOutput._make([rec[name].copy() for name in ControlOutput._fields])
+        return _plain(out._replace(f_rotor=out.f_rotor[: self._nr]))
 
     def _step_compiled(self, meas: Measurement, ref: Reference, bs: tuple[int, ...]) -> ControlOutput:
         k = self._k
