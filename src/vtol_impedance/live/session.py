@@ -1171,6 +1171,11 @@ def run_live(settings: LiveSettings, stop: Any = None, stream: IO[str] | None = 
             sess.restore_guid_options()
         sess.close(commit=False)
         raise
-    sess.restore_guid_options()
+    try:
+        sess.restore_guid_options()
+    except KeyboardInterrupt:  # a second Ctrl-C: say what is left on the vehicle, write the record anyway
+        text = f"{GUID_OPTIONS} not restored (interrupted): set it back to {sess.guid_options['read']} by hand"  # type: ignore[index]
+        sess.event(text)
+        sess.warn(text)
     final = sess.close(commit=True)
     return LiveResult(final, sess.end, code, sess.written, sess.ticks)
