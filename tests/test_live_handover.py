@@ -634,3 +634,25 @@ def test_a_loop_latency_beyond_the_margin_model_refuses_control_before_anything_
         text = str(exc.value)
         assert "--control refused before anything was sent" in text and all(w in text for w in words), text
         _nothing_flown(session.vehicle)
+
+
+def test_an_error_while_engaged_hands_back_first_and_says_how_it_ended(session, monkeypatch):
+    """An exception in the session's loop (planted 0.5 s after the vehicle entered OFFBOARD): the hold is
+    requested and confirmed before the error propagates, and the warning says so (no run folder: an error)."""
+    warned = []
+
+    def boom(v) -> None:
+        raise RuntimeError("planted")
+
+    def on_mode(v, mode, t) -> None:
+        if mode == "OFFBOARD":
+            v.events.append((t + 0.5, boom))
+
+    vehicle = session.patch(setup=lambda v: setattr(v, "on_mode", on_mode), rates=RATES)
+    est = EstimatorSettings(backend="numpy", rate_hz=RATE)
+    settings = LiveSettings("udpin:127.0.0.1:14550", display="none", duration=30.0, out=str(session.out),
+                            estimator=est, control=ControlSettings())  # fmt: skip
+    with pytest.raises(RuntimeError, match="planted"):
+        run_live(settings, warn=warned.append)
+    assert [m for _, m in vehicle.modes] == ["POSCTL", "OFFBOARD", "AUTO_LOITER"]
+    assert warned and warned[-1].startswith("control: HANDED BACK (error: planted): AUTO_LOITER confirmed")
