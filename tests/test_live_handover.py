@@ -171,7 +171,7 @@ class FakeLink:
         if key:
             self.ap.receive("MODE", key, self.clock.t)
 
-    def poll(self, timeout: float, on_message=None) -> int:
+    def poll(self, timeout: float, on_message=None, max_messages: int = 2000) -> int:
         self.clock.t += max(timeout, POLL_S)
         msgs = self.ap.advance(self.clock.t)
         for _, kind, payload in msgs:
@@ -219,12 +219,12 @@ def step(ctrl, link, sess) -> None:
     ctrl.check(link.clock.t, link, True)
 
 
-def handovers(profile, cause: str, grid, timeout: float = 0.5, **vehicle):
-    """For each time of ``grid`` (s after control starts), one hand-over with ``cause`` injected then:
-    yields (controller, autopilot, link, exit code). The flight up to each time is flown once and copied (it
-    is deterministic); from the copy the session's loop is mirrored (poll, ``check``, end when control ends or
-    1 s after the cause), then the session's own ``finish_control`` runs, then the vehicle processes what is
-    still in flight (0.05 s at most). The session ends 0.4 s after the cause unless control ended first."""
+def handovers(profile, cause: str, grid, timeout: float = 0.5, lead: float = 0.0, **vehicle):
+    """For each time of ``grid`` (s on the simulated clock; control starts after ``lead`` s of telemetry),
+    one hand-over with ``cause`` injected then: yields (controller, autopilot, link, exit code). The flight up
+    to each time is flown once and copied (it is deterministic); from the copy the session's loop is mirrored
+    (poll, ``check``, end when control ends or 0.4 s after the cause), then the session's own
+    ``finish_control`` runs, then the vehicle processes what is still in flight (for 0.5 s)."""
     clock = Clock()
     ap = Autopilot(profile, clock, **vehicle)
     link = FakeLink(ap, clock)
@@ -232,7 +232,9 @@ def handovers(profile, cause: str, grid, timeout: float = 0.5, **vehicle):
     ctrl = OffboardController(ControlSettings(handshake_timeout_s=timeout), FlatLoop(), profile, tmap, VEHICLE.mass,
                               50.0)  # fmt: skip
     sess = MiniSession(ctrl, link, clock)
-    ctrl.start(0.0)
+    while clock.t < lead - 1e-9:  # the session's setup: telemetry flows before control starts
+        link.poll(POLL_S, lambda m: None)
+    ctrl.start(clock.t)
     for t_cause in grid:
         while clock.t < t_cause - 1e-9:
             step(ctrl, link, sess)
@@ -656,3 +658,22 @@ def test_an_error_while_engaged_hands_back_first_and_says_how_it_ended(session, 
         run_live(settings, warn=warned.append)
     assert [m for _, m in vehicle.modes] == ["POSCTL", "OFFBOARD", "AUTO_LOITER"]
     assert warned and warned[-1].startswith("control: HANDED BACK (error: planted): AUTO_LOITER confirmed")
+
+
+def test_on_a_link_seconds_behind_no_time_stands_in_for_the_answer():
+    """0.8 s each way, heartbeats at 10 Hz, the first hold request lost, control started after 1 s of
+    telemetry, a stop at each 0.1 s from the request (1.505 s) on: heartbeats from before the request keep
+    arriving for 1.6 s. Whatever the hand-over ends as,
+    a claimed hand-back is the vehicle's real final mode, and a vehicle left in offboard was asked for the
+    hold after the last set-point (the repeats stop only on a heartbeat sent after the requests were acted on)."""
+    grid = [round(1.505 + 0.1 * k, 3) for k in range(16)]
+    seen = set()
+    for t, (ctrl, ap, link, _) in zip(grid, handovers(PX4, "signal", grid, timeout=3.0, lead=1.0, latency=0.8,
+                                                      hb_period=0.1, drop_holds=1), strict=True):  # fmt: skip
+        seen.add((ctrl.state, ctrl.handback["outcome"]))
+        where = f"stop at {t:.3f} s: {ctrl.describe()}"
+        if ctrl.state == "handed_back":
+            assert ap.mode == (ctrl.handback.get("confirmed_mode") or ap.mode) and ap.mode != "OFFBOARD", where
+        if ap.mode == "OFFBOARD":
+            assert ctrl.state == "lost" and hold_after_last_setpoint(link.sent, PX4), where
+    assert ("handed_back", "confirmed") in seen, seen  # the repeats do get through

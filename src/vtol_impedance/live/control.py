@@ -185,9 +185,6 @@ MODE_RESEND_MAX_S = 1.0
 #: Shortest wait (s) for the hold's confirmation (``handshake_timeout_s`` when longer): a short handshake
 #: timeout on a slow link must not cut the hand-back short.
 HANDBACK_MIN_S = 3.0
-#: A mode request never acknowledged counts as no longer in flight this long (s) after it was sent (an
-#: autopilot that does not acknowledge ``DO_SET_MODE``); otherwise its acknowledgement settles it.
-IN_FLIGHT_S = 1.0
 #: What each autopilot does on its own when the set-points stop and no hold was confirmed.
 FAILSAFE = {
     "PX4": "PX4's offboard-loss failsafe takes over (COM_OF_LOSS_T, 1 s by default, then COM_OBL_RC_ACT: "
@@ -206,8 +203,8 @@ class OffboardController:
     a mode request was sent (:meth:`hand_back`, whatever its cause) asks for the hold (or land) mode and
     repeats it (:data:`MODE_RESEND_S` doubling to :data:`MODE_RESEND_MAX_S`) until a heartbeat shows it or
     ``handback_window_s`` passes (``lost``). A heartbeat counts only once no offboard request can still be
-    in flight (every one answered, or :data:`IN_FLIGHT_S` after the last): a heartbeat older than the
-    request would confirm nothing. ``handed_back`` is never claimed without that heartbeat, except when no
+    in flight (as many answers to ``DO_SET_MODE`` as offboard requests): a heartbeat older than the request
+    would confirm nothing. ``handed_back`` is never claimed without that heartbeat, except when no
     mode request was ever sent (outcome ``not_needed``).
     """
 
@@ -250,7 +247,6 @@ class OffboardController:
         self._armed = False
         self._t_armed = 0.0
         self._mode_sent = -1e9
-        self._last_offboard = -1e9
         self._arm_sent = -1e9
         self._ack: str = ""
         self._acks_needed = 0
@@ -352,9 +348,11 @@ class OffboardController:
         if cmd == MAV_CMD_DO_SET_MODE and result != MAV_RESULT_IN_PROGRESS:
             self.mode_acks += 1
 
-    def _settled(self, now: float) -> bool:
-        """Whether no offboard request can still be in flight: each answered, or the last one long sent."""
-        return self.mode_acks >= self._acks_needed or now - self._last_offboard >= IN_FLIGHT_S
+    def _settled(self) -> bool:
+        """Whether no offboard request can still be in flight: as many ``DO_SET_MODE`` answers as offboard
+        requests (in order on the link, an answer to a later hold request also answers for them). No time
+        makes up for an answer: a slow link (seconds behind) delivers heartbeats older than the request."""
+        return self.mode_acks >= self._acks_needed
 
     def on_heartbeat(self, armed: bool, custom_mode: int, now: float, link: Link) -> None:
         mode = self.profile.mode_name(custom_mode)
@@ -373,7 +371,7 @@ class OffboardController:
             self._to("handed_back", now, self.reason + ": control yielded at once, no command sent after it")
         elif self.state == "engaged" and not armed:
             self.hand_back("the vehicle disarmed", now, link, "hold", cause="pilot")
-        elif self.state == "handing_back" and self._settled(now) and mode != off:
+        elif self.state == "handing_back" and self._settled() and mode != off:
             hb = self.handback
             assert hb is not None
             hb["confirmed_mode"], hb["confirmed_s"] = mode, now - hb["at"]
@@ -489,7 +487,6 @@ class OffboardController:
         self._mode_sent = now
         if mode == self.profile.offboard:
             self.offboard_requests += 1
-            self._last_offboard = now
         elif self.handback is not None:
             self.handback["requests"] += 1
 
@@ -530,6 +527,8 @@ class OffboardController:
         seen = "no heartbeat heard"
         if self.mode_seen is not None:
             seen = f"the last heartbeat ({now - self.mode_seen[1]:.1f} s ago) showed {self.mode_seen[0]}"
+        if self.mode_acks < self._acks_needed:  # a heartbeat could not count: say why
+            seen += f"; {self.mode_acks} of {self._acks_needed} offboard requests answered"
         hb["outcome"] = "not_confirmed"
         hb["lost"] = (f"{hb['mode']} {why} ({hb['requests']} requests; {seen}): "
                       f"{FAILSAFE.get(self.profile.name, 'the autopilot failsafe takes over')}")  # fmt: skip

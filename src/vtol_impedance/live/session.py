@@ -66,6 +66,10 @@ SEND_BACK_HZ = 10.0
 #: After the first vehicle's heartbeat, listen this long for others (heartbeats come at 1 Hz).
 LISTEN_S = 1.1
 POLL_S = 0.005
+#: Most messages handled per poll of the running session: the hand-over's checks (the mode request, its
+#: timeouts, the watchdog, the hold's repeats) run between polls, so a backlog (a busy computer) delays them
+#: by at most this many messages (half a second of the four 50 Hz streams), not by the 2000 a poll may read.
+POLL_MAX_MESSAGES = 100
 #: A stream of the estimate with no usable sample for this long is reported missing, with the reason.
 STREAM_MISSING_S = 1.0
 #: Window (s) over which a used stream's rate is measured while the session runs.
@@ -979,7 +983,7 @@ class Session:
             if s.duration is not None and now - self.t0 >= s.duration:
                 return "duration reached"
             self._housekeeping()
-            link.poll(POLL_S, self.on_message)
+            link.poll(POLL_S, self.on_message, POLL_MAX_MESSAGES)
             now = self.now()
             if self._last_vehicle_hb is not None and now - self._last_vehicle_hb > LINK_LOST_S and not self._link_lost:
                 self._link_lost = True
@@ -1009,7 +1013,7 @@ class Session:
         try:
             while not ctrl.done and self.now() < end:
                 self._housekeeping()
-                link.poll(POLL_S, self.on_message)
+                link.poll(POLL_S, self.on_message, POLL_MAX_MESSAGES)
                 peer = link.peers.get(self.target)  # type: ignore[arg-type]
                 ctrl.check(self.now(), link, bool(peer and peer.armed))
         except KeyboardInterrupt:
