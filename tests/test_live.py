@@ -524,7 +524,7 @@ def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_
     watchdog hands control back (hold, confirmed by the heartbeat) within its stated time."""
     res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", "14.5,stop,LOCAL_POSITION_NED", 29.0)
     ctl = res.summary["control"]
-    active = d["state"] == "active"
+    active = d["state"] == "engaged"
     sel = active & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)
     assert sel.sum() > 40, "control must be active through the push"
     e_live = float(np.mean(d["x_W_m"][sel] - d["x_ref_W_m"][sel]))
@@ -536,6 +536,7 @@ def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_
     # the watchdog
     assert ctl["state"] == "handed_back" and "watchdog" in ctl["reason"] and res.exit_code == 3
     hb = ctl["handback"]
+    assert hb["outcome"] == "confirmed" and ctl["cause"] == "safety"
     assert c.watchdog_s <= hb["since_last_tick_s"] <= c.watchdog_s + 0.08
     assert hb["mode"] == "AUTO_LOITER" and hb["confirmed_s"] is not None and hb["confirmed_s"] < 1.0
     assert "final mode AUTO_LOITER" in err
@@ -547,11 +548,12 @@ def test_control_complies_when_asked_and_yields_to_the_pilot_at_once(tmp_path):
     res, d, force, t_on, c, err = _control_run(tmp_path, "comply", "14.5,mode,POSCTL", 29.0)
     ctl = res.summary["control"]
     M, D, K = c.impedance
-    sel = (d["state"] == "active") & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)
+    sel = (d["state"] == "engaged") & (d["t_s"] > t_on + 2.5) & (d["t_s"] < t_on + 4.0)
     assert sel.sum() > 40
     x = float(np.mean(d["x_W_m"][sel] - d["x_ref_W_m"][sel]))
     assert 0.75 * force / K < x < 1.25 * force / K
-    assert ctl["state"] == "yielded" and "POSCTL" in ctl["reason"] and res.exit_code == 0
+    assert ctl["state"] == "handed_back" and "POSCTL" in ctl["reason"] and res.exit_code == 0
+    assert ctl["handback"]["outcome"] == "pilot" and ctl["cause"] == "pilot"
     # in the recording: the first heartbeat in POSCTL after OFFBOARD, and our last SET_ATTITUDE_TARGET
     mu = mavutil()
     log = mu.mavlink_connection(str(res.folder / "flight.tlog"))

@@ -23,6 +23,7 @@ def cmd_live(args: argparse.Namespace) -> int:
         "--fence": args.fence, "--max-speed": args.max_speed, "--tilt-max": args.tilt_max,
         "--tilt-rate": args.tilt_rate, "--watchdog": args.watchdog, "--on-loss": args.on_loss,
         "--handshake-timeout": args.handshake_timeout, "--arm": args.arm or None,
+        "--set-guid-options": args.set_guid_options or None,
     }  # fmt: skip
     if args.control is None:
         given = [k for k, v in only_with_control.items() if v is not None]
@@ -47,7 +48,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         if fence is not None:
             kw["fence_radius_m"], kw["fence_height_m"] = fence
         control = ControlSettings(  # what is not given keeps ControlSettings' default (one place for them)
-            variant=args.control, comply=comply, arm=args.arm, **{k: v for k, v in kw.items() if v is not None}
+            variant=args.control, comply=comply, arm=args.arm, set_guid_options=args.set_guid_options,
+            **{k: v for k, v in kw.items() if v is not None},
         )  # fmt: skip
     est = EstimatorSettings(
         rate_hz=args.rate, max_gap_s=args.max_gap, backend=args.backend,
@@ -68,11 +70,8 @@ def cmd_live(args: argparse.Namespace) -> int:
     res = run_live(settings, warn=lambda text: print(f"warning: {text}", file=sys.stderr))
     s = res.summary
     print(f"live session ended: {res.end}; {res.ticks} estimates", file=sys.stderr)
-    if s.get("control"):
-        c = s["control"]
-        hb = c.get("handback") or {}
-        extra = f", handed back to {hb['mode']}" if hb else ""
-        print(f"control: {c['state']} ({c['reason'] or 'ok'}){extra}", file=sys.stderr)
+    if s.get("control"):  # the hand-over's own line: the same words as the screen and live.json
+        print(f"control: {s['control']['text']} (exit code {res.exit_code})", file=sys.stderr)
     if res.folder is not None:
         print(f"recorded to {res.folder} (flight.tlog, estimate.csv, live.json)", file=sys.stderr)
     if args.json:
@@ -142,6 +141,9 @@ def register(sub: Any) -> None:
     g.add_argument("--on-loss", default=None, choices=["hold", "land"], help="what the watchdog hands back to (hold)")
     g.add_argument("--handshake-timeout", type=float, default=None, help="each handshake step's time limit, s (3)")
     g.add_argument("--arm", action="store_true", help="arm a disarmed vehicle (else it must be armed and flying)")
+    g.add_argument("--set-guid-options", action="store_true",
+                   help="ArduCopter: set GUID_OPTIONS bit 3 (SET_ATTITUDE_TARGET thrust as thrust, not a climb rate) "
+                   "for the session, restored at the end (else a clear bit refuses --control)")  # fmt: skip
     sp.add_argument("--duration", type=float, default=None, help="end after this many seconds (default: Ctrl-C)")
     sp.add_argument("--out", default=None, help=f"run folder (default: {DEFAULT_OUT}/live-<date>-<time>)")
     sp.add_argument("--send-back", action="store_true",

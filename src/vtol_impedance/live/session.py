@@ -66,6 +66,10 @@ SEND_BACK_HZ = 10.0
 #: After the first vehicle's heartbeat, listen this long for others (heartbeats come at 1 Hz).
 LISTEN_S = 1.1
 POLL_S = 0.005
+#: Most messages handled per poll of the running session: the hand-over's checks (the mode request, its
+#: timeouts, the watchdog, the hold's repeats) run between polls, so a backlog (a busy computer) delays them
+#: by at most this many messages (half a second of the four 50 Hz streams), not by the 2000 a poll may read.
+POLL_MAX_MESSAGES = 100
 #: A stream of the estimate with no usable sample for this long is reported missing, with the reason.
 STREAM_MISSING_S = 1.0
 #: Window (s) over which a used stream's rate is measured while the session runs.
@@ -88,6 +92,12 @@ PARAM_READ_WINDOW_S = 8.0
 PROBE_MIN_SAMPLES = 5
 #: Exit code of a session that produced no estimate at all (the reason is its ``end``).
 EXIT_NO_ESTIMATE = 4
+#: ArduCopter's guided-mode options and the bit that makes ``SET_ATTITUDE_TARGET.thrust`` a thrust (bit 3, value
+#: 8, "SetAttitudeTarget interprets Thrust As Thrust"; else a climb rate).
+GUID_OPTIONS = "GUID_OPTIONS"
+THRUST_AS_THRUST = 8
+#: ``MAV_PARAM_TYPE_INT32``: the type of ``GUID_OPTIONS`` when the vehicle has not said.
+MAV_PARAM_TYPE_INT32 = 6
 
 
 @dataclass(frozen=True)
@@ -212,6 +222,8 @@ class Session:
         self.profile: AutopilotProfile | None = None
         self.target: tuple[int, int] | None = None
         self.params: dict[str, float] = {}
+        self.param_types: dict[str, int] = {}
+        self.guid_options: dict[str, Any] | None = None  # what --control did with ArduCopter's GUID_OPTIONS
         self.motor_curve: MotorCurve | None = None
         self.motor_channels: tuple[int, ...] | None = None
         self.acks: list[tuple[int, str]] = []
@@ -246,6 +258,8 @@ class Session:
         self._interval_acks = 0
         self.param_requests: dict[str, list[float]] = {}  # parameter -> request times (s into the session)
         self.written: dict[str, Any] = {}
+        self._guid_restore: int | None = None
+        self._guid_to_set: int | None = None
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -343,6 +357,7 @@ class Session:
         elif typ == "PARAM_VALUE":
             pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else str(msg.param_id)
             self.params[pid.rstrip("\x00")] = float(msg.param_value)
+            self.param_types[pid.rstrip("\x00")] = int(msg.param_type)
         if self.est is None:
             return
         t_arrive = now
@@ -356,7 +371,7 @@ class Session:
             self._csv.write(",".join(format(v, ".10g") for v in csv_row(tick)) + "\n")  # type: ignore[union-attr]
             if self.ctrl is not None:
                 age = self.latency.age(tick.t_us * 1e-6, self.now())
-                if self.ctrl.state == "active" and age is not None and age > self.ctrl.s.watchdog_s:
+                if self.ctrl.state == "engaged" and age is not None and age > self.ctrl.s.watchdog_s:
                     self.ctrl.hand_back(f"watchdog: telemetry {age:.3f} s old (stale)", self.now(), link,
                                         self.ctrl.s.on_loss)  # fmt: skip
                 before = self.ctrl.commands_sent
@@ -622,6 +637,100 @@ class Session:
         self.event(f"SERVO_OUTPUT_RAW read through ArduCopter's thrust curve: {self.motor_curve.describe()}; {where}")
         return sources
 
+    def write_param(self, name: str, value: float) -> float | None:
+        """Set one parameter (``PARAM_SET`` with the type the vehicle reported, retried on the schedule of
+        :meth:`read_param` until its ``PARAM_VALUE`` echo shows ``value``), then read it back with
+        :meth:`read_param`: the value read, or ``None``."""
+        link = self.link
+        assert link is not None and self.target is not None
+        ptype = self.param_types.get(name, MAV_PARAM_TYPE_INT32)
+        self.params.pop(name, None)
+        t_next = self.now()
+        t_end = t_next + PARAM_READ_WINDOW_S
+        wait = PARAM_FIRST_WAIT_S
+        sent = self.param_requests.setdefault(f"{name} (set)", [])
+        while self.params.get(name) != float(value) and self.now() < t_end:
+            link.send(link.mavlink.MAVLink_param_set_message(self.target[0], self.target[1], name.encode(),
+                                                            float(value), ptype))  # fmt: skip
+            sent.append(self.now() - self.t0)
+            t_next = min(t_next + wait, t_end)
+            while self.params.get(name) != float(value) and self.now() < t_next:
+                self.pump(POLL_S)
+            wait = min(2.0 * wait, PARAM_MAX_WAIT_S)
+        self.params.pop(name, None)  # the echo is not the read-back
+        return self.read_param(name)
+
+    def guided_thrust_or_refuse(self) -> None:
+        """ArduCopter (GUIDED, GUIDED_NOGPS) reads ``SET_ATTITUDE_TARGET.thrust`` as a climb rate (0.5 holds the
+        altitude, 0 and 1 descend and climb at ``WPNAV_SPEED_DN/UP``) unless ``GUID_OPTIONS`` bit 3 (value 8,
+        "SetAttitudeTarget interprets Thrust As Thrust") is set: read it; with the bit clear, refuse (before
+        anything is sent) or, with ``set_guid_options``, note it for :meth:`apply_guid_options` (the other bits
+        kept; restored at the end by :meth:`restore_guid_options`). PX4 reads the thrust as thrust."""
+        c = self.s.control
+        assert c is not None and self.profile is not None
+        if self.profile.mav_autopilot != 3:
+            return
+        flag = f"bit 3 (value {THRUST_AS_THRUST}, 'SetAttitudeTarget interprets Thrust As Thrust')"
+        value = self.read_param(GUID_OPTIONS)
+        if value is None:
+            raise LiveError(
+                f"--control refused before anything was sent: {GUID_OPTIONS} could not be read "
+                f"({len(self.param_requests.get(GUID_OPTIONS, []))} requests over {PARAM_READ_WINDOW_S:g} s "
+                f"unanswered); its {flag} decides whether ArduCopter reads SET_ATTITUDE_TARGET.thrust as a thrust "
+                "or as a climb rate"
+            )
+        bits = int(value)
+        self.guid_options = {"read": bits, "thrust_as_thrust": bool(bits & THRUST_AS_THRUST), "set": None,
+                             "restored": None}  # fmt: skip
+        if bits & THRUST_AS_THRUST:
+            self.event(f"{GUID_OPTIONS} = {bits}: {flag} set, SET_ATTITUDE_TARGET.thrust is a thrust")
+            return
+        if not c.set_guid_options:
+            raise LiveError(
+                f"--control refused before anything was sent: {GUID_OPTIONS} is {bits}, its {flag} is clear, so "
+                "ArduCopter would read SET_ATTITUDE_TARGET.thrust as a climb rate (0.5 = hold the altitude), not "
+                f"the thrust this controller sends; set {GUID_OPTIONS} to {bits | THRUST_AS_THRUST} on the vehicle, "
+                "or pass --set-guid-options to set it for this session and restore it at the end"
+            )
+        self._guid_to_set = bits | THRUST_AS_THRUST
+
+    def apply_guid_options(self) -> None:
+        """With ``set_guid_options``, after every other check: set ``GUID_OPTIONS`` bit 3 (the value read with
+        the bit added), read it back, and from then on restore the value read on every exit."""
+        want = self._guid_to_set
+        if want is None or self.guid_options is None:
+            return
+        bits = self.guid_options["read"]
+        flag = f"bit 3 (value {THRUST_AS_THRUST}, 'SetAttitudeTarget interprets Thrust As Thrust')"
+        self._guid_restore = bits  # from here on every exit restores it
+        got = self.write_param(GUID_OPTIONS, want)
+        self.guid_options["set"] = want
+        self.guid_options["read_back"] = got
+        if got is None or int(got) != want:
+            raise LiveError(
+                f"--control refused before anything was sent: {GUID_OPTIONS} was set to {want} ({bits} with {flag}) "
+                f"but reads back as {got if got is None else int(got)}"
+            )
+        self.event(f"{GUID_OPTIONS} set to {want} ({bits} with {flag}; read back): restored to {bits} at the end")
+
+    def restore_guid_options(self) -> None:
+        """Put back the ``GUID_OPTIONS`` value read before :meth:`apply_guid_options` changed it (every exit
+        path of :func:`run_live`), read back; a failure is an event and a warning, never silent."""
+        bits = getattr(self, "_guid_restore", None)
+        if bits is None or self.link is None or self.guid_options is None:
+            return
+        self._guid_restore = None
+        got = self.write_param(GUID_OPTIONS, bits)
+        ok = got is not None and int(got) == bits
+        self.guid_options["restored"] = bits if ok else None
+        self.guid_options["restore_read_back"] = got
+        text = f"{GUID_OPTIONS} restored to {bits} (read back)"
+        if not ok:
+            text = f"{GUID_OPTIONS} NOT restored: it reads {got} on the vehicle, set it back to {bits} by hand"
+        self.event(text)
+        if not ok:
+            self.warn(text)
+
     def read_hover(self) -> float | None:
         assert self.profile is not None
         return self.read_param(self.profile.hover_param)
@@ -734,14 +843,18 @@ class Session:
         return ScenarioSpec(
             name="live-v1", vehicle=self.s.vehicle, payload=PayloadSpec(mass=0.0, offset_B=(0.0, 0.0, 0.0)),
             trajectory=TrajectorySpec(kind="hover", start_on_ground=False, hover_duration=10.0),
-            sensors=SensorParams(0.0, 0.0, min(loop_latency_s, 1.0), 0.0, 0.0, 0.002), control=ctrl,
+            sensors=SensorParams(0.0, 0.0, loop_latency_s, 0.0, 0.0, 0.002), control=ctrl,
             interaction=InteractionSpec(M=M, D=D, K=K, comply=tuple(float(x) for x in c.comply)),
         )  # fmt: skip
 
     def start_control(self) -> None:
-        from ..robust import TrimError
+        """Check what must hold before anything is sent (one vehicle, a latency the margin check can model,
+        ArduCopter's ``GUID_OPTIONS``), run the margin check, and start the :class:`~.control.
+        OffboardController`. A refusal is a :class:`~.link.LiveError` naming the reason."""
+        from ..robust import LoopSizeError, TrimError
         from ..scenarios.margins import scenario_margins, warnings_of
         from ..scenarios.spec import controller_params
+        from ..sim.sensors import MAX_DELAY_S
 
         c = self.s.control
         assert c is not None and self.profile is not None
@@ -757,11 +870,23 @@ class Session:
         proc = 2e-3
         loop_latency = (age + proc + (lat or 0.0)) if age is not None else 2.0 * (lat or 0.0) + proc
         self.loop_latency_assumed_s = loop_latency
+        back_ms = (lat or 0.0) * 1e3
+        parts = f"twice the {back_ms:.0f} ms one-way latency"
+        if age is not None:
+            parts = f"telemetry {age * 1e3:.0f} ms old on arrival, {proc * 1e3:.0f} ms computing, {back_ms:.0f} ms back"
+        refused = (f"--control refused before anything was sent: the outer loop's latency over this link is "
+                   f"{loop_latency * 1e3:.0f} ms ({parts}), ")  # fmt: skip
+        hint = "; fly --control over a faster link (a companion computer on the vehicle's serial port)"
+        if loop_latency > MAX_DELAY_S:
+            raise LiveError(refused + f"more than the {MAX_DELAY_S:g} s the stability-margin check models" + hint)
+        self.guided_thrust_or_refuse()  # reads only: a refusal changes nothing on the vehicle
         spec = self.live_spec(loop_latency)
         try:
             reports = scenario_margins(spec, [c.variant])
             self.margin_warnings = warnings_of(reports)
             self.margins = {k: r.summary() for k, r in reports.items()}
+        except LoopSizeError as exc:
+            raise LiveError(refused + f"more than the stability-margin check can model ({exc})" + hint) from None
         except TrimError as exc:
             self.margin_warnings = [f"no margins ({exc})"]
             self.margins = {}
@@ -772,6 +897,7 @@ class Session:
             self.event(text)
         params = controller_params(spec, c.variant)
         loop = OuterLoop(params)
+        self.apply_guid_options()
         self.ctrl = OffboardController(c, loop, self.profile, self.map, self.mass, self.s.estimator.rate_hz)
         self.ctrl.start(self.now())
         self._ctrl_csv = open(self.folder.path("control.csv"), "w", encoding="utf-8")  # type: ignore[union-attr]  # noqa: SIM115
@@ -857,11 +983,14 @@ class Session:
             if s.duration is not None and now - self.t0 >= s.duration:
                 return "duration reached"
             self._housekeeping()
-            link.poll(POLL_S, self.on_message)
+            link.poll(POLL_S, self.on_message, POLL_MAX_MESSAGES)
             now = self.now()
             if self._last_vehicle_hb is not None and now - self._last_vehicle_hb > LINK_LOST_S and not self._link_lost:
                 self._link_lost = True
                 self.event(f"no heartbeat from the vehicle for {LINK_LOST_S:g} s: link lost, waiting for it")
+                if self.ctrl is not None:
+                    self.ctrl.hand_back(f"link lost: no heartbeat from the vehicle for {LINK_LOST_S:g} s", now, link,
+                                        self.ctrl.s.on_loss)  # fmt: skip
             self.watch_streams(now)
             if self.ctrl is not None:
                 peer = link.peers.get(self.target)  # type: ignore[arg-type]
@@ -871,19 +1000,25 @@ class Session:
             if self.screen.due(now):
                 self.screen.draw(self.view(), now)
 
-    def finish_control(self, reason: str) -> None:
-        """Hand control back (if it is ours) and wait for the heartbeat to confirm, bounded."""
+    def finish_control(self, reason: str, cause: str = "end") -> None:
+        """End control with ``reason`` (a cause of :data:`~.control.CAUSES`) unless it already ended, and wait,
+        bounded, for the hand-back: after a mode request the hold is requested and repeated until a heartbeat
+        confirms it or its window passes (:class:`~.control.OffboardController`). A second
+        interrupt cuts the wait short: the state is then ``lost``, never ``handed_back``."""
         ctrl, link = self.ctrl, self.link
         if ctrl is None or link is None:
             return
-        if ctrl.sending:
-            ctrl.hand_back(reason, self.now(), link, "hold")
-        end = self.now() + ctrl.s.handshake_timeout_s + 0.5
-        while not ctrl.done and self.now() < end:
-            self._housekeeping()
-            link.poll(POLL_S, self.on_message)
-            peer = link.peers.get(self.target)  # type: ignore[arg-type]
-            ctrl.check(self.now(), link, bool(peer and peer.armed))
+        ctrl.hand_back(reason, self.now(), link, "hold", cause=cause)
+        end = self.now() + ctrl.handback_window_s + 0.5
+        try:
+            while not ctrl.done and self.now() < end:
+                self._housekeeping()
+                link.poll(POLL_S, self.on_message, POLL_MAX_MESSAGES)
+                peer = link.peers.get(self.target)  # type: ignore[arg-type]
+                ctrl.check(self.now(), link, bool(peer and peer.armed))
+        except KeyboardInterrupt:
+            ctrl.abandon("a second interrupt cut short the wait for the hold's confirmation", self.now())
+        ctrl.abandon(f"not confirmed by a heartbeat within {ctrl.handback_window_s:g} s", self.now())
 
     def summary(self) -> dict[str, Any]:
         link = self.link
@@ -950,8 +1085,8 @@ class Session:
             age = float(np.median(lat.ages_s)) if lat.ages_s else None
             loop = None if proc is None or age is None or lat.latency_s is None else age + proc + lat.latency_s
             out["control"] = {
-                "settings": c.s.to_dict(), "state": c.state, "reason": c.reason, "handback": c.handback,
-                "commands_sent": c.commands_sent, "max_error_m": c.max_error_m,
+                "settings": c.s.to_dict(), **c.record(),
+                "commands_sent": c.commands_sent, "max_error_m": c.max_error_m, "guid_options": self.guid_options,
                 "events": [{"t_s": t - self.t0, "text": x} for t, x in c.events],
                 "margin_warnings": self.margin_warnings, "margins": getattr(self, "margins", {}),
                 "loop_latency_assumed_ms": getattr(self, "loop_latency_assumed_s", 0.0) * 1e3,
@@ -970,6 +1105,9 @@ class Session:
                 "by_estimator": self.est.counts["rejected"]}  # fmt: skip
 
     def close(self, commit: bool) -> Path | None:
+        if self.ctrl is not None and self.link is not None and self.screen.mode == "tty":
+            with contextlib.suppress(Exception):  # the last screen shows how control ended, as live.json says
+                self.screen.draw(self.view(), self.now())
         for fh in (self._csv, self._ctrl_csv):
             if fh is not None:
                 fh.close()
@@ -992,12 +1130,16 @@ class Session:
 
 def run_live(settings: LiveSettings, stop: Any = None, stream: IO[str] | None = None, warn: Any = None) -> LiveResult:
     """Run one session (module docstring). ``stop``: a ``threading.Event`` that ends it; ``stream``: where the
-    display goes (stdout by default); ``warn``: called with each warning's text (the margin check).
+    display goes (stdout by default); ``warn``: called with each warning's text (the margin check, the
+    hand-over's end after an error, a parameter not restored).
 
-    Exit codes in the result: 0 the session ended normally (duration, Ctrl-C, ``stop``, the pilot took
-    over); 3 control was handed back by a safety check (watchdog, fence, a hand-over that failed); 4 the
+    Exit codes in the result, from the hand-over's state (:attr:`~.control.OffboardController.exit_code`)
+    with ``control``: 0 the session ended normally (duration, Ctrl-C or a signal, ``stop``, the pilot took
+    over) and a heartbeat confirmed the hand-back (or none was needed); 3 control ended by a safety check
+    (watchdog, fence, link loss) or a failed handshake, or the hold was not confirmed (``lost``); 4 the
     session produced no estimate at all (its ``end`` says why: each stream's problem). A setup failure
-    raises :class:`~.link.LiveError` and writes no run folder."""
+    raises :class:`~.link.LiveError` and writes no run folder; an error while flying hands control back
+    first and says how it ended through ``warn``."""
     instance("settings", settings, LiveSettings)
     sess = Session(settings, stream, warn)
     code = 0
@@ -1016,21 +1158,28 @@ def run_live(settings: LiveSettings, stop: Any = None, stream: IO[str] | None = 
             end = "stopped by Ctrl-C"
         except BaseException as exc:  # never leave the vehicle with a dead offboard controller
             with contextlib.suppress(BaseException):
-                sess.finish_control(f"error: {exc}")
+                sess.finish_control(f"error: {exc}", cause="error")
+            if sess.ctrl is not None:
+                sess.warn(f"control: {sess.ctrl.describe()}")
             raise
         sess.end = end
-        with contextlib.suppress(KeyboardInterrupt):
-            sess.finish_control(end)
-        if sess.ctrl is not None and (
-            sess.ctrl.state == "failed" or (sess.ctrl.state == "handed_back" and sess.ctrl.reason != end)
-        ):
-            code = 3
+        sess.finish_control(end, cause="end")
+        if sess.ctrl is not None:
+            code = sess.ctrl.exit_code
         if sess.ticks == 0:  # nothing estimated: say why, never exit 0
             sess.end = f"{end}; {sess.no_estimate_reason()}"
             sess.event(sess.no_estimate_reason())
             code = code or EXIT_NO_ESTIMATE
     except BaseException:
+        with contextlib.suppress(BaseException):
+            sess.restore_guid_options()
         sess.close(commit=False)
         raise
+    try:
+        sess.restore_guid_options()
+    except KeyboardInterrupt:  # a second Ctrl-C: say what is left on the vehicle, write the record anyway
+        text = f"{GUID_OPTIONS} not restored (interrupted): set it back to {sess.guid_options['read']} by hand"  # type: ignore[index]
+        sess.event(text)
+        sess.warn(text)
     final = sess.close(commit=True)
     return LiveResult(final, sess.end, code, sess.written, sess.ticks)
