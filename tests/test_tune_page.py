@@ -181,6 +181,48 @@ def test_the_written_toml_of_a_passing_tuning_flies_without_a_warning(served, tm
     assert "below the thresholds" not in capsys.readouterr().err
 
 
+def test_a_vehicle_file_is_written_by_its_absolute_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    Path("my_quad.toml").write_text('name = "my-quad"\nmass = 1.5\ninertia_diag = [0.01, 0.01, 0.02]\n'
+                                    'layout = "x"\narm_length = 0.25\ndrag_factor = 0.016\nf_max = 9.0\n')  # fmt: skip
+    from vtol_impedance.scenarios import apply_overrides, get, load_toml
+    from vtol_impedance.scenarios.spec import PAPER_CONTROL
+
+    # bandwidths given: no design search for a new vehicle (seconds)
+    base = apply_overrides(get("case-a-payload"), [f"{k}={json.dumps(v)}" for k, v in PAPER_CONTROL.items()])
+    text = TunePage(base, "my_quad.toml", workers=0).toml({})
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    (tmp_path / "elsewhere" / "t.toml").write_text(text)
+    assert load_toml("t.toml").vehicle == str(tmp_path / "my_quad.toml")
+
+
+def test_the_command_serves_until_stopped(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    cmd = [sys.executable, "-m", "vtol_impedance", "tune-page", "--port", "0", "--workers", "0", "--no-browser"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("tuning page at http://127.0.0.1:"), (line, proc.stderr.read() if proc.poll() else "")
+        url = line.split()[3]
+        with urllib.request.urlopen(url + "api/fields", timeout=30) as r:
+            fields = json.loads(r.read())
+        assert fields["scenario"] == "case-a-payload-v1" and len(fields["fields"]) == len(fields["defaults"])
+        with urllib.request.urlopen(url, timeout=30) as r:
+            assert b"<title>vtol-impedance: tuning page</title>" in r.read()
+        proc.send_signal(signal.SIGTERM)
+        rc, err = proc.wait(timeout=60), proc.stderr.read()
+        assert rc == 130 and "Traceback" not in err and err.endswith("interrupted; no results were written\n"), err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 # --------------------------------------------------------------------------- in the browser
 
 
@@ -247,7 +289,9 @@ def _in_the_browser(browser, s: Served, calls: list, tmp_path: Path, capsys) -> 
         assert page.locator("#pm").text_content() != before[0] and bode != before[1]
         times.append(ms)
     median = float(np.median(times))
-    print(f"tune-page: a change shown in {median:.0f} ms (median of {times}), load {os.getloadavg()[0]:.1f}")
+    server = page.locator("#server").text_content()
+    print(f"tune-page: a change shown in {median:.0f} ms (median of {times}; server {server}), load "
+          f"{os.getloadavg()[0]:.1f}")  # fmt: skip
     assert median <= BUDGET_MS * _budget_scale(), times
 
     # a slider dragged continuously: no queue of stale work, the last state is the one shown
@@ -294,17 +338,20 @@ def _in_the_browser(browser, s: Served, calls: list, tmp_path: Path, capsys) -> 
     assert float(other.locator('input.box[data-key="control.estimator_wn"]').input_value()) == d.estimator_wn
     assert float(other.locator('input.box[data-key="control.wn_o"]').input_value()) == d.wn_o
 
-    # a tuning short of the thresholds, written as TOML: the command line flies it with the page's verdict
-    n = int(other.evaluate("document.body.dataset.rendered"))
-    other.locator('input[type=range][data-key="control.wn_o"]').fill("8")
-    _rendered(other, n)
-    verdict = other.locator("#verdict").text_content()
-    assert verdict.startswith("stability margins below the thresholds")
-    _screenshot(other)
-    with other.expect_download() as dl:
-        other.locator("#write").click()
+    # a link to a tuning short of the thresholds (the paper's attitude bandwidth), written as TOML: the
+    # command line flies it with the page's verdict, word for word
+    third = browser.new_page(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
+    third.goto(s.url + "/?control.wn_o=8")
+    _rendered(third, 0)
+    assert third.locator('input.box[data-key="control.wn_o"]').input_value() == "8"
+    verdict = third.locator("#verdict").text_content()
+    assert verdict.startswith("stability margins below the thresholds") and "PD+C" in verdict
+    _screenshot(third)
+    with third.expect_download() as dl:
+        third.locator("#write").click()
     path = tmp_path / dl.value.suggested_filename
     dl.value.save_as(path)
+    assert "control.wn_o = 8.0" in path.read_text()
     capsys.readouterr()
     argv = ["compare", str(path), "--controllers", "pd,pdc", "--duration", "0.2", "--no-plots", "--quiet"]
     assert main([*argv, "--out", str(tmp_path / "run")]) == 0

@@ -20,6 +20,7 @@ import time
 import warnings
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -135,7 +136,12 @@ class TunePage:
         else:
             spec = instance("base", base, ScenarioSpec)
         if vehicle is not None:
-            spec = set_value(spec, "vehicle", instance("vehicle", vehicle, str))
+            instance("vehicle", vehicle, str)
+            if vehicle.endswith(".toml"):  # the scenario file it writes is flown from anywhere
+                from pathlib import Path
+
+                vehicle = str(Path(vehicle).resolve())
+            spec = set_value(spec, "vehicle", vehicle)
         self.workers = int(scalar("workers", workers, lo=0, hi=8, integer=True))
         self.base_name = spec.name
         name = check_name(f"{spec.name}-tuned")
@@ -219,7 +225,15 @@ class TunePage:
 
         def result() -> tuple[dict[str, Any] | VtolImpedanceError, list[float]]:
             try:
-                jobs = [_margins_job(spec, v) for v in variants] if pool is None else [f.result() for f in futures]
+                try:
+                    jobs = [f.result() for f in futures] if pool is not None else None
+                except BrokenProcessPool:  # a worker was killed: carry on here, slower but serving
+                    self._pool = None
+                    jobs = None
+                    warnings.warn("a worker process of the margins died; they are computed in the server now",
+                                  RuntimeWarning, stacklevel=1)  # fmt: skip
+                if jobs is None:
+                    jobs = [_margins_job(spec, v) for v in variants]
             except VtolImpedanceError as exc:  # no trim, a loop too large: the CLI says "no margins, ..."
                 return exc, []
             return {v: r for v, (r, _) in zip(variants, jobs, strict=True)}, [cpu for _, cpu in jobs]
