@@ -18,6 +18,7 @@ import math
 import threading
 import time
 import warnings
+from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -85,6 +86,9 @@ FIELDS: tuple[Field, ...] = (
 )
 _KEYS = {f.key: f for f in FIELDS}
 
+#: Evaluated tunings kept (the latest first), so that showing another loop or a second tab on the same
+#: state flies nothing again.
+CACHED = 16
 #: The three flights (s): how long the vehicle hovers before the event, and the whole flight.
 SETTLE_S, FLIGHT_S = 1.0, 3.5
 #: The step of the reference (m along x), the push (N along x, s) and the gust (m/s along x, s).
@@ -151,6 +155,7 @@ class TunePage:
         self.defaults = {f.key: self._value(spec, f.key) for f in FIELDS}
         self._pool: ProcessPoolExecutor | None = None
         self._lock = threading.Lock()
+        self._cache: OrderedDict[str, tuple[Any, dict[str, Any], list[str]]] = OrderedDict()
 
     @staticmethod
     def _value(spec: ScenarioSpec, key: str) -> float:
@@ -273,14 +278,25 @@ class TunePage:
             choice("loop", loop, LOOPS)
         spec = self.spec_of(values)
         variants = ["pd", compensating]
-        with warnings.catch_warnings(record=True) as caught, self._lock:
-            warnings.simplefilter("always")
-            check(spec, variants)
-            margins = self._submit(spec, variants)  # in the workers while the flights fly here
-            cpu0 = time.thread_time()
-            flights = {name: self._fly(s, variants) for name, s in self.flight_specs(spec).items()}
-            cpu_flights = time.thread_time() - cpu0
-            reports, cpu_margins = margins()
+        key = json.dumps([spec.to_dict(), variants], sort_keys=True, default=str)
+        with self._lock:
+            if key in self._cache:  # another loop shown, a second tab on the same state: nothing to fly
+                self._cache.move_to_end(key)
+                reports, flights, said = self._cache[key]
+                cpu_flights, cpu_margins = 0.0, [0.0 for _ in variants]
+            else:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    check(spec, variants)
+                    margins = self._submit(spec, variants)  # in the workers while the flights fly here
+                    cpu0 = time.thread_time()
+                    flights = {name: self._fly(s, variants) for name, s in self.flight_specs(spec).items()}
+                    cpu_flights = time.thread_time() - cpu0
+                    reports, cpu_margins = margins()
+                said = list(dict.fromkeys(str(w.message) for w in caught))
+                self._cache[key] = (reports, flights, said)
+                while len(self._cache) > CACHED:
+                    self._cache.popitem(last=False)
         out: dict[str, Any] = {"flights": flights, "variants": variants}
         if isinstance(reports, VtolImpedanceError):
             out["verdict"] = f"{below_header()}\n  {spec.name}: no margins, {reports}"
@@ -309,7 +325,7 @@ class TunePage:
                 "summary": {v: dict(zip(s := r.summary(), _finite(list(s.values()), 2), strict=True))
                             for v, r in reports.items()},
             }  # fmt: skip
-        out["warnings"] = list(dict.fromkeys(str(w.message) for w in caught))
+        out["warnings"] = said
         out["server_ms"] = 1e3 * (time.perf_counter() - t0)
         out["cpu_ms"] = {"flights": 1e3 * cpu_flights, "margins": [1e3 * c for c in cpu_margins]}
         return out
