@@ -181,7 +181,7 @@ def test_the_written_toml_of_a_passing_tuning_flies_without_a_warning(served, tm
     assert "below the thresholds" not in capsys.readouterr().err
 
 
-def test_a_vehicle_file_is_written_by_its_absolute_path(tmp_path, monkeypatch):
+def test_the_written_toml_is_the_pages_scenario_and_names_a_vehicle_file_by_its_absolute_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     Path("my_quad.toml").write_text('name = "my-quad"\nmass = 1.5\ninertia_diag = [0.01, 0.01, 0.02]\n'
                                     'layout = "x"\narm_length = 0.25\ndrag_factor = 0.016\nf_max = 9.0\n')  # fmt: skip
@@ -190,11 +190,17 @@ def test_a_vehicle_file_is_written_by_its_absolute_path(tmp_path, monkeypatch):
 
     # bandwidths given: no design search for a new vehicle (seconds)
     base = apply_overrides(get("case-a-payload"), [f"{k}={json.dumps(v)}" for k, v in PAPER_CONTROL.items()])
-    text = TunePage(base, "my_quad.toml", workers=0).toml({})
+    page = TunePage(base, "my_quad.toml", workers=0)
+    values = {"control.Kp[0]": "20", "payload.mass": 0.2}
+    text = page.toml(values)
     (tmp_path / "elsewhere").mkdir()
     monkeypatch.chdir(tmp_path / "elsewhere")
     (tmp_path / "elsewhere" / "t.toml").write_text(text)
-    assert load_toml("t.toml").vehicle == str(tmp_path / "my_quad.toml")
+    flown = load_toml("t.toml")
+    assert flown.vehicle == str(tmp_path / "my_quad.toml")
+    # read back, the file is the page's scenario: its values, and what the base had beyond the registered one
+    assert flown == page.spec_of(values)
+    assert "control.estimator_timing = false" in text
 
 
 def test_the_command_serves_until_stopped(tmp_path):

@@ -112,6 +112,23 @@ def _finite(x: Any, decimals: int = 3) -> list[float | None]:
     return out
 
 
+def _leaves(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A scenario's plain data by dotted key (``control.Kp``); lists and the disturbances kept whole."""
+    out: dict[str, Any] = {}
+    for k, v in data.items():
+        if isinstance(v, dict):
+            out.update(_leaves(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _toml_value(v: Any) -> str:
+    """A TOML value: JSON's numbers, strings, booleans and arrays are TOML's; ``None`` (a designed or
+    automatic value) is ``"design"``."""
+    return '"design"' if v is None else json.dumps(v)
+
+
 class TunePage:
     """The tuning page's state and computations (the HTTP server is :func:`make_server`).
 
@@ -184,25 +201,34 @@ class TunePage:
 
     def designed(self, values: Mapping[str, Any]) -> dict[str, Any]:
         """The bandwidths :func:`~vtol_impedance.robust.design` chooses for the tuning's position impedance
-        and timing: ``{"values": {key: rad/s}, "notes": [...]}``."""
+        and timing: ``{"values": {key: rad/s}, "notes": [what falls short on the design's plant set]}``."""
+        from ..model.vehicle import load_preset
+        from ..robust.design import design
+        from ..scenarios.spec import assumed_timing
+
         spec = self.spec_of(values)
-        for k in DESIGNED:
-            spec = set_value(spec, f"control.{k}", "design")
-        c = resolved_control(spec)
-        return {"values": {f"control.{k}": float(getattr(c, k)) for k in DESIGNED}}
+        c = spec.control
+        d = design(load_preset(spec.vehicle), c.Kp, c.Dp, c.rate, assumed_timing(spec))
+        return {"values": {f"control.{k}": float(getattr(d, k)) for k in DESIGNED}, "notes": list(d.notes)}
 
     def toml(self, values: Mapping[str, Any]) -> str:
-        """The tuning as a scenario file that ``vtol-impedance run`` and ``compare`` fly: the base scenario
-        and every value the page sets (vectors written whole)."""
+        """The tuning as a scenario file that ``vtol-impedance run`` and ``compare`` fly: the registered base
+        scenario and every value that differs from it (vectors and disturbances written whole); read back
+        by :func:`~vtol_impedance.scenarios.load_toml` it is the page's scenario."""
         spec = self.spec_of(values)
-        keys = dict.fromkeys(f.key.partition("[")[0] for f in FIELDS)
-        lines = [
-            "# written by vtol-impedance tune-page; fly it with: vtol-impedance compare FILE --controllers pd,pdc",
-            f"base = {json.dumps(self.base_name)}",
-            f"name = {json.dumps(spec.name)}",
-            f"vehicle = {json.dumps(spec.vehicle)}",
-        ]
-        lines += [f"{k} = {json.dumps(get_value(spec, k))}" for k in keys]
+        try:
+            ref, head = get(self.base_name), [f"base = {json.dumps(self.base_name)}"]
+        except ScenarioError:  # a scenario of the caller's own: written from the defaults
+            ref, head = ScenarioSpec(name=spec.name), []
+        new, old = _leaves(spec.to_dict()), _leaves(ref.to_dict())
+        keys = dict.fromkeys([*(f.key.partition("[")[0] for f in FIELDS), *(k for k in new if new[k] != old.get(k))])
+        keys.pop("disturbances", None)
+        lines = ["# written by vtol-impedance tune-page; fly it with: vtol-impedance compare FILE --controllers pd,pdc",
+                 *head, f"name = {json.dumps(spec.name)}"]  # fmt: skip
+        lines += [f"{k} = {_toml_value(new[k])}" for k in keys if k != "name"]
+        if new["disturbances"] != old["disturbances"]:
+            for d in spec.to_dict()["disturbances"]:
+                lines += ["", "[[disturbances]]", *(f"{k} = {_toml_value(v)}" for k, v in d.items())]
         return "\n".join(lines) + "\n"
 
     # ------------------------------------------------------------------ computing
