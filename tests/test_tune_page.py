@@ -235,8 +235,9 @@ def test_the_command_serves_until_stopped(tmp_path):
 def _budget_scale() -> float:
     """The budget holds on an idle two-core machine. On a busier one each core is shared by the runnable
     processes (the one-minute load average, which counts this test's own server, workers and browser):
-    the allowance grows with the load per core, with half again for the average's lag."""
-    return max(1.0, 1.5 * os.getloadavg()[0] / (os.cpu_count() or 1))
+    the allowance grows with the load per core, doubled for the average's lag behind a load that rises
+    (measured: 1.5 s at a load of 12 to 13, 2.4 s at 15, on two cores)."""
+    return max(1.0, 2.0 * os.getloadavg()[0] / (os.cpu_count() or 1))
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
