@@ -161,6 +161,14 @@ def test_remote_binds_and_foreign_hosts_are_refused(served, capsys):
         make_server(served.app, "0.0.0.0", 0)
     assert main(["tune-page", "--host", "192.168.1.20", "--no-browser", "--port", "0"]) == 2
     assert "is not the loopback interface" in capsys.readouterr().err
+    for argv, words in (
+        (["--port", "70000"], "--port must be in [0, 65535], got 70000"),
+        (["--workers", "-1"], "--workers must be in [0, 8], got -1"),
+        (["--scenario", "no-such"], "no-such"),
+        (["no-such-vehicle"], "unknown vehicle preset 'no-such-vehicle'"),
+    ):
+        assert main(["tune-page", "--no-browser", *argv]) == 2
+        assert words in capsys.readouterr().err
     # a page reached through another name (DNS rebinding) is not answered
     status, out = served.post("/api/toml", {"values": {}}, {"Host": "attacker.example:80"})
     assert status == 403 and "attacker.example" in out["error"]

@@ -12,10 +12,14 @@ def cmd_tune_page(args: argparse.Namespace) -> int:
     """Serve the tuning page until interrupted (Ctrl-C)."""
     import threading
 
+    from ..errors import scalar
+    from ..scenarios import get
     from ..tunepage import TunePage, make_server
 
     t0 = time.perf_counter()
-    app = TunePage(args.scenario, args.vehicle, workers=args.workers)
+    scalar("--port", args.port, lo=0, hi=65535, integer=True)  # named as the command line names them
+    scalar("--workers", args.workers, lo=0, hi=8, integer=True)
+    app = TunePage(get(args.scenario), args.vehicle, workers=args.workers)
     server = make_server(app, args.host, args.port, args.allow_remote)  # refuses a remote bind before any work
 
     def warm() -> None:  # the first change is then as fast as the next; a request meanwhile waits for it
