@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from test_docs_api import PACKAGES, public_names
 
-from vtol_impedance import control, estimator, live, logs, model, robust, scenarios, sim, sweeps
+from vtol_impedance import control, estimator, live, logs, model, robust, scenarios, sim, sweeps, tunepage
 from vtol_impedance.control.reference import Trajectory
 from vtol_impedance.errors import VtolImpedanceError
 
@@ -668,6 +668,15 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         lambda: dict(sweep_seed=1, point=0, repeat=0),
         {"sweep_seed": "index", "point": "index", "repeat": "index"},
     ),
+    "tunepage.TunePage": (
+        lambda: dict(base="case-a-payload", workers=0),
+        {"base": Obj(scenarios.ScenarioSpec), "vehicle": "text", "workers": "index"},
+    ),
+    "tunepage.make_server": (
+        lambda: dict(app=tunepage.TunePage(workers=0), host="127.0.0.1", port=0),
+        {"app": Obj(tunepage.TunePage), "host": "text", "port": "index"},
+    ),
+    "tunepage.is_loopback": (lambda: dict(host="127.0.0.1"), {"host": "text"}),
     "sweeps.write_report": (
         lambda: dict(folder=Path("no-such-folder")),
         {"folder": "path", "metric": "text", "x": "text", "y": "text"},
@@ -771,6 +780,8 @@ EXEMPT = {
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
     "model.VehicleDefaultWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
     "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",
+    "tunepage.Latest": "no parameters", "tunepage.Superseded": "an exception class",
+    "tunepage.Field": "a row of the page's table of controls (tunepage.FIELDS), which the package writes",
     "scenarios.Registry": "no parameters",
     "sim.Disturbance": "an abstract base class without parameters",
     "scenarios.names": "one flag (latest_only), any truth value is meaningful",

@@ -28,7 +28,7 @@ LAYERS = [
     {"scenarios"},
     {"logs"},
     {"analysis"},
-    {"sweeps", "live", "bench"},
+    {"sweeps", "live", "bench", "tunepage"},
     {"cli", "__main__", "__init__"},
 ]
 LAYER = {name: i for i, names in enumerate(LAYERS) for name in names}

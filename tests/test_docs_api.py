@@ -33,6 +33,7 @@ PACKAGES = (
     "logs",
     "live",
     "sweeps",
+    "tunepage",
     "io",
     "errors",
     "conventions",

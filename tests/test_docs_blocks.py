@@ -58,6 +58,7 @@ RUN_ELSEWHERE = {
     "bench": "tests/test_bench.py runs `bench --quick`",
     "live": "tests/test_live.py runs `live` against `sim-autopilot` over UDP loopback (they run until stopped)",
     "sim-autopilot": "tests/test_live.py runs it with `live` over UDP loopback",
+    "tune-page": "tests/test_tune_page.py serves the page and drives it in Chromium (it serves until stopped)",
 }
 #: Documented commands that fail today, by the start of their argv: (the error they give, why). The test
 #: fails when one starts to pass, so that it is taken off this list.

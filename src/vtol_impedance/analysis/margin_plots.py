@@ -77,6 +77,17 @@ def text_margins(reports: dict[str, MarginReport], thresholds: Thresholds | None
     return "\n".join(out)
 
 
+def bode_curves(m: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude (dB) and unwrapped phase (deg) of a loop's ``L`` (a :class:`~vtol_impedance.robust.LoopMargins`)
+    on its frequencies, the phase shifted by whole turns so that it lies in [-360, 0) deg at the gain
+    crossover (where the phase margin is read against -180 deg)."""
+    H = m.response
+    ph = np.degrees(np.unwrap(np.angle(H)))
+    c = int(np.argmin(np.abs(np.log(np.abs(H)))))  # the gain crossover
+    ph -= 360.0 * np.floor(ph[c] / 360.0 + 1.0)
+    return 20 * np.log10(np.abs(H)), ph
+
+
 def plot_bode(reports: dict[str, MarginReport], path: Path, title: str = "") -> Path:
     """Magnitude and phase of every loop transfer ``L`` (closed by ``1 + L``) per controller: the rotor
     commands on the left, the attitude references on the right. Gain crossovers are where the magnitude
@@ -85,12 +96,10 @@ def plot_bode(reports: dict[str, MarginReport], path: Path, title: str = "") -> 
     for variant, r in reports.items():
         for name, m in r.loops.items():
             col = 1 if "reference" in name else 0
-            w, H = m.omega, m.response
+            w = m.omega
             style = dict(color=LOOP_COLORS.get(name), ls=STYLES.get(variant, "-"), lw=1.1)
-            ax[0, col].semilogx(w, 20 * np.log10(np.abs(H)), label=f"{_label(variant)}, {name}", **style)
-            ph = np.degrees(np.unwrap(np.angle(H)))
-            c = int(np.argmin(np.abs(np.log(np.abs(H)))))  # the gain crossover: its phase in [-360, 0) deg
-            ph -= 360.0 * np.floor(ph[c] / 360.0 + 1.0)
+            mag_db, ph = bode_curves(m)
+            ax[0, col].semilogx(w, mag_db, label=f"{_label(variant)}, {name}", **style)
             ax[1, col].semilogx(w, ph, **style)
     for col, name in enumerate(("rotor commands (thrust, torques)", "attitude references (roll, pitch)")):
         ax[0, col].axhline(0.0, color="k", lw=0.6)

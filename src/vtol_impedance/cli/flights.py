@@ -168,7 +168,7 @@ def _preflight(
     warning says so and points at the designed tuning. Returns the reports per scenario, for the run
     folder's figures and report."""
     from ..robust import LoopSizeError, Thresholds, TrimError
-    from ..scenarios.margins import scenario_margins, summary_of, warnings_of
+    from ..scenarios.margins import below_header, scenario_margins, summary_of, warnings_of
 
     out, lines = {}, []
     for spec in specs:
@@ -191,11 +191,7 @@ def _preflight(
                          + ("" if verbose else ", or --verbose"))  # fmt: skip
         else:
             lines.append("  every finding: the margins in the results folder, or 'vtol-impedance margins'")
-        print(
-            f"warning: stability margins below the thresholds ({t.phase_deg:g} deg phase, {t.gain_db:g} dB gain, "
-            f"damping {t.damping:g}) at the operating point:\n" + "\n".join(lines),
-            file=sys.stderr,
-        )
+        print(f"warning: {below_header(t)}\n" + "\n".join(lines), file=sys.stderr)
     return out
 
 

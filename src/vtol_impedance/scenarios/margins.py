@@ -68,6 +68,20 @@ RISK = "compensating here can make the vehicle worse than PD"
 COMPENSATING = ("pdc", "comply")
 
 
+#: What the margin check says when every controller meets the thresholds (``vtol-impedance margins``).
+MEETS = "every controller meets the thresholds"
+
+
+def below_header(thresholds: Thresholds | None = None) -> str:
+    """The first line of the pre-flight warning of the flying commands, naming ``thresholds``; the lines
+    below it are ``"  <scenario>: "`` and :func:`summary_of`."""
+    t = Thresholds() if thresholds is None else thresholds
+    return (
+        f"stability margins below the thresholds ({t.phase_deg:g} deg phase, {t.gain_db:g} dB gain, "
+        f"damping {t.damping:g}) at the operating point:"
+    )
+
+
 def warnings_of(reports: dict[str, MarginReport], thresholds: Thresholds | None = None) -> list[str]:
     """One line per controller that falls short of ``thresholds``."""
     from ..control.impedance import DISPLAY_NAMES

@@ -1,0 +1,68 @@
+"""``vtol-impedance tune-page``: the tuning page, served on this machine (docs/guide/tuning-page.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+
+def cmd_tune_page(args: argparse.Namespace) -> int:
+    """Serve the tuning page until interrupted (Ctrl-C)."""
+    import threading
+
+    from ..errors import scalar
+    from ..scenarios import get
+    from ..tunepage import TunePage, make_server
+
+    t0 = time.perf_counter()
+    scalar("--port", args.port, lo=0, hi=65535, integer=True)  # named as the command line names them
+    scalar("--workers", args.workers, lo=0, hi=8, integer=True)
+    app = TunePage(get(args.scenario), args.vehicle, workers=args.workers)
+    server = make_server(app, args.host, args.port, args.allow_remote)  # refuses a remote bind before any work
+
+    def warm() -> None:  # the first change is then as fast as the next; a request meanwhile waits for it
+        app.start()
+        if not args.quiet:
+            print(f"warmed up in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+
+    try:
+        threading.Thread(target=warm, daemon=True).start()
+        host, port = server.server_address[:2]
+        url = f"http://{'[' + host + ']' if ':' in host else host}:{port}/"
+        print(f"tuning page at {url} (Ctrl-C stops it)", flush=True)
+        if not args.no_browser:
+            import webbrowser
+
+            webbrowser.open(url)
+        server.serve_forever()
+    finally:
+        server.server_close()
+        app.close()
+    return 0
+
+
+def register(sub: Any) -> None:
+    """Add the 'tune-page' sub-command(s) to ``sub`` (argparse's sub-parsers)."""
+    sp = sub.add_parser(
+        "tune-page",
+        help="a page in the browser: move the gains, see the margins, the verdict and three flights at once",
+        description="Serves a page on this machine where sliders set the position and interaction impedance, the "
+        "estimator, the attitude bandwidths and the vehicle's rotor lag, latencies, inertia and payload, and "
+        "show within about 0.2 s the stability margins (Bode, Nyquist), the pre-flight verdict and a step, a "
+        "push and a gust flown by PD and PD+C; the tuning is written as a scenario file that 'run' and "
+        "'compare' fly. See docs/guide/tuning-page.md.",
+    )
+    sp.add_argument("vehicle", nargs="?", default=None,
+                    help="a vehicle preset name or a vehicle .toml file (default: the scenario's)")  # fmt: skip
+    sp.add_argument("--scenario", default="case-a-payload",
+                    help="registered scenario whose operating point is tuned (default: case-a-payload)")  # fmt: skip
+    sp.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1, this machine only)")
+    sp.add_argument("--port", type=int, default=8765, help="port (default: 8765; 0: any free port)")
+    sp.add_argument("--allow-remote", action="store_true",
+                    help="allow a --host off this machine (whoever reaches it runs simulations)")  # fmt: skip
+    sp.add_argument("--workers", type=int, default=2, help="processes for the margins (default: 2; 0: none)")
+    sp.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    sp.add_argument("--quiet", action="store_true", help="no progress output")
+    sp.set_defaults(func=cmd_tune_page)
