@@ -419,9 +419,9 @@ class SimAutopilot:
                                       "requests": [], "behind_s": 0.0, "sent": 0, "setpoints_unused": 0,
                                       "commands": [], "params_set": [], "params_refused": [],
                                       "params_unknown": []}  # fmt: skip
-        self._once: list[str] = []
+        self._once: list[str] = []  # messages asked for once (MAV_CMD_REQUEST_MESSAGE), sent at the next tick
         #: packets received by (system, component): the ground stations (and routers) heard
-        self.heard: dict[tuple[int, int], int] = {}  # messages asked for once (MAV_CMD_REQUEST_MESSAGE), sent at the next tick
+        self.heard: dict[tuple[int, int], int] = {}
         self.conn: Any = None
         self.failure: dict[str, Any] | None = None  # the simulated vehicle's, when it diverged or crashed
         self._events = sorted((float(t), k, a) for t, k, a in settings.events)
