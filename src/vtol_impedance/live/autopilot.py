@@ -1043,4 +1043,8 @@ class SimAutopilot:
             "hover_thrust": self.hover,
             "link": {"down": dict(self.down.counts), "up": dict(self.up.counts), "sent": self.stats["sent"]},
             "behind_real_time_s": self.stats["behind_s"],
+            "heard": {f"{k[0]}/{k[1]}": n for k, n in self.heard.items()},
+            "params_set": list(self.stats["params_set"]),
+            "params_refused": list(self.stats["params_refused"]),
+            "setpoints_unused": self.stats["setpoints_unused"],
         }
