@@ -63,6 +63,29 @@ def _vz_up(tel) -> float:
     return -float(tel.velocity_ned().down_m_s)
 
 
+def _true_state(sim) -> tuple[float, float, float]:
+    """The plant's (not the telemetry's) simulated time (s), height (m) and climb rate (m/s) now."""
+    t, p_W, v_W, _ = sim.history[-1]
+    return float(t), -float(p_W[2]), -float(v_W[2])
+
+
+def _over(sim, seconds: float) -> tuple[float, float]:
+    """Mean vertical acceleration (m/s^2, up) and climb rate (m/s) of the plant over the next ``seconds`` of
+    simulated time (the vehicle's clock: a loaded machine runs it slower than the wall's)."""
+    t0, h0, v0 = _true_state(sim)
+    assert _wait(lambda: _true_state(sim)[0] >= t0 + seconds, 10.0 * seconds + 2.0), "the simulation stalled"
+    t1, h1, v1 = _true_state(sim)
+    return (v1 - v0) / (t1 - t0), (h1 - h0) / (t1 - t0)
+
+
+def _accel_W(sim, seconds: float) -> np.ndarray:
+    """Mean acceleration of the plant (m/s^2, world NED) over the next ``seconds`` of simulated time."""
+    t0, v0 = sim.history[-1][0], sim.history[-1][2].copy()
+    assert _wait(lambda: sim.history[-1][0] >= t0 + seconds, 10.0 * seconds + 2.0), "the simulation stalled"
+    t1, v1 = sim.history[-1][0], sim.history[-1][2]
+    return (v1 - v0) / (t1 - t0)
+
+
 def _common_telemetry(tel, flight_mode) -> None:
     """What MAVSDK reads of a hovering vehicle: health all true, position 1 m above home, armed, in air."""
     assert _wait(tel.health_all_ok, 5.0), f"health not all ok: {tel.health()}"
@@ -78,7 +101,8 @@ def _common_telemetry(tel, flight_mode) -> None:
 def test_mavsdk_flies_px4_offboard_attitude():
     """MAVSDK discovers the simulated PX4, reads its telemetry and flies attitude set-points in OFFBOARD: 0.1 of
     full thrust above hover accelerates it up at 0.1 U / m (Newton, the vehicle file's numbers), a 5 deg roll
-    set-point tilts it 5 deg and it accelerates east; stopping offboard holds (AUTO_LOITER)."""
+    set-point with the weight's thrust tilts it 5 deg and accelerates it east at g tan(5 deg); stopping offboard
+    holds (AUTO_LOITER). The response is measured on the plant, over the vehicle's (simulated) clock."""
     from mavsdk.autopilot import Autopilot
     from mavsdk.plugins.offboard import Attitude, Offboard
     from mavsdk.plugins.telemetry import FlightMode, Telemetry
@@ -93,14 +117,17 @@ def test_mavsdk_flies_px4_offboard_attitude():
         off.set_attitude(Attitude(0.0, 0.0, 0.0, hover + 0.1))
         off.start()
         assert _wait(lambda: tel.flight_mode() == FlightMode.OFFBOARD, 2.0)
-        v0, t0 = _vz_up(tel), time.monotonic()
-        time.sleep(0.8)
-        a_up = (_vz_up(tel) - v0) / (time.monotonic() - t0)
+        h0 = tel.position().relative_altitude_m
+        a_up, _ = _over(sim, 0.8)
         assert a_up == pytest.approx(0.1 * full / mass, rel=0.3), a_up
-        off.set_attitude(Attitude(5.0, 0.0, 0.0, hover))
-        time.sleep(1.0)
+        assert _wait(lambda: tel.position().relative_altitude_m > h0 + 0.3, 2.0)  # and MAVSDK sees it climb
+        off.set_attitude(Attitude(5.0, 0.0, 0.0, hover / np.cos(np.radians(5.0))))
+        _over(sim, 0.6)  # the attitude loop settles
+        a_W = _accel_W(sim, 0.5)
         assert tel.attitude_euler().roll_deg == pytest.approx(5.0, abs=0.5)
-        assert tel.velocity_ned().east_m_s > 0.3  # g tan(5 deg) = 0.86 m/s^2 east for about a second
+        # the tilted thrust (its vertical part the weight) accelerates it east at g tan(5 deg) = 0.86 m/s^2
+        assert a_W[1] == pytest.approx(G * np.tan(np.radians(5.0)), rel=0.2) and abs(a_W[0]) < 0.1, a_W
+        assert tel.velocity_ned().east_m_s > 0.1  # and MAVSDK sees it
         off.stop()
         assert _wait(lambda: sim.mode == "AUTO_LOITER", 2.0)
         assert _wait(lambda: tel.flight_mode() == FlightMode.HOLD, 2.0)
@@ -128,21 +155,19 @@ def test_mavsdk_flies_ardupilot_guided_with_both_readings_of_the_thrust():
         off.set_attitude(Attitude(0.0, 0.0, 0.0, 0.75))
         off.start()
         assert _wait(lambda: tel.flight_mode() == FlightMode.OFFBOARD, 2.0) and sim.mode == "GUIDED"
-        time.sleep(1.5)
-        rates = [(_vz_up(tel), time.sleep(0.1))[0] for _ in range(5)]
-        assert np.mean(rates) == pytest.approx(1.25, abs=0.15), rates
+        _over(sim, 1.5)  # the altitude loop settles on the demanded climb rate
+        _, climb = _over(sim, 0.5)
+        assert climb == pytest.approx(1.25, abs=0.15), climb
+        assert _vz_up(tel) == pytest.approx(1.25, abs=0.25)  # MAVSDK reads it too
         off.set_attitude(Attitude(0.0, 0.0, 0.0, 0.5))
-        time.sleep(1.5)
-        z0 = tel.position().relative_altitude_m
-        time.sleep(0.5)
-        assert abs(tel.position().relative_altitude_m - z0) < 0.1 and abs(_vz_up(tel)) < 0.2
+        _over(sim, 1.5)
+        _, climb = _over(sim, 0.5)
+        assert abs(climb) < 0.1, climb
         par.set_param_int("GUID_OPTIONS", 8)
         assert par.get_param_int("GUID_OPTIONS") == 8
         off.set_attitude(Attitude(0.0, 0.0, 0.0, hover + 0.1))
-        time.sleep(0.2)
-        v0, t0 = _vz_up(tel), time.monotonic()
-        time.sleep(0.6)
-        a_up = (_vz_up(tel) - v0) / (time.monotonic() - t0)
+        _over(sim, 0.2)
+        a_up, _ = _over(sim, 0.6)
         assert a_up == pytest.approx(0.1 * full / mass, rel=0.3), a_up
         off.stop()
         assert _wait(lambda: sim.mode in ("BRAKE", "LOITER"), 2.0), sim.mode
@@ -195,7 +220,8 @@ def test_pymavlink_reads_every_parameter_once_and_a_refused_set_is_echoed(autopi
 def test_land_takeoff_and_refusals_over_pymavlink(autopilot):
     """NAV_LAND lands and disarms (EXTENDED_SYS_STATE on ground); armed again it takes off with NAV_TAKEOFF (PX4:
     to MIS_TAKEOFF_ALT, 2.5 m by default, then AUTO_LOITER; ArduCopter: in GUIDED only, to param 7); a mode this
-    simulation does not fly is DENIED, a command it does not implement UNSUPPORTED. At 5x real time."""
+    simulation does not fly is DENIED, a command it does not implement UNSUPPORTED; the older SET_MODE message
+    changes the mode too. At 5x real time."""
     port = free_port()
     ardu = autopilot == "ardupilot"
     with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", autopilot=autopilot, speed=5.0) as sim:
@@ -234,6 +260,10 @@ def test_land_takeoff_and_refusals_over_pymavlink(autopilot):
                 assert _wait(lambda: sim.mode == "AUTO_LOITER", 3.0)
             assert command(176, 1, 2 if ardu else 7) == 2  # ALT_HOLD / STABILIZED: not flown here
             assert command(300) == 3  # MAV_CMD_MISSION_START: no missions here
+            hold = 5 if ardu else 3 << 16  # LOITER / POSCTL through the older SET_MODE message
+            mav.set_mode_send(1, 1, hold)
+            m = c.recv_match(type="COMMAND_ACK", blocking=True, timeout=3, condition="COMMAND_ACK.command==11")
+            assert m is not None and m.result == 0 and sim.mode == ("LOITER" if ardu else "POSCTL")
         finally:
             c.close()
 
@@ -276,6 +306,7 @@ def test_live_through_a_mavproxy_router_gives_the_direct_estimate(tmp_path):
             assert sim.failure is None
         e = read_csv(res.folder / "estimate.csv")
         t = e["t_s"]
+        assert t.size, f"{'routed' if routed else 'direct'}: {res.end}"
         win = t > t[-1] - 1.5
         assert t[-1] - t[0] > 2.5, "the estimator must have run 1 s (10 / wn) before the window"
         means.append(np.array([e["fx_W_N"][win].mean(), e["fy_W_N"][win].mean(), e["fz_W_N"][win].mean()]))

@@ -541,7 +541,9 @@ class SimAutopilot:
         elif typ == "PARAM_SET":
             self._param_set(_param_id(m.param_id), float(m.param_value), wall)
         elif typ == "SET_MODE":  # the older message: as MAV_CMD_DO_SET_MODE, acknowledged with its message id
-            self._ack(11, self._mode_request(float(m.base_mode), float(m.custom_mode), 0.0), wall, src)
+            custom = int(m.custom_mode)
+            main, sub = (custom, 0) if self.ardu else ((custom >> 16) & 0xFF, (custom >> 24) & 0xFF)
+            self._ack(11, self._mode_request(float(m.base_mode), float(main), float(sub)), wall, src)
         elif typ in ("COMMAND_LONG", "COMMAND_INT"):
             p = [float(m.param1), float(m.param2), float(m.param3), float(m.param4)]
             p += [float(m.param5), float(m.param6), float(m.param7)] if typ == "COMMAND_LONG" else \
