@@ -858,17 +858,18 @@ class SimAutopilot:
         self._once = []
         if not due:
             return
+        meas = self.sensors.measure(np.zeros(12))  # once per tick: what every message of this tick reports
+        omega = self.sensors._ago(self.sensors.k_imu)[OMEGA]
         for name in due:
-            msg = self._message(name, out, f_cmd)
+            msg = self._message(name, out, f_cmd, meas, omega)
             if msg is not None:
                 self._send(msg, wall)
 
-    def _message(self, name: str, out: Any, f_cmd: np.ndarray) -> Any:
-        """One message of the vehicle now, from what its sensors measure (never the true state)."""
+    def _message(self, name: str, out: Any, f_cmd: np.ndarray, meas: Any, omega: np.ndarray) -> Any:
+        """One message of the vehicle now, from what its sensors measure (``meas``, ``omega``; never the true
+        state)."""
         mav = self.mavlink
-        meas = self.sensors.measure(np.zeros(12))
         p, v, eta = meas.p_W, meas.v_W, meas.eta
-        omega = self.sensors._ago(self.sensors.k_imu)[OMEGA]
         ms = self.boot_ms % 2**32
         us = int(round((self.t + self.clock_offset_s) * 1e6))
         kind = self.kinds[self.mode]
