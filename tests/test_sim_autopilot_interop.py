@@ -317,3 +317,55 @@ def test_live_through_a_mavproxy_router_gives_the_direct_estimate(tmp_path):
         means.append(np.array([e["fx_W_N"][win].mean(), e["fy_W_N"][win].mean(), e["fz_W_N"][win].mean()]))
     assert np.allclose(means[0], F_W, atol=0.03) and np.allclose(means[1], F_W, atol=0.03), means
     assert np.allclose(means[0], means[1], atol=0.002), means
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (("--inject-at", "x"), "--inject-at is T_ON or T_ON,T_OFF"),
+        (("--inject-at", "1,2,3"), "--inject-at is T_ON or T_ON,T_OFF"),
+        (("--event", "0.2,mode,STABILIZED"), "not a mode the simulated PX4 flies"),
+        (("--autopilot", "ardupilot", "--event", "0.2,mode,ALT_HOLD"), "not a mode the simulated ArduPilot flies"),
+        (("--latency", "0.6", "--duration", "0.5"), "no packet would arrive"),
+    ],
+)
+def test_sim_autopilot_options_are_refused_naming_the_value(extra, words, capsys):
+    """Options it cannot honour are refused before it flies (exit 2), the message naming the value: a mode it
+    does not fly (it would need a pilot), an injection time that is not one or two numbers, a latency as long
+    as the run."""
+    from vtol_impedance.cli import main
+
+    args = ["sim-autopilot", "case-a-payload", "--connect", "udpout:127.0.0.1:14997", "--quiet", "--duration", "0.5"]
+    assert main(args + list(extra)) == 2
+    assert words in capsys.readouterr().err
+
+
+def test_ardupilot_set_points_time_out_to_a_level_hover_in_the_mode():
+    """ArduCopter's GUID_TIMEOUT (3 s, documented): attitude targets older than that leave it in GUIDED_NOGPS,
+    level and holding its altitude; until then it flies the last one (a 10 deg pitch, with a climb rate of
+    0.5: no climb). Targets sent before the mode is entered are not flown (ArduCopter ignores them). At 4x real
+    time over pymavlink."""
+    port = free_port()
+    with sim_thread(quiet_spec(), connect=f"udpout:127.0.0.1:{port}", autopilot="ardupilot", speed=4.0) as sim:
+        c = mavutil().mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
+        try:
+            assert c.wait_heartbeat(timeout=5) is not None
+            mav = c.mav
+            q = [float(x) for x in np.array([np.cos(np.radians(5.0)), 0.0, np.sin(np.radians(5.0)), 0.0])]
+            mav.set_attitude_target_send(0, 1, 1, 7, q, 0, 0, 0, 0.5)  # in LOITER: dropped
+            assert _wait(lambda: sim.stats["setpoints_unused"] >= 1, 3.0) and sim.setpoint is None
+            mav.command_long_send(1, 1, 176, 0, 1, 20, 0, 0, 0, 0, 0)  # GUIDED_NOGPS
+            assert _wait(lambda: sim.mode == "GUIDED_NOGPS", 3.0)
+            mav.set_attitude_target_send(0, 1, 1, 7, q, 0, 0, 0, 0.5)
+            assert _wait(lambda: sim.setpoint is not None, 3.0)
+            t_sp = sim.setpoint["t"]
+            assert _wait(lambda: sim.history[-1][0] > t_sp + 1.0, 5.0)
+            pitch = float(sim.sensors.measure(np.zeros(12)).eta[1])
+            assert pitch == pytest.approx(np.radians(10.0), abs=np.radians(1.0))
+            assert _wait(lambda: sim.history[-1][0] > t_sp + 3.0 + 1.5, 10.0)  # GUID_TIMEOUT, then settling
+            eta = sim.sensors.measure(np.zeros(12)).eta
+            assert sim.mode == "GUIDED_NOGPS" and abs(eta[0]) < np.radians(1.0) and abs(eta[1]) < np.radians(1.0)
+            _, climb = _over(sim, 0.5)
+            assert abs(climb) < 0.05, climb
+        finally:
+            c.close()
