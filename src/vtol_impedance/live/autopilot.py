@@ -594,7 +594,7 @@ class SimAutopilot:
         ok = writable and np.isfinite(value) and lo <= value <= hi
         if ok and name.startswith("MOT_") and name != "MOT_THST_HOVER":
             try:  # the motors follow the new curve, or the set is refused
-                curve = MotorCurve.from_params({**{k: self.params[k] for k in MOTOR_DEFAULTS}, name: value})
+                curve = MotorCurve.from_params({**MOTOR_DEFAULTS, **self.params, name: value})
             except InputError:
                 ok = False
             else:
