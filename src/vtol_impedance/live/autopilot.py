@@ -410,9 +410,10 @@ class SimAutopilot:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._pending: list[tuple[str, Any]] = []
-        self.rng = np.random.default_rng(settings.impairments.seed)
-        self.down = _Channel(settings.impairments, self.rng)
-        self.up = _Channel(settings.impairments, self.rng)
+        # one generator per direction: what is lost on the way up does not depend on how much the vehicle sends
+        seed = settings.impairments.seed
+        self.down = _Channel(settings.impairments, np.random.default_rng(np.random.SeedSequence([seed, 0])))
+        self.up = _Channel(settings.impairments, np.random.default_rng(np.random.SeedSequence([seed, 1])))
         self.last_out: Any = None
         self.history: deque[tuple[float, np.ndarray, np.ndarray, str]] = deque(maxlen=20000)
         self.stats: dict[str, Any] = {"setpoints": 0, "setpoint_latency_s": [], "modes": [(0.0, self.mode)],
