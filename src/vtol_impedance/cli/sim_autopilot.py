@@ -30,11 +30,19 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
     from ..live.autopilot import Impairments, SimAutopilot, SimSettings
 
     spec, _ = _load_spec(args.scenario, args.set, None, args.ideal)
-    inject_at = _numbers(args.inject_at, "--inject-at", len(str(args.inject_at).split(","))) if args.inject_at else None
-    if inject_at is not None and len(inject_at) not in (1, 2):
-        from ..errors import InputError
+    from ..errors import InputError
 
-        raise InputError(f"--inject-at is T_ON or T_ON,T_OFF in simulated seconds, got {args.inject_at!r}")
+    inject_at = None
+    if args.inject_at is not None:
+        parts = str(args.inject_at).split(",")
+        try:
+            if len(parts) not in (1, 2):
+                raise InputError("")
+            inject_at = _numbers(args.inject_at, "--inject-at", len(parts))
+        except InputError:
+            raise InputError(
+                f"--inject-at is T_ON or T_ON,T_OFF in simulated seconds (finite numbers), got {args.inject_at!r}"
+            ) from None
     on, off = (inject_at[0], inject_at[1] if len(inject_at) > 1 else float("inf")) if inject_at else (0.0, float("inf"))
     settings = SimSettings(
         connect=args.connect, autopilot=args.autopilot, speed=args.speed, duration=args.duration,
@@ -88,6 +96,9 @@ def cmd_sim_autopilot(args: argparse.Namespace) -> int:
     print(f"simulated {s['simulated_s']:.1f} s; final mode {s['mode']}; set-points received {s['setpoints']}"
           + (f", their age on arrival {lat['mean']:.1f} ms mean, {lat['max']:.1f} ms max" if lat else ""),
           file=sys.stderr)  # fmt: skip
+    heard = s.get("heard") or {}
+    print("heard: " + (", ".join(f"system/component {k} ({n} packets)" for k, n in heard.items()) or "nothing"),
+          file=sys.stderr)  # fmt: skip
     if s["behind_real_time_s"] > 0:
         print(
             f"warning: the computer fell {s['behind_real_time_s']:.1f} s behind --speed {args.speed:g}", file=sys.stderr
@@ -106,13 +117,17 @@ def register(sub: Any) -> None:
         "sim-autopilot",
         help="a simulated autopilot (this simulator, PX4 or ArduPilot messages) behind a MAVLink endpoint",
         description="Flies a scenario's true vehicle and disturbances with its own position hold, streams what PX4 "
-        "(or ArduPilot) would, honours SET_ATTITUDE_TARGET in OFFBOARD (GUIDED_NOGPS) with its own attitude loop, "
-        "and can inject a known wrench, packet loss, repeats, reordering and latency. Try 'live' against it.",
+        "(or ArduCopter) would, answers what MAVSDK, MAVProxy and QGroundControl-like ground stations ask (home, "
+        "global position, parameters, takeoff, land), flies SET_ATTITUDE_TARGET in OFFBOARD (ArduCopter GUIDED, "
+        "GUIDED_NOGPS, thrust read as GUID_OPTIONS says) with its own attitude loop, and can inject a known "
+        "wrench, packet loss, repeats, reordering and latency. Try 'live' against it; the guide lists what it "
+        "refuses.",
     )
     sp.add_argument("scenario", help="registered name (see 'list') or a .toml scenario file, e.g. case-b-fan")
     sp.add_argument("--connect", required=True, metavar="ADDRESS",
                     help="where to send, e.g. udpout:127.0.0.1:14550 (where 'live' listens)")  # fmt: skip
-    sp.add_argument("--autopilot", default="px4", choices=["px4", "ardupilot"], help="whose messages and modes")
+    sp.add_argument("--autopilot", default="px4", choices=["px4", "ardupilot"],
+                    help="whose messages, modes and parameters (ardupilot: ArduCopter)")  # fmt: skip
     sp.add_argument("--speed", type=float, default=1.0, help="simulated seconds per second (faster than real time)")
     sp.add_argument("--duration", type=float, default=None, help="simulated seconds (default: until Ctrl-C)")
     sp.add_argument("--inject-force", default=None, metavar="FX,FY,FZ", help="a known force, N, world NED")
@@ -125,7 +140,8 @@ def register(sub: Any) -> None:
     sp.add_argument("--no-stream", action="append", default=[], metavar="MESSAGE",
                     help="a message this autopilot never sends (repeatable), e.g. LOCAL_POSITION_NED")  # fmt: skip
     sp.add_argument("--event", action="append", default=[], metavar="T,KIND,ARG",
-                    help="at simulated time T: mode (a pilot switches to mode ARG, e.g. 8,mode,POSCTL), stop "
+                    help="at simulated time T: mode (a pilot switches to mode ARG, one it flies, e.g. 8,mode,POSCTL), "
+                    "stop "
                     "(stream ARG stops, e.g. 6,stop,LOCAL_POSITION_NED) or clock (the clock jumps ARG s, "
                     "e.g. 5,clock,-100)")  # fmt: skip
     sp.add_argument("--system", type=int, default=1, help="its MAVLink system id")

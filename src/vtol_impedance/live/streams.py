@@ -177,10 +177,17 @@ PX4 = AutopilotProfile(
         "POSCTL": _px4_mode(3),
         "OFFBOARD": _px4_mode(6),
         "STABILIZED": _px4_mode(7),
+        "AUTO_TAKEOFF": _px4_mode(4, 2),
         "AUTO_LOITER": _px4_mode(4, 3),
         "AUTO_LAND": _px4_mode(4, 6),
     },  # fmt: skip
-    mode_command={"POSCTL": (3, 0), "OFFBOARD": (6, 0), "AUTO_LOITER": (4, 3), "AUTO_LAND": (4, 6)},
+    mode_command={
+        "POSCTL": (3, 0),
+        "OFFBOARD": (6, 0),
+        "AUTO_TAKEOFF": (4, 2),
+        "AUTO_LOITER": (4, 3),
+        "AUTO_LAND": (4, 6),
+    },  # fmt: skip
     offboard="OFFBOARD",
     hold="AUTO_LOITER",
     land="AUTO_LAND",
@@ -246,7 +253,14 @@ ARDUPILOT = AutopilotProfile(
         "BRAKE": 17,
         "GUIDED_NOGPS": 20,
     },  # fmt: skip
-    mode_command={"LOITER": (5, 0), "GUIDED_NOGPS": (20, 0), "LAND": (9, 0), "GUIDED": (4, 0)},
+    mode_command={
+        "LOITER": (5, 0),
+        "GUIDED_NOGPS": (20, 0),
+        "LAND": (9, 0),
+        "GUIDED": (4, 0),
+        "BRAKE": (17, 0),
+        "POSHOLD": (16, 0),
+    },  # fmt: skip
     offboard="GUIDED_NOGPS",
     hold="LOITER",
     land="LAND",
