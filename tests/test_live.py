@@ -500,16 +500,18 @@ def _simulator_steady_error(kp: float, dp: float, force: float, t_on: float) -> 
     return float(np.mean(r.data["p_W"][0][sel, 0] - r.data["p_ref_W"][0][sel, 0]))
 
 
-def _control_run(tmp_path, variant: str, event: str, duration: float):
+def _control_run(tmp_path, variant: str, event: str | None, duration: float, autopilot: str = "px4"):
     # the push starts 10 s in: the handshake (a heartbeat a second) usually engages within 1 s, and a CI
     # machine under load once took 7 s
     port = free_port()
     force, t_on = 1.0, 10.0
-    c = ControlSettings(variant=variant, comply=(1.0, 1.0, 0.0) if variant == "comply" else (0.0, 0.0, 0.0))
+    c = ControlSettings(variant=variant, comply=(1.0, 1.0, 0.0) if variant == "comply" else (0.0, 0.0, 0.0),
+                        set_guid_options=autopilot == "ardupilot")  # fmt: skip
     settings = LiveSettings(f"udpin:127.0.0.1:{port}", duration=duration, out=str(tmp_path / variant),
                             display="none", control=c, connect_timeout_s=30)  # fmt: skip
+    extra = ["--event", event] if event else []
     with sim_process("case-a-payload", port, "--set", "payload.mass=0", "--inject-force", f"{force},0,0",
-                     "--inject-at", f"{t_on}", "--duration", "40", "--event", event) as sim:  # fmt: skip
+                     "--inject-at", f"{t_on}", "--duration", "40", "--autopilot", autopilot, *extra) as sim:  # fmt: skip
         res = run_live(settings)
         sim.send_signal(signal.SIGINT)
         _, err = sim.communicate(timeout=20)
@@ -540,6 +542,24 @@ def test_control_holds_against_a_force_like_the_simulators_pdc_and_the_watchdog_
     assert c.watchdog_s <= hb["since_last_tick_s"] <= c.watchdog_s + 0.08
     assert hb["mode"] == "AUTO_LOITER" and hb["confirmed_s"] is not None and hb["confirmed_s"] < 1.0
     assert "final mode AUTO_LOITER" in err
+
+
+def test_control_on_arducopter_sets_guid_options_holds_within_10_cm_and_restores_it(tmp_path):
+    """ArduCopter (simulated, GUID_OPTIONS 0 as shipped: thrust read as a climb rate): --set-guid-options sets bit 3,
+    reads it back, flies GUIDED_NOGPS with the thrust as thrust, holds within 0.10 m of the hold point under a 1 N
+    push (the issue's bound; PD alone would leave F / Kp), hands back to LOITER confirmed by a heartbeat when the
+    duration ends, and restores the value read (0) on the way out."""
+    res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", None, 29.0, autopilot="ardupilot")
+    ctl = res.summary["control"]
+    engaged = d["state"] == "engaged"
+    sel = engaged & (d["t_s"] > t_on + 2.5)
+    assert sel.sum() > 40, "control must be active through the push"
+    err_m = np.hypot(d["x_W_m"][sel] - d["x_ref_W_m"][sel], d["z_W_m"][sel] - d["z_ref_W_m"][sel])
+    assert err_m.max() < 0.10 and force / c.Kp > 0.05
+    g = ctl["guid_options"]
+    assert g["read"] == 0 and g["set"] == 8 and g["read_back"] == 8 and g["restored"] == 0
+    assert ctl["state"] == "handed_back" and ctl["handback"]["outcome"] == "confirmed" and res.exit_code == 0
+    assert ctl["handback"]["mode"] == "LOITER"
 
 
 def test_control_complies_when_asked_and_yields_to_the_pilot_at_once(tmp_path):
