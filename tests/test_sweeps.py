@@ -183,12 +183,11 @@ def test_local_cluster_matches_in_process_and_survives_a_killed_worker(reference
     # kill one worker process as soon as the first chunk is back: the scheduler reruns its work elsewhere
     sweep = from_dict({**SMALL, "chunk": 1})
     folder = SweepFolder(sweep, tmp_path / "killed")
-    payload = {"source": folder.description["source"], "where": None}
     got = {}
     try:
         with Executor(workers=2) as ex:
             pids = list(ex.client.run(os.getpid).values())
-            for i, (k, rows, traces) in enumerate(ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)))):
+            for i, (k, rows, traces) in enumerate(ex.map_chunks(sweep, list(range(sweep.n_chunks)))):
                 folder.write_chunk(k, rows, traces)
                 got[k] = rows
                 if i == 0:

@@ -216,7 +216,31 @@ class Sweep:
         }
 
     def digest(self) -> str:
+        """The content hash: SHA-256 of :meth:`to_dict`, the resolved scenario (a base file's content, not
+        its path) and every point, seed and option; recorded in ``sweep.json`` and in every chunk."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()
+
+
+def changes(old: Any, new: Any, path: str = "", limit: int = 5) -> list[str]:
+    """What differs between two resolved sweep descriptions (:meth:`Sweep.to_dict`), as
+    ``"base.payload.mass: 0.1 -> 0.3"`` lines (the first ``limit``), for a refusal that names the change."""
+    out: list[str] = []
+
+    def walk(a: Any, b: Any, where: str) -> None:
+        if len(out) >= limit:
+            return
+        if isinstance(a, dict) and isinstance(b, dict):
+            for k in list(a) + [k for k in b if k not in a]:
+                walk(a.get(k, "(absent)"), b.get(k, "(absent)"), f"{where}.{k}" if where else str(k))
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+            for i, (x, y) in enumerate(zip(a, b, strict=True)):
+                walk(x, y, f"{where}[{i}]")
+        elif json.dumps(a, sort_keys=True, default=str) != json.dumps(b, sort_keys=True, default=str):
+            short = lambda v: t if len(t := json.dumps(v, default=str)) <= 60 else t[:57] + "..."  # noqa: E731
+            out.append(f"{where or '(whole)'}: {short(a)} -> {short(b)}")
+
+    walk(old, new, path)
+    return out
 
 
 def unit_seed(sweep_seed: int, point: int, repeat: int) -> int:
@@ -242,14 +266,15 @@ def _base(data: dict[str, Any], where: Path | None) -> ScenarioSpec:
 
 def from_dict(
     data: dict[str, Any], where: Path | None = None, check_points: bool = True,
-    on_point: Callable[[int], None] | None = None,
+    on_point: Callable[[int], None] | None = None, base: ScenarioSpec | None = None,
 ) -> Sweep:  # fmt: skip
     """Validate a sweep description and resolve its points (see the module docstring); ``on_point(1)``
-    is called after each point is checked (progress: a check designs the point's controller)."""
+    is called after each point is checked (progress: a check designs the point's controller). ``base``,
+    when given, is the already resolved base scenario (its file is then not read again)."""
     instance("data", data, dict)
     check_keys("sweep", data, KEYS)
     name = check_name(data.get("name", "sweep"))
-    base = _base(data, where)
+    base = _base(data, where) if base is None else instance("base", base, ScenarioSpec)
     fixed = data.get("set", {})
     if not isinstance(fixed, dict):
         raise InputError(f"[set] must be a table of scenario values, got {fixed!r}")
