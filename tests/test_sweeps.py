@@ -118,7 +118,7 @@ def test_chunking_does_not_change_the_results(reference, tmp_path):
     assert len(list((tmp_path / "c3" / "chunks").glob("*.parquet"))) == 3
 
 
-def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path, monkeypatch):
+def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path, monkeypatch, capsys):
     out = tmp_path / "sweep"
     sweep = from_dict(SMALL)
     real = SweepFolder.write_chunk
@@ -136,6 +136,8 @@ def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path,
     monkeypatch.setattr(SweepFolder, "write_chunk", real)
     assert len(list((out / "chunks").glob("*.parquet"))) == 2
     assert not list(out.rglob("*.tmp*"))
+    assert f"interrupted: 2 of {sweep.n_chunks} chunks are kept in {out}; resume with:" in capsys.readouterr().err
+    assert json.loads((out / "sweep.json").read_text())["runs"][-1]["ended"] == "interrupted"
     _, computed = run_sweep(sweep, out, show_progress=False)
     assert computed == sweep.n_chunks - 2
     _same(read_dataset(out), reference)

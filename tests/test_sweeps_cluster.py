@@ -258,3 +258,18 @@ def test_the_chunks_in_flight_are_bounded(cluster, files, monkeypatch):
     with Executor(scheduler=cluster.address, log=lambda m: None) as ex:
         got = [k for k, _, _ in ex.map_chunks(sweep, list(range(sweep.n_chunks)))]
     assert sorted(got) == list(range(20)) and max(most) <= 4  # 2 worker threads
+
+
+def test_a_chunk_failing_every_try_is_named_with_its_parameters_and_the_others_are_kept(cluster, tmp_path):
+    """A point the workers cannot fly (a control rate that does not divide the plant rate, not checked here
+    on purpose): its chunk fails on each of its three tries and is named; the other chunks are written."""
+    from vtol_impedance.sweeps import ChunkError
+
+    bad = {"name": "bad", "base": "case-a-payload", "controllers": ["pd"], "margins": False, "chunk": 1,
+           "set": {"duration": 0.5}, "axes": {"control.rate": [100.0, 333.0]}}  # fmt: skip
+    sweep = from_dict(bad, check_points=False)
+    with pytest.raises(
+        ChunkError, match=r"1 chunk\(s\) failed on every one of 3 tries: chunk 1 \(.*control.rate = 333"
+    ):
+        run_sweep(sweep, tmp_path / "bad", scheduler=cluster.address, show_progress=False)
+    assert [p.name for p in (tmp_path / "bad" / "chunks").glob("*.parquet")] == ["chunk-000000.parquet"]
