@@ -22,6 +22,7 @@ pytest.importorskip("dask.distributed")
 from test_sweeps import _same  # noqa: E402
 
 from vtol_impedance.cli import main  # noqa: E402
+from vtol_impedance.errors import InputError  # noqa: E402
 from vtol_impedance.sweeps import from_dict, load, read_dataset, run_sweep  # noqa: E402
 from vtol_impedance.sweeps.cluster import ClusterError, UnreachableError  # noqa: E402
 from vtol_impedance.sweeps.run import SweepFolder  # noqa: E402
@@ -115,41 +116,18 @@ def test_workers_that_cannot_see_the_file_fly_it_bit_for_bit_and_an_edit_is_refu
         (d / "away.toml").rename(moved)
     _same(read_dataset(d / "cl"), reference)
     err = capsys.readouterr().err
-    assert "2 worker(s) connected; dashboard:" in err and "kernels ready on 2/2 worker(s)" in err
+    assert "worker(s) connected; dashboard:" in err and "kernels ready on 2/2 worker(s)" in err
     record = json.loads((d / "cl" / "sweep.json").read_text())
     assert record["runs"][-1]["ended"] == "complete" and record["runs"][-1]["chunks_computed"] == 4
 
     # the file edited between runs: the resume is refused, naming the value that changed
     moved.write_text(SCENARIO.replace("mass = 0.12", "mass = 0.2"))
     try:
-        rc = main(["sweep", str(d / "sweep.toml"), "--out", str(d / "cl"), "--scheduler", cluster.address, "--quiet"])
+        edited = load(d / "sweep.toml", check_points=False)
+        with pytest.raises(InputError, match=r"holds another sweep: base.payload.mass: 0.12 -> 0.2 .*--restart"):
+            run_sweep(edited, d / "cl", scheduler=cluster.address, where=d / "sweep.toml")
     finally:
         moved.write_text(SCENARIO)
-    err = capsys.readouterr().err
-    assert rc == 2 and "base.payload.mass: 0.12 -> 0.2" in err and "--restart" in err
-
-
-def test_a_killed_worker_is_counted_and_its_chunks_run_elsewhere(cluster, files, monkeypatch, capsys):
-    d, reference = files
-    extra = cluster.worker(cluster.address)
-    _wait_workers(cluster.address, 3)
-    real, calls = SweepFolder.write_chunk, []
-
-    def kill_on_first(self, k, rows, traces):
-        real(self, k, rows, traces)
-        calls.append(k)
-        if len(calls) == 1:
-            extra.send_signal(signal.SIGKILL)  # kill -9, mid-sweep
-            extra.wait()
-            time.sleep(1.0)  # the scheduler sees the connection drop
-
-    monkeypatch.setattr(SweepFolder, "write_chunk", kill_on_first)
-    run_sweep(load(d / "sweep.toml"), d / "killed", scheduler=cluster.address, where=d / "sweep.toml")
-    _same(read_dataset(d / "killed"), reference)
-    assert sorted(calls) == [0, 1, 2, 3]  # each chunk written once: none recomputed after being written
-    run = json.loads((d / "killed" / "sweep.json").read_text())["runs"][-1]
-    assert run["worker_losses"] == 1 and run["ended"] == "complete"
-    assert "lost 1 worker(s)" in capsys.readouterr().err
 
 
 def test_a_silent_port_fails_within_the_deadline_naming_the_address(tmp_path, files):
@@ -273,3 +251,26 @@ def test_a_chunk_failing_every_try_is_named_with_its_parameters_and_the_others_a
     ):
         run_sweep(sweep, tmp_path / "bad", scheduler=cluster.address, show_progress=False)
     assert [p.name for p in (tmp_path / "bad" / "chunks").glob("*.parquet")] == ["chunk-000000.parquet"]
+
+
+def test_a_killed_worker_is_counted_and_its_chunks_run_elsewhere(cluster, files, monkeypatch, capsys):
+    """Last of the tests on the module's cluster: it kills one of its two workers."""
+    d, reference = files
+    extra = cluster.procs[2]  # the second worker
+    real, calls = SweepFolder.write_chunk, []
+
+    def kill_on_first(self, k, rows, traces):
+        real(self, k, rows, traces)
+        calls.append(k)
+        if len(calls) == 1:
+            extra.send_signal(signal.SIGKILL)  # kill -9, mid-sweep
+            extra.wait()
+            time.sleep(1.0)  # the scheduler sees the connection drop
+
+    monkeypatch.setattr(SweepFolder, "write_chunk", kill_on_first)
+    run_sweep(load(d / "sweep.toml"), d / "killed", scheduler=cluster.address, where=d / "sweep.toml")
+    _same(read_dataset(d / "killed"), reference)
+    assert sorted(calls) == [0, 1, 2, 3]  # each chunk written once: none recomputed after being written
+    run = json.loads((d / "killed" / "sweep.json").read_text())["runs"][-1]
+    assert run["worker_losses"] == 1 and run["ended"] == "complete"
+    assert "lost 1 worker(s)" in capsys.readouterr().err

@@ -34,8 +34,8 @@ from ..errors import InputError, VtolImpedanceError
 CONNECT_TIMEOUT_S = 10.0
 #: How long to wait for a first worker before giving up, s (``--wait-workers`` changes it).
 WAIT_WORKERS_S = 60.0
-#: How often a running sweep asks the scheduler for a sign of life, s.
-PING_S = 5.0
+#: How often a running sweep asks the scheduler for a sign of life (and its workers), s.
+PING_S = 2.0
 #: Extra tries of a chunk whose task raised (Dask's ``retries``); a killed worker's chunks are moved
 #: by the scheduler itself (up to ``distributed.scheduler.allowed-failures`` times).
 RETRIES = 2
@@ -67,7 +67,8 @@ def _numba_one_thread() -> None:
 
 
 def chunk_task(sweep: Any, k: int, backend: str = "compiled") -> tuple[int, dict, dict | None]:
-    """What a Dask worker runs: fly chunk ``k`` of ``sweep`` (the resolved sweep: nothing is read from disk)."""
+    """What a Dask worker runs: fly chunk ``k`` of ``sweep`` (``Sweep.task(k)``: the resolved sweep with that
+    chunk's points; nothing is read from disk)."""
     from .run import run_units
 
     _numba_one_thread()
@@ -272,29 +273,30 @@ class Executor:
     def _lost(self, what: str) -> ClusterError:
         return ClusterError(f"lost {self.where}: {what}")
 
-    def _watch(self) -> dict[str, Any]:
-        """Check the scheduler is alive (a ping every :data:`PING_S`), count lost workers and wait (bounded)
-        while none is connected; returns the workers."""
+    def _watch(self, force: bool = False) -> dict[str, Any]:
+        """Check the scheduler is alive (asked every :data:`PING_S`, or now with ``force``), count lost
+        workers and wait (bounded) while none is connected; returns the workers."""
         if self.client.status not in ("running", "connecting", "newly-created"):
             raise self._lost(f"the client's connection is {self.client.status}")
         now = time.monotonic()
-        if now - self._last_ping >= PING_S:
+        if force or now - self._last_ping >= PING_S:
             try:
-                self.client.sync(self.client.scheduler.identity, callback_timeout=self.connect_timeout)
+                ident = self.client.sync(self.client.scheduler.identity, callback_timeout=self.connect_timeout)
             except Exception as exc:  # noqa: BLE001 (any failure to hear back is the loss of the scheduler)
                 raise self._lost(f"no answer within {self.connect_timeout:g} s ({type(exc).__name__})") from None
             self._last_ping = now
-        workers = self._workers()
-        gone = self._seen - set(workers)
-        if gone:
-            self.worker_losses += len(gone)
-            self.log(f"note: lost {len(gone)} worker(s) ({', '.join(sorted(gone))}); their chunks run elsewhere")
-            self._seen -= gone
-        self._seen |= set(workers)
+            workers = dict(ident.get("workers", {}))
+            gone = self._seen - set(workers)  # counted on the scheduler's own answer only (the cache lags)
+            if gone:
+                self.worker_losses += len(gone)
+                self.log(f"note: lost {len(gone)} worker(s) ({', '.join(sorted(gone))}); their chunks run elsewhere")
+            self._seen = set(workers)
+        else:
+            workers = self._workers()
         if not workers:
             self._wait_for_workers()
+            self._last_ping = 0.0  # the next call asks the scheduler who joined
             workers = self._workers()
-            self._seen |= set(workers)
         return workers
 
     def _wait_for_workers(self) -> None:
@@ -330,7 +332,7 @@ class Executor:
         if not workers:
             return
         futures = {
-            self.client.submit(warm_task, sweep, backend, workers=[w], allow_other_workers=False, pure=False): w
+            self.client.submit(warm_task, sweep.task(0), backend, workers=[w], allow_other_workers=False, pure=False): w
             for w in workers
         }
         done = 0
@@ -384,7 +386,9 @@ class Executor:
             slots = max(2, 2 * sum(int(w.get("nthreads", 1)) for w in workers.values()))
             while todo and len(live) < slots:
                 k = todo.pop()
-                fut = self.client.submit(chunk_task, sweep, k, backend, key=f"{key}-{k}", pure=False, retries=retries)
+                fut = self.client.submit(
+                    chunk_task, sweep.task(k), k, backend, key=f"{key}-{k}", pure=False, retries=retries
+                )
                 live[fut] = k
                 ac.add(fut)
 
@@ -409,6 +413,7 @@ class Executor:
                     raise exc
                 failures.append((k, _chunk_params(sweep, k), f"{type(exc).__name__}: {exc}"))
             refill(self._watch())
+        self._watch(force=True)  # a worker lost near the end is counted too
         if failures:
             lines = "; ".join(f"chunk {k} ({p}): {e}" for k, p, e in failures[:5])
             raise ChunkError(f"{len(failures)} chunk(s) failed on every one of {1 + retries} tries: {lines}", failures)

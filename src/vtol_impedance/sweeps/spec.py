@@ -39,7 +39,7 @@ import math
 import os
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import product
 from pathlib import Path
 from typing import Any
@@ -191,7 +191,20 @@ class Sweep:
         return -(-len(self.points) * self.seeds // self.chunk)
 
     def chunk_units(self, k: int) -> list[Unit]:
-        return self.units[k * self.chunk : (k + 1) * self.chunk]
+        """The units of chunk ``k`` (the same as ``units[k * chunk : (k + 1) * chunk]``, without the others)."""
+        n = len(self.points) * self.seeds
+        return [
+            Unit(i, i // self.seeds, i % self.seeds, unit_seed(self.seed, i // self.seeds, i % self.seeds))
+            for i in range(k * self.chunk, min(n, (k + 1) * self.chunk))
+        ]
+
+    def task(self, k: int) -> Sweep:
+        """What chunk ``k``'s task carries to a worker: this resolved sweep (the base scenario's values, not
+        a file name) with only that chunk's points (``None`` for the others) and without its source text,
+        so that a task's size does not grow with the sweep."""
+        keep = {u.point for u in self.chunk_units(k)}
+        points = [p if i in keep else None for i, p in enumerate(self.points)]
+        return replace(self, points=points, source={})  # type: ignore[arg-type]
 
     def point_spec(self, i: int) -> ScenarioSpec:
         spec = self.base
