@@ -20,6 +20,7 @@ existing Dask cluster; every wait on the scheduler bounded, every fault an event
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sys
 import time
@@ -157,6 +158,24 @@ def _bokeh() -> bool:
     return True
 
 
+class _QuietDask(logging.Filter):
+    """While a sweep runs on Dask, the errors Dask logs (with tracebacks) about a lost connection are
+    dropped: the sweep reports the loss itself, with what was kept. Its warnings still show."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.name.startswith(("distributed", "tornado")) and record.levelno >= logging.ERROR)
+
+    def __enter__(self) -> _QuietDask:
+        self.handlers = {h for name in ("", "distributed") for h in logging.getLogger(name).handlers}
+        for h in self.handlers:
+            h.addFilter(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for h in self.handlers:
+            h.removeFilter(self)
+
+
 class Executor:
     """Where chunks are computed: in this process (default), on a loopback ``LocalCluster`` of ``workers``
     processes, or on the Dask cluster at ``scheduler`` (or named by ``scheduler_file``). A context manager;
@@ -229,6 +248,8 @@ class Executor:
     def __enter__(self) -> Executor:
         if not self.distributed:
             return self
+        self._quiet = _QuietDask()  # a loss is said once, by us: not as Dask's logged tracebacks
+        self._quiet.__enter__()
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError:
@@ -264,6 +285,9 @@ class Executor:
                     pass
             if self.cluster is not None:
                 self.cluster.close()
+        if getattr(self, "_quiet", None) is not None:
+            self._quiet.__exit__()
+            self._quiet = None
 
     # ------------------------------------------------------------------ waits and watching
 
@@ -283,7 +307,8 @@ class Executor:
             try:
                 ident = self.client.sync(self.client.scheduler.identity, callback_timeout=self.connect_timeout)
             except Exception as exc:  # noqa: BLE001 (any failure to hear back is the loss of the scheduler)
-                raise self._lost(f"no answer within {self.connect_timeout:g} s ({type(exc).__name__})") from None
+                why = "no answer" if isinstance(exc, TimeoutError) else f"it stopped answering ({type(exc).__name__})"
+                raise self._lost(f"{why} within {self.connect_timeout:g} s") from None
             self._last_ping = now
             workers = dict(ident.get("workers", {}))
             gone = self._seen - set(workers)  # counted on the scheduler's own answer only (the cache lags)
@@ -407,7 +432,8 @@ class Executor:
                     continue
                 exc = fut.exception() if fut.status == "error" else None
                 fut.release()
-                if exc is None:  # cancelled: the scheduler forgot it (lost and back, or closing)
+                if exc is None:  # cancelled: the connection to the scheduler was lost (or it forgot the task)
+                    self._watch(force=True)  # names the loss when the scheduler is gone
                     raise self._lost(f"chunk {k} was cancelled by the scheduler")
                 if isinstance(exc, DesignError):
                     raise exc
