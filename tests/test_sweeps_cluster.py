@@ -31,6 +31,18 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 DASK = [sys.executable, "-c", "import sys; from dask.cli import run_cli; sys.argv[0] = 'dask'; run_cli()"]
 
 SCENARIO = 'base = "case-a-payload"\nname = "mine-v1"\nduration = 1.0\n[payload]\nmass = 0.12\n'
+#: A vehicle file (the Pelican's values under another name), named by the scenario file.
+QUAD = (
+    (Path(__file__).resolve().parents[1] / "src/vtol_impedance/presets/pelican.toml")
+    .read_text()
+    .replace('name = "pelican"', 'name = "my-quad"')
+)
+
+
+def _scenario(d: Path, text: str = SCENARIO) -> str:
+    return f'vehicle = "{d / "quad.toml"}"\n' + text
+
+
 SWEEP = (
     'name = "cl"\nbase = "scenario.toml"\ncontrollers = ["pd", "pdc"]\nseeds = 2\nseed = 3\nchunk = 1\n'
     'margins = false\n[axes]\n"control.estimator_wn" = [5.0, 12.0]\n'
@@ -98,7 +110,8 @@ def cluster(tmp_path_factory):
 def files(tmp_path_factory):
     """A sweep whose base is a scenario file given by a relative path, and its in-process dataset."""
     d = tmp_path_factory.mktemp("user")
-    (d / "scenario.toml").write_text(SCENARIO)
+    (d / "quad.toml").write_text(QUAD)
+    (d / "scenario.toml").write_text(_scenario(d))
     (d / "sweep.toml").write_text(SWEEP)
     run_sweep(load(d / "sweep.toml"), d / "ref", where=d / "sweep.toml", show_progress=False)
     return d, read_dataset(d / "ref")
@@ -108,12 +121,14 @@ def test_workers_that_cannot_see_the_file_fly_it_bit_for_bit_and_an_edit_is_refu
     d, reference = files
     assert not (cluster.cwd / "scenario.toml").exists()
     sweep = load(d / "sweep.toml")  # the client reads the files, once
-    moved = d / "scenario.toml"
-    moved.rename(d / "away.toml")  # nobody can read it now: the workers fly what the task carries
+    moved, quad = d / "scenario.toml", d / "quad.toml"
+    moved.rename(d / "away.toml")  # nobody can read them now: the workers fly what the task carries
+    quad.rename(d / "quad-away.toml")
     try:
         run_sweep(sweep, d / "cl", scheduler=cluster.address, where=d / "sweep.toml")
     finally:
         (d / "away.toml").rename(moved)
+        (d / "quad-away.toml").rename(quad)
     _same(read_dataset(d / "cl"), reference)
     err = capsys.readouterr().err
     assert "worker(s) connected; dashboard:" in err and "kernels ready on 2/2 worker(s)" in err
@@ -121,13 +136,21 @@ def test_workers_that_cannot_see_the_file_fly_it_bit_for_bit_and_an_edit_is_refu
     assert record["runs"][-1]["ended"] == "complete" and record["runs"][-1]["chunks_computed"] == 4
 
     # the file edited between runs: the resume is refused, naming the value that changed
-    moved.write_text(SCENARIO.replace("mass = 0.12", "mass = 0.2"))
+    moved.write_text(_scenario(d, SCENARIO.replace("mass = 0.12", "mass = 0.2")))
     try:
         edited = load(d / "sweep.toml", check_points=False)
         with pytest.raises(InputError, match=r"holds another sweep: base.payload.mass: 0.12 -> 0.2 .*--restart"):
             run_sweep(edited, d / "cl", scheduler=cluster.address, where=d / "sweep.toml")
     finally:
-        moved.write_text(SCENARIO)
+        moved.write_text(_scenario(d))
+    # and the vehicle file it names
+    quad.write_text(QUAD.replace("mass = 1.2", "mass = 1.3"))
+    try:
+        edited = load(d / "sweep.toml", check_points=False)
+        with pytest.raises(InputError, match=r"holds another sweep: vehicle_file.values.mass: 1.2 -> 1.3"):
+            run_sweep(edited, d / "cl", scheduler=cluster.address, where=d / "sweep.toml")
+    finally:
+        quad.write_text(QUAD)
 
 
 def test_a_silent_port_fails_within_the_deadline_naming_the_address(tmp_path, files):

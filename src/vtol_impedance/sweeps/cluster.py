@@ -73,7 +73,25 @@ def chunk_task(sweep: Any, k: int, backend: str = "compiled") -> tuple[int, dict
     from .run import run_units
 
     _numba_one_thread()
-    return (k, *run_units(sweep, sweep.chunk_units(k), backend))
+    return (k, *run_units(_carried(sweep), sweep.chunk_units(k), backend))
+
+
+def _carried(sweep: Any) -> Any:
+    """``sweep`` flying the vehicle file it carries: its text written to this worker's temporary folder
+    (named by its hash), never the user's file read here."""
+    if not sweep.vehicle_file:
+        return sweep
+    import dataclasses
+    import hashlib
+    import tempfile
+
+    from ..io import write_text
+
+    text = sweep.vehicle_file["text"]
+    path = Path(tempfile.gettempdir()) / "vtol-impedance-vehicles" / f"{hashlib.sha256(text.encode()).hexdigest()}.toml"
+    if not path.exists():
+        write_text(path, text)  # atomic: workers sharing the folder never read half a file
+    return dataclasses.replace(sweep, base=dataclasses.replace(sweep.base, vehicle=str(path)))
 
 
 def warm_task(sweep: Any, backend: str = "compiled") -> int:
@@ -81,7 +99,7 @@ def warm_task(sweep: Any, backend: str = "compiled") -> int:
     from .run import warm_up
 
     _numba_one_thread()
-    warm_up(sweep, backend)
+    warm_up(_carried(sweep), backend)
     return os.getpid()
 
 

@@ -173,6 +173,9 @@ class Sweep:
     source: dict[str, Any] = field(default_factory=dict)
     margins: bool = True  # margin columns in every flight row
     fast_estimator_points: list[int] = field(default_factory=list)  # |p| Ts > 0.5: noise barely filtered
+    #: The base's vehicle file (``vehicle = "my_quad.toml"``) as read here: ``{"path": ..., "text": ...}``;
+    #: a worker flies this text, and its content is part of the hash.
+    vehicle_file: dict[str, str] = field(default_factory=dict)
 
     @property
     def units(self) -> list[Unit]:
@@ -226,7 +229,7 @@ class Sweep:
             "chunk": self.chunk,
             "traces": self.traces,
             "margins": self.margins,
-        }
+        } | ({"vehicle_file": _vehicle_content(self.vehicle_file)} if self.vehicle_file else {})
 
     def digest(self) -> str:
         """The content hash: SHA-256 of :meth:`to_dict`, the resolved scenario (a base file's content, not
@@ -355,7 +358,7 @@ def from_dict(
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
         points = [{a.key: a.draw(rng) for a in axes} for _ in range(n_points)]
     sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
-                  source=data, margins=margins)  # fmt: skip
+                  source=data, margins=margins, vehicle_file=_read_vehicle(base.vehicle))  # fmt: skip
     if check_points:
         for i in range(len(points)):
             with warnings.catch_warnings(record=True) as caught:
@@ -369,6 +372,27 @@ def from_dict(
             if on_point is not None:
                 on_point(1)
     return sweep
+
+
+def _read_vehicle(vehicle: str) -> dict[str, str]:
+    """The base's vehicle file, read once here (a preset name: nothing to read)."""
+    if not vehicle.endswith(".toml"):
+        return {}
+    try:
+        return {"path": vehicle, "text": Path(vehicle).read_text(encoding="utf-8")}
+    except OSError as exc:
+        raise InputError(f"cannot read the vehicle file {vehicle}: {exc.strerror or exc}") from None
+
+
+def _vehicle_content(vehicle_file: dict[str, str]) -> dict[str, Any]:
+    """A vehicle file's path and parsed values (what the hash covers, and what a refusal names)."""
+    import tomllib
+
+    try:
+        values: Any = tomllib.loads(vehicle_file["text"])
+    except tomllib.TOMLDecodeError:
+        values = vehicle_file["text"]
+    return {"path": vehicle_file["path"], "values": values}
 
 
 def _fmt_point(p: dict[str, Any]) -> str:
