@@ -274,6 +274,19 @@ def test_a_chunk_failing_every_try_is_named_with_its_parameters_and_the_others_a
     assert [p.name for p in (tmp_path / "bad" / "chunks").glob("*.parquet")] == ["chunk-000000.parquet"]
 
 
+def test_a_scheduler_file_names_the_cluster(cluster, tmp_path):
+    from vtol_impedance.sweeps.cluster import Executor
+
+    assert Executor(scheduler_file=cluster.cwd / "main.json").scheduler == cluster.address
+    with pytest.raises(InputError, match="--scheduler-file .*missing.json is not a readable Dask scheduler file"):
+        Executor(scheduler_file=tmp_path / "missing.json")
+    (tmp_path / "other.json").write_text('{"type": "Scheduler"}')
+    with pytest.raises(InputError, match="names no scheduler address"):
+        Executor(scheduler_file=tmp_path / "other.json")
+    with pytest.raises(InputError, match="give one of --workers"):
+        Executor(workers=2, scheduler_file=cluster.cwd / "main.json")
+
+
 def test_a_killed_worker_is_counted_and_its_chunks_run_elsewhere(cluster, files, monkeypatch, capsys):
     """Last of the tests on the module's cluster: it kills one of its two workers."""
     d, reference = files
