@@ -770,6 +770,7 @@ EXEMPT = {
     "estimator.EstimatorBandwidthWarning": "a warning class", "runtime.ControllerWarning": "a warning class",
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
     "model.VehicleDefaultWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
+    "sweeps.ClusterError": "an exception class", "sweeps.ChunkError": "an exception class",
     "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",
     "scenarios.Registry": "no parameters",
     "sim.Disturbance": "an abstract base class without parameters",

@@ -489,3 +489,24 @@ def test_kept_traces_hold_the_force_the_model_misses_and_rows_count_repeats(tmp_
     assert np.mean(np.asarray(tr["fz_hat_N"])[hover]) == pytest.approx(0.110 * 9.81, rel=0.1)
     heavy = (t > 6.5) & (unit == 2)
     assert np.mean(np.asarray(tr["fz_true_N"])[heavy]) == pytest.approx(0.2 * 9.81, rel=0.05)
+
+
+def test_the_resume_command_repeats_what_resuming_needs_and_never_restart():
+    from vtol_impedance.cli.main import build_parser
+    from vtol_impedance.cli.sweep import resume_command
+
+    args = build_parser().parse_args(
+        ["sweep", "my sweep.toml", "--scheduler", "tcp://h:8786", "--restart", "--yes", "--backend", "numpy"]
+    )
+    cmd = resume_command(args, Path("out dir"))
+    assert cmd == "vtol-impedance sweep 'my sweep.toml' --out 'out dir' --scheduler tcp://h:8786 --backend numpy --yes"
+
+
+def test_the_cluster_flags_help_names_the_true_defaults():
+    from vtol_impedance.cli.main import build_parser
+    from vtol_impedance.sweeps.cluster import CONNECT_TIMEOUT_S, WAIT_WORKERS_S
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["sweep"]
+    helps = {a.dest: a.help for a in sub._actions}
+    assert f"(default {CONNECT_TIMEOUT_S:g})" in helps["connect_timeout"]
+    assert f"(default {WAIT_WORKERS_S:g})" in helps["wait_workers"]

@@ -67,22 +67,27 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def resume_command(args: argparse.Namespace, out: Path) -> str:
-    """The command that resumes this sweep: the same spec, folder, cluster and backend (never --restart)."""
+    """The command that resumes this sweep: the same spec, folder, cluster, backend and bound (never
+    --restart, which would discard the kept chunks)."""
     import shlex
 
     cmd = ["vtol-impedance", "sweep", str(args.spec), "--out", str(out)]
-    for flag in ("workers", "scheduler", "scheduler_file", "connect_timeout", "wait_workers"):
+    for flag in ("workers", "scheduler", "scheduler_file", "connect_timeout", "wait_workers", "max_minutes"):
         value = getattr(args, flag, None)
         if value is not None:
             cmd += [f"--{flag.replace('_', '-')}", str(value)]
     if args.backend != "compiled":
         cmd += ["--backend", args.backend]
+    if getattr(args, "yes", False):  # the resumed sweep is estimated whole again
+        cmd.append("--yes")
     return shlex.join(cmd)
 
 
 def cluster_flags(sp: argparse.ArgumentParser) -> None:
-    """The flags that choose where the work runs (shared by ``sweep`` and ``tune``)."""
-    from ..sweeps.cluster import CONNECT_TIMEOUT_S, WAIT_WORKERS_S
+    """The flags that choose where the work runs (shared by ``sweep`` and ``tune``). The defaults named in
+    the help are :data:`~vtol_impedance.sweeps.cluster.CONNECT_TIMEOUT_S` and ``WAIT_WORKERS_S`` (written
+    out: ``--help`` imports no heavy module; a test keeps them equal)."""
+    CONNECT_TIMEOUT_S, WAIT_WORKERS_S = 10.0, 60.0  # noqa: N806
 
     sp.add_argument("--workers", type=int, default=None, help="start a local Dask cluster with N worker processes")
     sp.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask cluster")
