@@ -168,6 +168,13 @@ def probe(address: str, timeout: float, security: Any = None) -> dict[str, Any]:
     return answer
 
 
+def _ignore_interrupt() -> None:
+    """In a local cluster's worker process: ignore SIGINT (the command stops the cluster itself)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _bokeh() -> bool:
     try:
         import bokeh  # noqa: F401
@@ -180,11 +187,15 @@ class _QuietDask(logging.Filter):
     """While a sweep runs on Dask, the errors Dask logs (with tracebacks) about a lost connection are
     dropped: the sweep reports the loss itself, with what was kept. Its warnings still show."""
 
+    closing = False  # while the cluster is closed, its warnings (workers killed on the way out) are ours too
+
     def filter(self, record: logging.LogRecord) -> bool:
-        return not (record.name.startswith(("distributed", "tornado")) and record.levelno >= logging.ERROR)
+        floor = logging.WARNING if self.closing else logging.ERROR
+        return not (record.name.startswith(("distributed", "tornado")) and record.levelno >= floor)
 
     def __enter__(self) -> _QuietDask:
-        self.handlers = {h for name in ("", "distributed") for h in logging.getLogger(name).handlers}
+        names = ["", *(n for n in logging.root.manager.loggerDict if n.startswith(("distributed", "tornado")))]
+        self.handlers = {h for name in names for h in logging.getLogger(name).handlers}
         for h in self.handlers:
             h.addFilter(self)
         return self
@@ -285,6 +296,7 @@ class Executor:
                 dashboard_address="127.0.0.1:0" if _bokeh() else None, env=one,
             )  # fmt: skip
             self.client = Client(self.cluster)
+            self.client.run(_ignore_interrupt)  # Ctrl-C reaches the whole group: the command alone answers it
         info = self.client.scheduler_info()
         board = self.client.dashboard_link if "dashboard" in info.get("services", {}) else None
         self.log(
@@ -294,6 +306,8 @@ class Executor:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if getattr(self, "_quiet", None) is not None:
+            self._quiet.closing = True
         with warnings.catch_warnings():  # a lost scheduler makes closing noisy; the loss is reported already
             warnings.simplefilter("ignore")
             if self.client is not None:
