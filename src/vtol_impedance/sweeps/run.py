@@ -416,7 +416,8 @@ def run_sweep(
     folder = SweepFolder(sweep, out, restart, where)
     resume = resume or f"the same run_sweep into {folder.folder}"
     todo: list[int] = []
-    run: dict[str, Any] = {"started": _now(), "on": executor.where, "chunks_computed": 0, "worker_losses": 0}
+    run: dict[str, Any] = {"started": _now(), "on": executor.where, "chunks_computed": 0, "worker_losses": 0,
+                           "ended": "error"}  # fmt: skip
     try:
         todo = folder.missing()
         for note in folder.repairs:
@@ -442,7 +443,7 @@ def run_sweep(
             raise ChunkError(f"{exc}. {_kept(folder)}; resume with: {resume}", exc.failures) from None
         run["ended"] = "complete"
     finally:
-        run["chunks_computed"] = folder.done() - (sweep.n_chunks - len(todo))
+        run["chunks_computed"] = max(0, folder.done() - (sweep.n_chunks - len(todo))) if todo else 0
         run["worker_losses"] = executor.worker_losses
         try:
             folder.record_run(run)
