@@ -779,6 +779,7 @@ EXEMPT = {
     "estimator.EstimatorBandwidthWarning": "a warning class", "runtime.ControllerWarning": "a warning class",
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
     "model.VehicleDefaultWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
+    "sweeps.ClusterError": "an exception class", "sweeps.ChunkError": "an exception class",
     "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",
     "tunepage.Latest": "no parameters", "tunepage.Superseded": "an exception class",
     "tunepage.Field": "a row of the page's table of controls (tunepage.FIELDS), which the package writes",

@@ -118,7 +118,7 @@ def test_chunking_does_not_change_the_results(reference, tmp_path):
     assert len(list((tmp_path / "c3" / "chunks").glob("*.parquet"))) == 3
 
 
-def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path, monkeypatch):
+def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path, monkeypatch, capsys):
     out = tmp_path / "sweep"
     sweep = from_dict(SMALL)
     real = SweepFolder.write_chunk
@@ -136,6 +136,8 @@ def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path,
     monkeypatch.setattr(SweepFolder, "write_chunk", real)
     assert len(list((out / "chunks").glob("*.parquet"))) == 2
     assert not list(out.rglob("*.tmp*"))
+    assert f"interrupted: 2 of {sweep.n_chunks} chunks are kept in {out}; resume with:" in capsys.readouterr().err
+    assert json.loads((out / "sweep.json").read_text())["runs"][-1]["ended"] == "interrupted"
     _, computed = run_sweep(sweep, out, show_progress=False)
     assert computed == sweep.n_chunks - 2
     _same(read_dataset(out), reference)
@@ -183,12 +185,11 @@ def test_local_cluster_matches_in_process_and_survives_a_killed_worker(reference
     # kill one worker process as soon as the first chunk is back: the scheduler reruns its work elsewhere
     sweep = from_dict({**SMALL, "chunk": 1})
     folder = SweepFolder(sweep, tmp_path / "killed")
-    payload = {"source": folder.description["source"], "where": None}
     got = {}
     try:
         with Executor(workers=2) as ex:
             pids = list(ex.client.run(os.getpid).values())
-            for i, (k, rows, traces) in enumerate(ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)))):
+            for i, (k, rows, traces) in enumerate(ex.map_chunks(sweep, list(range(sweep.n_chunks)))):
                 folder.write_chunk(k, rows, traces)
                 got[k] = rows
                 if i == 0:
@@ -488,3 +489,24 @@ def test_kept_traces_hold_the_force_the_model_misses_and_rows_count_repeats(tmp_
     assert np.mean(np.asarray(tr["fz_hat_N"])[hover]) == pytest.approx(0.110 * 9.81, rel=0.1)
     heavy = (t > 6.5) & (unit == 2)
     assert np.mean(np.asarray(tr["fz_true_N"])[heavy]) == pytest.approx(0.2 * 9.81, rel=0.05)
+
+
+def test_the_resume_command_repeats_what_resuming_needs_and_never_restart():
+    from vtol_impedance.cli.main import build_parser
+    from vtol_impedance.cli.sweep import resume_command
+
+    args = build_parser().parse_args(
+        ["sweep", "my sweep.toml", "--scheduler", "tcp://h:8786", "--restart", "--yes", "--backend", "numpy"]
+    )
+    cmd = resume_command(args, Path("out dir"))
+    assert cmd == "vtol-impedance sweep 'my sweep.toml' --out 'out dir' --scheduler tcp://h:8786 --backend numpy --yes"
+
+
+def test_the_cluster_flags_help_names_the_true_defaults():
+    from vtol_impedance.cli.main import build_parser
+    from vtol_impedance.sweeps.cluster import CONNECT_TIMEOUT_S, WAIT_WORKERS_S
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["sweep"]
+    helps = {a.dest: a.help for a in sub._actions}
+    assert f"(default {CONNECT_TIMEOUT_S:g})" in helps["connect_timeout"]
+    assert f"(default {WAIT_WORKERS_S:g})" in helps["wait_workers"]

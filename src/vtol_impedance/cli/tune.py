@@ -9,6 +9,7 @@ from typing import Any
 
 from .common import DEFAULT_OUT, _bound_flags, _default_out
 from .flights import _preflight
+from .sweep import cluster_flags
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
@@ -28,7 +29,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     _preflight([t.base_spec()], [t.controller], args.quiet)
     with RunFolder(out) as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
-        res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log)
+        res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log, scheduler_file=args.scheduler_file,
+                   connect_timeout=args.connect_timeout, wait_workers=args.wait_workers)  # fmt: skip
         write_text(folder.path("trials.csv"), trials_csv(res["trials"]))
         best_row = min(res["trials"], key=lambda r: r["cost"])
         if best_row["failed"] or best_row.get("below_margin", 0):
@@ -77,8 +79,7 @@ def register(sub: Any) -> None:
     sp.add_argument("spec", help="a tuning .toml file")
     sp.add_argument("--trials", type=int, default=None, help="number of trials (default: the file's)")
     sp.add_argument("--out", default=None, help=f"results folder (default: {DEFAULT_OUT}/tune-<name>)")
-    sp.add_argument("--workers", type=int, default=None, help="start a local Dask cluster with N worker processes")
-    sp.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask cluster")
+    cluster_flags(sp)
     sp.add_argument("--backend", choices=["compiled", "numpy"], default="compiled")
     sp.add_argument("--quiet", action="store_true")
     _bound_flags(sp)

@@ -12,10 +12,10 @@ command again after an interruption (Ctrl-C, a killed worker, a killed process) 
 chunks whose files are missing; since every unit's seed depends only on the sweep seed and its indices,
 the dataset is the same as an uninterrupted run's. A folder holding another sweep is refused.
 
-On Dask (``workers=N`` starts a loopback ``LocalCluster``, ``scheduler=ADDRESS`` joins an existing one)
-the client writes the files: workers only compute and return rows, so they need no shared disk. The
-kernels are compiled once, in this process, before any worker starts; every task pins numba to one
-thread (Dask does not limit numba's threads in its workers).
+On Dask (``workers=N`` starts a loopback ``LocalCluster``, ``scheduler=ADDRESS`` joins an existing one;
+see :mod:`.cluster`) each task carries the resolved sweep, so a worker reads no file; the client writes
+the chunk files as results arrive, so workers need no shared disk. ``sweep.json`` also keeps the run
+record (``runs``: where each run ran, the chunks it computed, the workers it lost, how it ended).
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ from ..errors import InputError
 from ..estimator.momentum import EstimatorBandwidthWarning
 from ..io import FolderLock, write_text, write_with
 from .budget import Progress
-from .spec import Sweep, Unit
+from .cluster import ChunkError, ClusterError, Executor
+from .spec import Sweep, Unit, changes
 
 METRICS = ("rms_ep_cm", "max_ep_cm", "ss_ep_cm", "rms_ev_cms", "rms_f_err_N", "rms_tau_err_mNm", "sat_pct")
 #: Stability-margin columns of every flight row (``margins = true``, the default): the point's controller
@@ -64,15 +65,6 @@ def point_margins(spec: Any, controllers: list[str]) -> dict[str, dict[str, floa
 
 
 SWEEP_FILE = "sweep.json"
-
-
-def _numba_one_thread() -> None:
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except (ImportError, ValueError):
-        pass
 
 
 def run_units(
@@ -142,17 +134,6 @@ def run_units(
     return rows, traces
 
 
-def chunk_task(sweep_dict: dict[str, Any], k: int, backend: str = "compiled") -> tuple[int, dict, dict | None]:
-    """What a Dask worker runs: rebuild the sweep from its description and fly chunk ``k``."""
-    from .spec import from_dict
-
-    _numba_one_thread()
-    sweep = from_dict(
-        sweep_dict["source"], Path(sweep_dict["where"]) if sweep_dict["where"] else None, check_points=False
-    )
-    return (k, *run_units(sweep, sweep.chunk_units(k), backend))
-
-
 def _table(cols: dict[str, list], meta: dict[str, str] | None = None):
     import pyarrow as pa
 
@@ -205,9 +186,11 @@ class SweepFolder:
             if old.get("digest") != desc["digest"]:
                 if not restart:
                     self.lock.close()
+                    diff = changes(old.get("sweep"), desc["sweep"])
+                    what = f": {'; '.join(diff)} (in sweep.json -> now)" if diff else " (its description differs)"
                     raise InputError(
-                        f"{self.folder} holds another sweep (its description differs); use --restart to discard it "
-                        "or choose another --out"
+                        f"{self.folder} holds another sweep{what}; its chunks were flown with the values in "
+                        "sweep.json, so they are not resumed: use --restart to discard them or choose another --out"
                     )
                 import shutil
 
@@ -216,12 +199,26 @@ class SweepFolder:
                 for f in self.folder.iterdir():
                     if f.is_file():
                         f.unlink()
+            elif isinstance(old.get("runs"), list):
+                desc["runs"] = old["runs"]  # the run record goes on
         self.folder.mkdir(parents=True, exist_ok=True)
         self.chunks.mkdir(exist_ok=True)
         if sweep.traces:
             self.traces.mkdir(exist_ok=True)
+        desc.setdefault("runs", [])
         write_text(existing, json.dumps(desc, indent=1, default=str))
         self.description = desc
+
+    def record_run(self, run: dict[str, Any]) -> None:
+        """Append ``run`` (where it ran, chunks computed, workers lost, how it ended) to the run record in
+        ``sweep.json`` (rewritten atomically)."""
+        self.description["runs"].append(run)
+        write_text(self.folder / SWEEP_FILE, json.dumps(self.description, indent=1, default=str))
+
+    def done(self) -> int:
+        """How many chunks are on disk, complete (without checking their content)."""
+        names = {chunk_name(k) for k in range(self.sweep.n_chunks)}
+        return sum(1 for p in self.chunks.glob("chunk-*.parquet") if p.name in names)
 
     def missing(self) -> list[int]:
         """Chunks still to compute. A chunk file counts as done only if its content says it is this sweep's
@@ -300,118 +297,41 @@ def _versions() -> dict[str, str]:
 
 
 def warm_up(sweep: Sweep, backend: str = "compiled") -> None:
-    """Compile the kernels here, once, before workers start (they then load them from the cache)."""
+    """Compile the kernels in this process (or load them from the cache): one short flight of the first
+    point. Its shortness makes a timed disturbance fall after its end: that warning is not the user's."""
     from ..scenarios import set_value, simulate
+    from ..scenarios.spec import ScenarioWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", EstimatorBandwidthWarning)
+        warnings.simplefilter("ignore", ScenarioWarning)
         spec = set_value(sweep.point_spec(0), "duration", 0.05)
         simulate(spec, sweep.controllers[:1], backend=backend, log="metrics")
-
-
-def _address_ok(address: str) -> bool:
-    """``[protocol://]host:port`` with a port in 1..65535 (what a Dask scheduler listens on)."""
-    import re
-
-    pattern = r"(?:(tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9._-]+):(\d{1,5})"
-    m = re.fullmatch(pattern, address.strip())
-    return bool(m) and 0 < int(m.group(3)) < 65536
-
-
-class Executor:
-    """Where chunks are computed: in this process (default), on a loopback ``LocalCluster`` of ``workers``
-    processes, or on the Dask cluster at ``scheduler``. A context manager; the cluster lives as long as it."""
-
-    def __init__(self, workers: int | None = None, scheduler: str | None = None) -> None:
-        if workers is not None and scheduler:
-            raise InputError("give --workers (a local cluster) or --scheduler (an existing one), not both")
-        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-            raise InputError(f"--workers must be a whole number of at least 1, got {workers!r}")
-        cores = os.cpu_count() or 1
-        self.note = ""
-        if workers is not None and workers > cores:  # more processes than cores only adds memory
-            self.note = f"--workers {workers} capped at {cores}, this machine's cores"
-            workers = cores
-        if scheduler is not None and not _address_ok(scheduler):
-            raise InputError(
-                f"--scheduler {scheduler!r} is not a Dask scheduler address; give one like tcp://HOST:8786"
-            )
-        self.workers, self.scheduler = workers, scheduler
-        self.client = self.cluster = None
-
-    @property
-    def distributed(self) -> bool:
-        return self.workers is not None or bool(self.scheduler)
-
-    def __enter__(self) -> Executor:
-        if not self.distributed:
-            return self
-        try:
-            from dask.distributed import Client, LocalCluster
-        except ImportError:
-            raise InputError("--workers and --scheduler need Dask: pip install 'vtol-impedance[dask]'") from None
-        if self.scheduler:
-            try:
-                self.client = Client(self.scheduler, timeout="10s")
-            except (OSError, TimeoutError, ValueError, TypeError) as exc:
-                raise InputError(f"cannot reach the Dask scheduler at {self.scheduler}: {exc}") from None
-            return self
-        one = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-        self.cluster = LocalCluster(
-            n_workers=self.workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-            env=one,
-        )  # fmt: skip
-        self.client = Client(self.cluster)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.client is not None:
-            self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
-
-    def map_chunks(
-        self, sweep: Sweep, payload: dict[str, Any], chunks: list[int], backend: str = "compiled",
-        on_unit: Callable[[int], None] | None = None,
-    ):  # fmt: skip
-        """``(k, rows, traces)`` for every chunk, as each completes (``on_unit``: see :func:`run_units`, in
-        this process only; on Dask a chunk is the unit of progress)."""
-        if not self.distributed:
-            for k in chunks:
-                yield (k, *run_units(sweep, sweep.chunk_units(k), backend, on_unit))
-            return
-        from dask.distributed import as_completed
-
-        futures = [
-            self.client.submit(chunk_task, payload, k, backend, key=f"vtol-chunk-{sweep.digest()[:12]}-{k}", pure=False)
-            for k in chunks
-        ]
-        for fut in as_completed(futures):
-            yield fut.result()
 
 
 def execute(
     sweep: Sweep,
     folder: SweepFolder,
     chunks: list[int],
-    workers: int | None = None,
-    scheduler: str | None = None,
+    executor: Executor,
     backend: str = "compiled",
     progress: Callable[[int], None] | None = None,
 ) -> None:
-    """Compute ``chunks`` and write each as it completes (in-process by default, else on Dask);
-    ``progress(flights)`` is told of every unit (in this process) or chunk (on Dask) done."""
+    """Compute ``chunks`` on ``executor`` (entered) and write each as it completes; ``progress(flights)``
+    is told of every unit (in this process) or chunk (on Dask) done."""
     if not chunks:
         return
-    warm_up(sweep, backend)
+    if executor.scheduler is None:
+        warm_up(sweep, backend)  # in this process, or for a local cluster's workers (they share the cache)
+    if executor.distributed:
+        executor.warm_workers(sweep, backend)
     if isinstance(progress, Progress):
         progress.start()  # the time left is the flights', not the compile's
-    payload = {"source": folder.description["source"], "where": folder.description["where"]}
-    with Executor(workers, scheduler) as ex:
-        for k, rows, traces in ex.map_chunks(sweep, payload, chunks, backend, None if ex.distributed else progress):
-            folder.write_chunk(k, rows, traces)
-            if progress and ex.distributed:
-                progress(len(sweep.chunk_units(k)) * len(sweep.controllers))
+    on_unit = None if executor.distributed else progress
+    for k, rows, traces in executor.map_chunks(sweep, chunks, backend, on_unit):
+        folder.write_chunk(k, rows, traces)
+        if progress and executor.distributed:
+            progress(len(sweep.chunk_units(k)) * len(sweep.controllers))
 
 
 def read_dataset(folder: Path, digest: str | None = None):
@@ -459,9 +379,21 @@ def run_sweep(
     restart: bool = False,
     where: Path | None = None,
     show_progress: bool = True,
+    scheduler_file: str | Path | None = None,
+    connect_timeout: float | None = None,
+    wait_workers: float | None = None,
+    resume: str | None = None,
 ) -> tuple[Path, int]:
-    """Run (or resume) a sweep into ``out``; returns the folder and how many chunks were computed now."""
+    """Run (or resume) a sweep into ``out``; returns the folder and how many chunks were computed now.
+
+    ``workers``, ``scheduler``, ``scheduler_file``, ``connect_timeout`` and ``wait_workers``: see
+    :class:`~vtol_impedance.sweeps.cluster.Executor`. ``resume`` is the command that resumes this run (the
+    CLI passes its own): an interruption (a :class:`KeyboardInterrupt`, re-raised), the loss of the cluster
+    (:class:`~vtol_impedance.sweeps.cluster.ClusterError`) or chunks failing every try
+    (:class:`~vtol_impedance.sweeps.cluster.ChunkError`) each say how many chunks were kept and name it.
+    Every run is added to the run record (``runs`` in ``sweep.json``) with the worker losses it saw."""
     from ..errors import choice, instance, path_like, scalar
+    from . import cluster
 
     instance("sweep", sweep, Sweep)
     out = path_like("out", out)
@@ -470,13 +402,22 @@ def run_sweep(
     if scheduler is not None:
         instance("scheduler", scheduler, str)
     choice("backend", backend, ("compiled", "numpy"))
-    note = Executor(workers, scheduler).note  # validates the choice before touching the folder
-    if note:
-        print(f"note: {note}", file=sys.stderr)
-    if scheduler:
-        with Executor(None, scheduler):
-            pass  # an unreachable cluster fails here, before the folder exists
+    executor = Executor(
+        workers,
+        scheduler,
+        scheduler_file,
+        cluster.CONNECT_TIMEOUT_S if connect_timeout is None else connect_timeout,
+        cluster.WAIT_WORKERS_S if wait_workers is None else wait_workers,
+        log=(lambda m: print(m, file=sys.stderr, flush=True)) if show_progress else (lambda m: None),
+    )  # fmt: skip  (validates the choice before touching the folder)
+    if executor.note:
+        print(f"note: {executor.note}", file=sys.stderr)
+    executor.connect()  # a silent or unreachable scheduler fails here, before the folder exists
     folder = SweepFolder(sweep, out, restart, where)
+    resume = resume or f"the same run_sweep into {folder.folder}"
+    todo: list[int] = []
+    run: dict[str, Any] = {"started": _now(), "on": executor.where, "chunks_computed": 0, "worker_losses": 0,
+                           "ended": "error"}  # fmt: skip
     try:
         todo = folder.missing()
         for note in folder.repairs:
@@ -487,7 +428,35 @@ def run_sweep(
             msg += f" ({done} already done, resuming)" if done else ""
             print(msg, file=sys.stderr)
         flights = sum(len(sweep.chunk_units(k)) for k in todo) * len(sweep.controllers)
-        execute(sweep, folder, todo, workers, scheduler, backend, Progress(flights, "flights", show_progress))
+        try:
+            with executor:
+                execute(sweep, folder, todo, executor, backend, Progress(flights, "flights", show_progress))
+        except KeyboardInterrupt:
+            run["ended"] = "interrupted"
+            print(f"interrupted: {_kept(folder)}; resume with: {resume}", file=sys.stderr)
+            raise
+        except ClusterError as exc:
+            run["ended"] = f"cluster: {exc}"
+            raise ClusterError(f"{exc}. {_kept(folder)}; resume with: {resume}") from None
+        except ChunkError as exc:
+            run["ended"] = f"chunks failed: {exc}"
+            raise ChunkError(f"{exc}. {_kept(folder)}; resume with: {resume}", exc.failures) from None
+        run["ended"] = "complete"
     finally:
-        folder.close()
+        run["chunks_computed"] = max(0, folder.done() - (sweep.n_chunks - len(todo))) if todo else 0
+        run["worker_losses"] = executor.worker_losses
+        try:
+            folder.record_run(run)
+        finally:
+            folder.close()
     return folder.folder, len(todo)
+
+
+def _kept(folder: SweepFolder) -> str:
+    return f"{folder.done()} of {folder.sweep.n_chunks} chunks are kept in {folder.folder}"
+
+
+def _now() -> str:
+    import datetime
+
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")

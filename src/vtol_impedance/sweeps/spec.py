@@ -39,7 +39,7 @@ import math
 import os
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import product
 from pathlib import Path
 from typing import Any
@@ -173,6 +173,9 @@ class Sweep:
     source: dict[str, Any] = field(default_factory=dict)
     margins: bool = True  # margin columns in every flight row
     fast_estimator_points: list[int] = field(default_factory=list)  # |p| Ts > 0.5: noise barely filtered
+    #: The base's vehicle file (``vehicle = "my_quad.toml"``) as read here: ``{"path": ..., "text": ...}``;
+    #: a worker flies this text, and its content is part of the hash.
+    vehicle_file: dict[str, str] = field(default_factory=dict)
 
     @property
     def units(self) -> list[Unit]:
@@ -191,7 +194,20 @@ class Sweep:
         return -(-len(self.points) * self.seeds // self.chunk)
 
     def chunk_units(self, k: int) -> list[Unit]:
-        return self.units[k * self.chunk : (k + 1) * self.chunk]
+        """The units of chunk ``k`` (the same as ``units[k * chunk : (k + 1) * chunk]``, without the others)."""
+        n = len(self.points) * self.seeds
+        return [
+            Unit(i, i // self.seeds, i % self.seeds, unit_seed(self.seed, i // self.seeds, i % self.seeds))
+            for i in range(k * self.chunk, min(n, (k + 1) * self.chunk))
+        ]
+
+    def task(self, k: int) -> Sweep:
+        """What chunk ``k``'s task carries to a worker: this resolved sweep (the base scenario's values, not
+        a file name) with only that chunk's points (``None`` for the others) and without its source text,
+        so that a task's size does not grow with the sweep."""
+        keep = {u.point for u in self.chunk_units(k)}
+        points = [p if i in keep else None for i, p in enumerate(self.points)]
+        return replace(self, points=points, source={})  # type: ignore[arg-type]
 
     def point_spec(self, i: int) -> ScenarioSpec:
         spec = self.base
@@ -213,10 +229,34 @@ class Sweep:
             "chunk": self.chunk,
             "traces": self.traces,
             "margins": self.margins,
-        }
+        } | ({"vehicle_file": _vehicle_content(self.vehicle_file)} if self.vehicle_file else {})
 
     def digest(self) -> str:
+        """The content hash: SHA-256 of :meth:`to_dict`, the resolved scenario (a base file's content, not
+        its path) and every point, seed and option; recorded in ``sweep.json`` and in every chunk."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()
+
+
+def changes(old: Any, new: Any, path: str = "", limit: int = 5) -> list[str]:
+    """What differs between two resolved sweep descriptions (:meth:`Sweep.to_dict`), as
+    ``"base.payload.mass: 0.1 -> 0.3"`` lines (the first ``limit``), for a refusal that names the change."""
+    out: list[str] = []
+
+    def walk(a: Any, b: Any, where: str) -> None:
+        if len(out) >= limit:
+            return
+        if isinstance(a, dict) and isinstance(b, dict):
+            for k in list(a) + [k for k in b if k not in a]:
+                walk(a.get(k, "(absent)"), b.get(k, "(absent)"), f"{where}.{k}" if where else str(k))
+        elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+            for i, (x, y) in enumerate(zip(a, b, strict=True)):
+                walk(x, y, f"{where}[{i}]")
+        elif json.dumps(a, sort_keys=True, default=str) != json.dumps(b, sort_keys=True, default=str):
+            short = lambda v: t if len(t := json.dumps(v, default=str)) <= 60 else t[:57] + "..."  # noqa: E731
+            out.append(f"{where or '(whole)'}: {short(a)} -> {short(b)}")
+
+    walk(old, new, path)
+    return out
 
 
 def unit_seed(sweep_seed: int, point: int, repeat: int) -> int:
@@ -242,14 +282,15 @@ def _base(data: dict[str, Any], where: Path | None) -> ScenarioSpec:
 
 def from_dict(
     data: dict[str, Any], where: Path | None = None, check_points: bool = True,
-    on_point: Callable[[int], None] | None = None,
+    on_point: Callable[[int], None] | None = None, base: ScenarioSpec | None = None,
 ) -> Sweep:  # fmt: skip
     """Validate a sweep description and resolve its points (see the module docstring); ``on_point(1)``
-    is called after each point is checked (progress: a check designs the point's controller)."""
+    is called after each point is checked (progress: a check designs the point's controller). ``base``,
+    when given, is the already resolved base scenario (its file is then not read again)."""
     instance("data", data, dict)
     check_keys("sweep", data, KEYS)
     name = check_name(data.get("name", "sweep"))
-    base = _base(data, where)
+    base = _base(data, where) if base is None else instance("base", base, ScenarioSpec)
     fixed = data.get("set", {})
     if not isinstance(fixed, dict):
         raise InputError(f"[set] must be a table of scenario values, got {fixed!r}")
@@ -317,7 +358,7 @@ def from_dict(
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
         points = [{a.key: a.draw(rng) for a in axes} for _ in range(n_points)]
     sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
-                  source=data, margins=margins)  # fmt: skip
+                  source=data, margins=margins, vehicle_file=_read_vehicle(base.vehicle))  # fmt: skip
     if check_points:
         for i in range(len(points)):
             with warnings.catch_warnings(record=True) as caught:
@@ -331,6 +372,27 @@ def from_dict(
             if on_point is not None:
                 on_point(1)
     return sweep
+
+
+def _read_vehicle(vehicle: str) -> dict[str, str]:
+    """The base's vehicle file, read once here (a preset name: nothing to read)."""
+    if not vehicle.endswith(".toml"):
+        return {}
+    try:
+        return {"path": vehicle, "text": Path(vehicle).read_text(encoding="utf-8")}
+    except OSError as exc:
+        raise InputError(f"cannot read the vehicle file {vehicle}: {exc.strerror or exc}") from None
+
+
+def _vehicle_content(vehicle_file: dict[str, str]) -> dict[str, Any]:
+    """A vehicle file's path and parsed values (what the hash covers, and what a refusal names)."""
+    import tomllib
+
+    try:
+        values: Any = tomllib.loads(vehicle_file["text"])
+    except tomllib.TOMLDecodeError:
+        values = vehicle_file["text"]
+    return {"path": vehicle_file["path"], "values": values}
 
 
 def _fmt_point(p: dict[str, Any]) -> str:

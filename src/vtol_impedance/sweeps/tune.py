@@ -110,12 +110,19 @@ class Tuning:
     failure_penalty: float
     min_phase_margin_deg: float = 0.0
     margin_penalty: float = 1000.0
+    base: Any = None  # the base scenario, resolved once (a base file is read here, never by a worker)
+
+    def __post_init__(self) -> None:
+        if self.base is None:
+            from .spec import _base
+
+            self.base = _base(self.data, self.where)
 
     def base_spec(self) -> Any:
         """The scenario every trial starts from: the base with the fixed overrides."""
-        from .spec import _base, set_param
+        from .spec import set_param
 
-        spec = _base(self.data, self.where)
+        spec = self.base
         for k, v in _flatten(self.data.get("set", {})).items():
             spec = set_param(spec, k, v)
         return spec
@@ -187,7 +194,7 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None, check_corn
     corners = [lo, hi, inside, *({**lo, a.key: v} for a in search for v in a.values or ())]
     for point in corners if check_corners else []:
         try:
-            from_dict(t.trial_sweep(point), where)
+            from_dict(t.trial_sweep(point), where, base=t.base)
         except DesignError:
             pass
         except InputError as exc:
@@ -237,28 +244,38 @@ def trial_cost(t: Tuning, rows: dict[str, list]) -> tuple[float, dict[str, float
 
 def tune(
     t: Tuning, workers: int | None = None, scheduler: str | None = None, trials: int | None = None,
-    backend: str = "compiled", log: Callable[[str], None] = lambda m: None,
+    backend: str = "compiled", log: Callable[[str], None] = lambda m: None, scheduler_file: str | Path | None = None,
+    connect_timeout: float | None = None, wait_workers: float | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """Search the gains; returns the best parameters, cost and every trial with its cost components."""
+    """Search the gains; returns the best parameters, cost and every trial with its cost components. Where
+    the flights run: ``workers``, ``scheduler``, ``scheduler_file``, ``connect_timeout``, ``wait_workers``
+    as for :class:`~vtol_impedance.sweeps.cluster.Executor`."""
+    from . import cluster
+
     n_trials = t.trials if trials is None else int(scalar("--trials", trials, lo=1, hi=100_000, integer=True))
     records: list[dict[str, Any]] = []
     try:
         lower = {a.key: a.grid()[0] if a.values else a.lo for a in t.search}
-        warm_up(from_dict(t.trial_sweep(lower), t.where), backend)
+        warm_up(from_dict(t.trial_sweep(lower), t.where, base=t.base), backend)
     except DesignError:
         pass  # the lower corner has no robust design: the first trial that has one compiles
-    executor = Executor(workers, scheduler)
+    executor = Executor(
+        workers, scheduler, scheduler_file,
+        cluster.CONNECT_TIMEOUT_S if connect_timeout is None else connect_timeout,
+        cluster.WAIT_WORKERS_S if wait_workers is None else wait_workers, log=log,
+    )  # fmt: skip
     if executor.note:
         log(f"note: {executor.note}")
     with executor as ex:
+        if ex.distributed:
+            ex.warm_workers(from_dict(t.trial_sweep(lower), t.where, check_points=False, base=t.base), backend)
 
         def objective(params: dict[str, float]) -> float:
             desc = t.trial_sweep(params)
-            sweep = from_dict(desc, t.where, check_points=False)
+            sweep = from_dict(desc, t.where, check_points=False, base=t.base)
             rows: dict[str, list] = {}
-            payload = {"source": desc, "where": str(t.where) if t.where else None}
-            try:
-                for _, r, _ in ex.map_chunks(sweep, payload, list(range(sweep.n_chunks)), backend):
+            try:  # no retries: a trial that fails (no robust design) fails on every try
+                for _, r, _ in ex.map_chunks(sweep, list(range(sweep.n_chunks)), backend, retries=0):
                     for k, v in r.items():
                         rows.setdefault(k, []).extend(v)
             except DesignError as exc:  # gains no bandwidth keeps stable on some plant: a failed trial, not a stop
