@@ -210,11 +210,34 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         lambda: dict(thrust_constant=6e-6, max_speed=1000.0),
         {"thrust_constant": "pos", "max_speed": "pos"},
     ),
+    "model.linear_drag_from_rotor_speed": (
+        lambda: dict(coefficient=1.2e-4, hover_speed=470.0, n_rotors=4),
+        {"coefficient": "nonneg", "hover_speed": "pos", "n_rotors": "count"},
+    ),
+    "model.inflow_damping_from_momentum": (
+        lambda: dict(hover_thrust=2.9, rotor_radius=0.127, tip_speed=66.0, solidity=0.1),
+        {
+            "hover_thrust": "pos",
+            "rotor_radius": "pos",
+            "tip_speed": "pos",
+            "solidity": "pos",
+            "lift_slope": "pos",
+            "n_rotors": "count",
+            "air_density": "pos",
+        },
+    ),
     "model.layout_positions": (lambda: dict(layout="x", arm_length=0.2), {"layout": "choice", "arm_length": "pos"}),
     "model.vehicle_from_dict": (lambda: dict(data={"mass": 1.0, "inertia": [0.01, 0.01, 0.02]}), {"data": "mapping"}),
     "model.VehicleParams": (
         lambda: dict(mass=1.2, inertia=eye3(), arm_length=0.21),
-        {"mass": "pos", "inertia": A33, "arm_length": "pos", "drag_factor": "pos"},
+        {
+            "mass": "pos",
+            "inertia": A33,
+            "arm_length": "pos",
+            "drag_factor": "pos",
+            "inflow_damping": "nonneg",
+            "body_drag": "gain0",
+        },
     ),
     "model.allocate": (
         lambda: dict(
@@ -780,6 +803,7 @@ EXEMPT = {
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
     "model.VehicleDefaultWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
     "sweeps.ClusterError": "an exception class", "sweeps.ChunkError": "an exception class",
+    "model.aero_force_B": "the plant's inner force law, called at every RK4 stage with the plant's checked arrays",
     "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",
     "tunepage.Latest": "no parameters", "tunepage.Superseded": "an exception class",
     "tunepage.Field": "a row of the page's table of controls (tunepage.FIELDS), which the package writes",

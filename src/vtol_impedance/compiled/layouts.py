@@ -143,7 +143,8 @@ PLANT = np.dtype(
         ("tau_down", _F),
         ("inv_tau_up", _F),
         ("inv_tau_down", _F),
-        ("rotor_drag", _F),  # N s/m
+        ("lin_drag_B", _F, 3),  # rotor drag d_x, d_y and inflow damping d_z, N s/m, body axes
+        ("quad_drag_B", _F, 3),  # body drag, N s^2/m^2, body axes
         ("ground", _F),  # 1: a ground at z = 0
         ("k_ground", _F),
         ("c_ground", _F),

@@ -206,6 +206,21 @@ def _set_body(x, s):
 
 
 @kernel(inline="always")
+def _aero_W(pp, R, v0, v1, v2):
+    """The aerodynamic force (world) at the body origin moving at ``v`` (world), as
+    :func:`vtol_impedance.sim.plant.aero_force_W`: ``R (-D v_B - |v_B| C v_B)`` with ``v_B = Rᵀ v``."""
+    b0 = R[0] * v0 + R[3] * v1 + R[6] * v2
+    b1 = R[1] * v0 + R[4] * v1 + R[7] * v2
+    b2 = R[2] * v0 + R[5] * v1 + R[8] * v2
+    speed = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    D, C = pp.lin_drag_B, pp.quad_drag_B
+    f0 = -(D[0] + speed * C[0]) * b0
+    f1 = -(D[1] + speed * C[1]) * b1
+    f2 = -(D[2] + speed * C[2]) * b2
+    return R[0] * f0 + R[1] * f1 + R[2] * f2, R[3] * f0 + R[4] * f1 + R[5] * f2, R[6] * f0 + R[7] * f1 + R[8] * f2
+
+
+@kernel(inline="always")
 def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     """``x_dot`` of the true plant's body and pendulum (the tuple of :func:`_body_of`), as
     :func:`vtol_impedance.sim.plant.plant_derivative`, with the rotors' thrust ``u`` and body moments ``tm``
@@ -227,12 +242,12 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     vo1 = v1 - (R[3] * a0 + R[4] * a1 + R[5] * a2)
     vo2 = v2 - (R[6] * a0 + R[7] * a1 + R[8] * a2)
     zo = p2 - (R[6] * c[0] + R[7] * c[1] + R[8] * c[2])
-    # environment: disturbances, rotor drag, ground under the origin
-    kd = pp.rotor_drag
+    # environment: disturbances, aerodynamic force (sim.plant.aero_force_W), ground under the origin
+    ae0, ae1, ae2 = _aero_W(pp, R, vo0, vo1, vo2)
     g0, g1, g2 = _ground(pp, zo, vo0, vo1, vo2)
-    fe0 = dist[0] - kd * vo0 + g0
-    fe1 = dist[1] - kd * vo1 + g1
-    fe2 = dist[2] - kd * vo2 + g2
+    fe0 = dist[0] + ae0 + g0
+    fe1 = dist[1] + ae1 + g1
+    fe2 = dist[2] + ae2 + g2
     te0, te1, te2 = dist[3], dist[4], dist[5]
     # second contact point (the payload) r_p: from the CoM d = r_p - c
     r = pp.r_contact_B

@@ -1,5 +1,6 @@
 """Vehicle model: kinematics (1), dynamics (3)-(8) and the rotor mixer (4)."""
 
+from .aero import AIR_DENSITY, aero_force_B, inflow_damping_from_momentum, linear_drag_from_rotor_speed
 from .dynamics import (
     body_moment_from_euler,
     coriolis_matrix_C,
@@ -33,6 +34,10 @@ from .vehicle import (
 )
 
 __all__ = [
+    "AIR_DENSITY",
+    "aero_force_B",
+    "inflow_damping_from_momentum",
+    "linear_drag_from_rotor_speed",
     "FILE_DEFAULTS",
     "LAYOUTS",
     "THRUST_SHIFT_MAX",

@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import tomllib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,7 @@ import numpy as np
 from ..conventions import G
 from ..errors import InputError, as_finite, check_keys, choice, positive, scalar
 from ..io import read_toml
+from .aero import check_coefficients
 
 #: Rotor layouts built from an arm length, see :func:`layout_positions`.
 LAYOUTS = ("plus", "x", "hex")
@@ -206,6 +207,15 @@ class VehicleParams:
         ``"plus"`` (eq. (4), the default), ``"x"`` or ``"hex"`` (:func:`layout_positions`).
     name : str
         Label.
+    rotor_drag : float or (float, float)
+        Rotor (blade-flapping, H-force) drag ``(d_x, d_y)`` in the rotor plane, N per m/s of body-frame
+        airspeed (one number: both); 0 (the default): none. See :mod:`vtol_impedance.model.aero`.
+    inflow_damping : float
+        Thrust lost per m/s of climb speed along the thrust axis, N per m/s (``d_z``); 0: none.
+    body_drag : float or (float, float, float)
+        Quadratic body drag ``(c_x, c_y, c_z)`` per body axis, N per (m/s)^2 (``1/2 rho C_d A``); 0: none.
+        The three aerodynamic terms act on the true plant only: the controller never reads them (what it
+        does not know stays in the plant); the margin check's linearisation does.
     """
 
     mass: float
@@ -217,6 +227,9 @@ class VehicleParams:
     name: str = "custom"
     layout: str = "plus"
     rotors: tuple[Rotor, ...] | None = None
+    rotor_drag: float | tuple[float, float] = 0.0
+    inflow_damping: float = 0.0
+    body_drag: float | tuple[float, float, float] = 0.0
     _geometry: RotorGeometry | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -225,6 +238,9 @@ class VehicleParams:
         object.__setattr__(self, "drag_factor", scalar("drag_factor", self.drag_factor, lo=0.0, lo_open=True))
         if not isinstance(self.name, str):
             raise InputError(f"vehicle name must be a string, got {self.name!r}")
+        object.__setattr__(self, "rotor_drag", check_coefficients("rotor_drag", self.rotor_drag, 2))
+        object.__setattr__(self, "inflow_damping", check_coefficients("inflow_damping", self.inflow_damping, 1)[0])
+        object.__setattr__(self, "body_drag", check_coefficients("body_drag", self.body_drag, 3))
         if self.rotors is not None:
             given = [k for k in ("arm_length", "f_max", "f_min") if getattr(self, k) is not None]
             if given:
@@ -264,6 +280,20 @@ class VehicleParams:
         return self.geometry.n
 
     @property
+    def linear_drag_B(self) -> tuple[float, float, float]:
+        """``(d_x, d_y, d_z)``: rotor drag and inflow damping, N per m/s, body axes."""
+        return (*self.rotor_drag, self.inflow_damping)  # type: ignore[return-value]
+
+    @property
+    def has_aero(self) -> bool:
+        """Whether the description carries any aerodynamic term."""
+        return any(self.linear_drag_B) or any(self.body_drag)  # type: ignore[arg-type]
+
+    def without_aero(self) -> VehicleParams:
+        """A copy without rotor drag, inflow damping or body drag."""
+        return replace(self, rotor_drag=0.0, inflow_damping=0.0, body_drag=0.0)
+
+    @property
     def thrust_to_weight(self) -> float:
         """Maximum total thrust over nominal weight."""
         return float(self.geometry.f_max.sum() / (self.mass * G))
@@ -282,8 +312,9 @@ class VehicleParams:
             )
         ]
         return VehicleParams(
-            self.mass, self.inertia, drag_factor=self.drag_factor, name=self.name, rotors=tuple(rotors)
-        )
+            self.mass, self.inertia, drag_factor=self.drag_factor, name=self.name, rotors=tuple(rotors),
+            rotor_drag=self.rotor_drag, inflow_damping=self.inflow_damping, body_drag=self.body_drag,
+        )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         g = self.geometry
@@ -298,7 +329,13 @@ class VehicleParams:
                     g.positions_B.tolist(), g.spins.tolist(), g.f_min.tolist(), g.f_max.tolist(), strict=True
                 )
             ],
-        }
+        } | self._aero_dict()
+
+    def _aero_dict(self) -> dict[str, Any]:
+        """The aerodynamic terms that are not 0 (a record without them reads as before they existed)."""
+        terms = {"rotor_drag": list(self.rotor_drag), "inflow_damping": self.inflow_damping,  # type: ignore[arg-type]
+                 "body_drag": list(self.body_drag)}  # type: ignore[arg-type]  # fmt: skip
+        return {k: v for k, v in terms.items() if np.any(v)}
 
 
 def _geometry(pos: np.ndarray, spins: np.ndarray, f_min: np.ndarray, f_max: np.ndarray, c: float) -> RotorGeometry:
@@ -345,6 +382,9 @@ PRESET_KEYS = (
     "torque_constant",
     "max_speed",
     "rotors",
+    "rotor_drag",
+    "inflow_damping",
+    "body_drag",
 )
 ROTOR_KEYS = ("position_B", "spin", "f_max", "f_min", "max_speed")
 
@@ -394,6 +434,7 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
         return None
 
     name = data.get("name", source)
+    aero = {k: data[k] for k in ("rotor_drag", "inflow_damping", "body_drag") if k in data}  # default 0: none
     for key, want in (("name", str), ("layout", str)):
         if key in data and not isinstance(data[key], want):
             raise InputError(f"{source}: {key} must be a string, got {data[key]!r}")
@@ -413,7 +454,7 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
                     defaulted.append("rotors[].f_max")
                 fmin = r.get("f_min", FILE_DEFAULTS["f_min"])
                 rotors.append(Rotor(r["position_B"], r["spin"], FILE_DEFAULTS["f_max"] if fmax is None else fmax, fmin))
-            vehicle = VehicleParams(mass, inertia, drag_factor=c, name=name, rotors=tuple(rotors))
+            vehicle = VehicleParams(mass, inertia, drag_factor=c, name=name, rotors=tuple(rotors), **aero)
         else:
             f_max = limit(data, source)
             defaulted += [k for k in ("layout", "arm_length") if k not in data]
@@ -427,6 +468,7 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
                 f_min=data.get("f_min"),
                 name=name,
                 layout=data.get("layout", FILE_DEFAULTS["layout"]),
+                **aero,
             )
     except (TypeError, ValueError) as exc:
         if isinstance(exc, InputError):

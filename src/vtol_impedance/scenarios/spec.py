@@ -117,16 +117,25 @@ class PayloadSpec:
         _check_fields(self)
 
 
+#: The isotropic linear drag (N per m/s) a scenario flies when the vehicle describes none (DESIGN.md, section 4).
+ROTOR_DRAG_STAND_IN = 0.18
+
+
 @dataclass(frozen=True)
 class PlantSpec:
-    """True-plant effects the controller does not know (see :class:`~vtol_impedance.sim.plant.PlantParams`)."""
+    """True-plant effects the controller does not know (see :class:`~vtol_impedance.sim.plant.PlantParams`).
+
+    ``rotor_drag`` (N per m/s, isotropic) left at ``None`` (``"auto"`` in a file or ``--set``) flies the
+    vehicle's own rotor drag and inflow damping when its description gives them, else the stand-in
+    :data:`ROTOR_DRAG_STAND_IN`; a number replaces them, and is refused for a vehicle that describes its own.
+    """
 
     inertia_scale: Vec3 = (1.15, 1.15, 0.9)
     arm_length_scale: float = 1.0
     drag_factor_scale: float = 1.1
     rotor_tau_up: float = 0.0125
     rotor_tau_down: float = 0.025
-    rotor_drag: float = 0.18
+    rotor_drag: float | None = None
     rotor_limits: bool = True
     ground: bool = True
     pendulum_mass: float = 0.0  # kg on a rigid link hung from the centre of mass (0: none)
@@ -383,12 +392,14 @@ def build(spec: ScenarioSpec) -> Built:
     true_vehicle = vehicle if ps.rotor_limits else vehicle.with_rotor_limits(f_max=1e6)
     if spec.ideal:
         plant = PlantParams(
-            true_vehicle, payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground,
+            true_vehicle.without_aero(), payload_mass=pl.mass, rotor_tau_up=0.0, rotor_tau_down=0.0, ground=ps.ground,
             pendulum_mass=ps.pendulum_mass, pendulum_length=ps.pendulum_length,
         )  # fmt: skip
         sensors = SensorParams.ideal()
     else:
         effects = {k: v for k, v in dataclasses.asdict(ps).items() if k != "rotor_limits"}
+        if ps.rotor_drag is None:  # the vehicle's own, or the stand-in for a vehicle that describes none
+            effects["rotor_drag"] = 0.0 if any(vehicle.linear_drag_B) else ROTOR_DRAG_STAND_IN
         plant = PlantParams(true_vehicle, payload_mass=pl.mass, payload_offset_B=pl.offset_B, **effects)
         sensors = spec.sensors
     start = np.array([0.0, 0.0, 0.0 if spec.trajectory.start_on_ground else -spec.trajectory.altitude])
@@ -637,7 +648,7 @@ def _gain_value(path: str, value: Any) -> Any:
 #: Keys whose default ``None`` means "chosen for you" (designed, or from the sensor model); ``"design"`` or
 #: ``"auto"`` sets them back to that.
 _OPTIONAL = {"control.wn_o", "control.wn_o_yaw", "control.attitude_filter_wn", "control.estimator_wn",
-             "control.velocity_delay", "control.attitude_delay"}  # fmt: skip
+             "control.velocity_delay", "control.attitude_delay", "plant.rotor_drag"}  # fmt: skip
 
 
 def _coerce(path: str, current: Any, value: Any) -> Any:

@@ -392,7 +392,8 @@ class FanJet(Disturbance):
 class Wind(Disturbance):
     """Steady wind ``velocity_W`` acting through linear rotor drag: ``f = drag * velocity_W``.
 
-    The plant's own ``rotor_drag * v`` term supplies the part due to the vehicle's motion.
+    The plant's aerodynamic force (the vehicle's rotor drag, or ``plant.rotor_drag``) supplies the part due to
+    the vehicle's motion.
     """
 
     kind: ClassVar[str] = "wind"

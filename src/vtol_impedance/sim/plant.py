@@ -15,10 +15,11 @@ Forces and moments:
   (not from the controller's effectiveness matrix); a payload moves the CoM by ``c_B``, so the
   thrust has a moment ``-c_B x F`` about the true CoM;
 * rotor lag: ``f_dot = (clip(f_cmd) - f) / tau`` with a faster time constant up than down;
-* environment: explicit disturbances ``f_dist_W`` (at the body origin) and ``tau_dist_B``, linear rotor
-  drag ``-k_drag v`` and a spring-damper ground (z = 0 in NED, +z is down) acting at two contact points:
-  the body origin (the landing gear the controller's position refers to) and the payload (which touches
-  first when it hangs below).
+* environment: explicit disturbances ``f_dist_W`` (at the body origin) and ``tau_dist_B``, the true
+  vehicle's aerodynamic force ``R (-D v_B - |v_B| C v_B)`` at the body origin (rotor drag, inflow damping,
+  body drag: :mod:`vtol_impedance.model.aero`) and a spring-damper ground (z = 0 in NED, +z is down) acting
+  at two contact points: the body origin (the landing gear the controller's position refers to) and the
+  payload (which touches first when it hangs below).
 
 Newton-Euler about the CoM: ``m a = m g_W - u R e3 + f_env_W``, ``I w_dot = tau - w x I w``.
 All functions broadcast over leading batch dimensions.
@@ -35,6 +36,7 @@ import numpy as np
 
 from ..conventions import GRAVITY_W, G
 from ..errors import InputError, as_finite, batched, instance, positive, scalar
+from ..model.aero import aero_force_B
 from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
 from ..model.vehicle import MAX_ROTORS, VehicleParams, effectiveness
@@ -71,7 +73,10 @@ class PlantParams:
         First-order rotor time constants, s, spinning up and down; 0 makes that direction instant (the
         other keeps its lag).
     rotor_drag : float
-        Linear drag coefficient, N per m/s of airspeed (0 disables).
+        Isotropic linear drag, N per m/s of airspeed (0 disables): the shorthand for a vehicle whose
+        ``rotor_drag`` and ``inflow_damping`` are all this number (``D = k I``, the same force
+        ``-k v`` in any frame). One drag model: a vehicle that describes its own rotor drag or inflow
+        damping flies with those, and giving this too is refused.
     ground : bool
         A spring-damper ground at z = 0 (NED) under the body origin.
     ground_stiffness, ground_damping, ground_friction : float
@@ -114,6 +119,12 @@ class PlantParams:
             object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, hi=10.0))
         for name in ("rotor_drag", "ground_damping", "ground_friction"):
             object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0))
+        if self.rotor_drag > 0 and any(self.vehicle.linear_drag_B):
+            raise InputError(
+                f"rotor_drag = {self.rotor_drag:g} N per m/s (isotropic) and vehicle {self.vehicle.name!r}'s own "
+                f"rotor_drag {list(self.vehicle.rotor_drag)} / inflow_damping {self.vehicle.inflow_damping:g} are "
+                "the same drag: give it once (in a scenario, leave plant.rotor_drag unset to fly the vehicle's)"
+            )
         if not isinstance(self.ground, bool | np.bool_):
             raise InputError(f"ground must be true or false, got {self.ground!r}")
         object.__setattr__(self, "pendulum_mass", scalar("pendulum_mass", self.pendulum_mass, lo=0.0, hi=1e3))
@@ -161,7 +172,8 @@ class PlantArrays(NamedTuple):
     f_min: np.ndarray  # (..., n)
     tau_up: np.ndarray
     tau_down: np.ndarray
-    rotor_drag: np.ndarray
+    lin_drag_B: np.ndarray  # (..., 3) rotor drag d_x, d_y and inflow damping d_z, N s/m, body axes
+    quad_drag_B: np.ndarray  # (..., 3) body drag, N s^2/m^2, body axes
     ground: np.ndarray  # 1.0 / 0.0
     k_ground: np.ndarray
     c_ground: np.ndarray
@@ -232,7 +244,9 @@ def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
         "f_min": np.array([g.f_min for g in geo], dtype=float)[iv],
         "tau_up": col("rotor_tau_up"),
         "tau_down": col("rotor_tau_down"),
-        "rotor_drag": col("rotor_drag"),
+        # one linear drag: the vehicle's, or the plant's isotropic shorthand (never both, PlantParams)
+        "lin_drag_B": np.array([v.linear_drag_B for v in vehicles])[iv] + col("rotor_drag")[:, None],
+        "quad_drag_B": np.array([v.body_drag for v in vehicles], dtype=float)[iv],
         "ground": col("ground"),
         "k_ground": col("ground_stiffness"),
         "c_ground": col("ground_damping"),
@@ -337,20 +351,27 @@ def _ground_force(P: PlantArrays, p_W: np.ndarray, v_W: np.ndarray) -> np.ndarra
     return np.concatenate([fxy, fz[..., None]], -1)
 
 
+def aero_force_W(P: PlantArrays, R: np.ndarray, v_o_W: np.ndarray) -> np.ndarray:
+    """The true vehicle's aerodynamic force (N, world) at the body origin moving at ``v_o_W`` (still air):
+    ``R_WB aero_force_B(R_WBᵀ v_o_W)`` (:func:`vtol_impedance.model.aero.aero_force_B`)."""
+    v_B = matvec(transpose(R), v_o_W)
+    return matvec(R, aero_force_B(v_B, P.lin_drag_B, P.quad_drag_B))
+
+
 def environment_wrench(
     P: PlantArrays, t: float, x: np.ndarray, R: np.ndarray, dist: DisturbanceFn | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Total external force (world, at the body origin) and moment (body, about the origin).
 
-    Disturbances ``dist(t, p_o_W, v_o_W, R_WB)`` plus rotor drag plus ground contact at the body origin and
-    at the payload: everything except gravity and the rotors.
+    Disturbances ``dist(t, p_o_W, v_o_W, R_WB)`` plus the aerodynamic force (:func:`aero_force_W`) plus
+    ground contact at the body origin and at the payload: everything except gravity and the rotors.
     """
     p_o, v_o = origin_kinematics(P, x, R)
     if dist is None:
         f_d, tau = np.zeros(p_o.shape), np.zeros(p_o.shape)
     else:
         f_d, tau = dist(t, p_o, v_o, R)
-    f = f_d - P.rotor_drag[..., None] * v_o + _ground_force(P, p_o, v_o)
+    f = f_d + aero_force_W(P, R, v_o) + _ground_force(P, p_o, v_o)
     p_c, v_c = point_kinematics(P, x, P.r_contact_B, R)
     f_c = _ground_force(P, p_c, v_c)
     tau = tau + cross(P.r_contact_B, matvec(transpose(R), f_c))
