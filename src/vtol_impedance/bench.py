@@ -532,7 +532,8 @@ def _live_case(autopilot: str, seconds: float, log=print) -> dict[str, Any]:
         f = np.stack([est["fx_W_N"], est["fy_W_N"], est["fz_W_N"]], -1)
         out: dict[str, Any] = {"autopilot": autopilot, "sources": res.summary["estimator"]["sources"],
                                "thrust_map": res.summary["estimator"]["thrust_map"], "end": res.end,
-                               "live": _wrench_stats(t, f, truth, t[0] + LIVE_SETTLE_S)}  # fmt: skip
+                               "live": _wrench_stats(t, f, truth, t[0] + LIVE_SETTLE_S),
+                               "events": [e["text"] for e in res.summary["events"]]}  # fmt: skip
         log(f"  {autopilot}: re-estimating the recorded flight.tlog ...")
         from .cli import main
 
