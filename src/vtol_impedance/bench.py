@@ -578,8 +578,8 @@ def live_table(res: dict[str, Any]) -> str:
     lines = [
         f"live-path accuracy, {res['payload_N']:g} N payload (truth f_W = [0, 0, +{res['payload_N']:g}] N, NED), "
         f"after {res['settle_s']:g} s of settling",
-        "autopilot  path   thrust from                  mean error x / y / z (N)      p95 |error| x / y / z (N)",
-        "---------  -----  ---------------------------  ---------------------------  ---------------------------",
+        "autopilot  path   thrust from                  over    mean error x / y / z (N)    p95 |error| x / y / z (N)",
+        "---------  -----  ---------------------------  ------  --------------------------  --------------------------",
     ]
     for c in res["cases"]:
         src = c["sources"]
@@ -589,8 +589,8 @@ def live_table(res: dict[str, Any]) -> str:
                 thrust = src.get("rpm") or src.get("outputs") or src.get("thrust", "?")
                 thrust = s.get("thrust_from", thrust)
                 m, p = s["mean_error_N"], s["p95_abs_error_N"]
-                lines.append(f"{c['autopilot']:<9}  {path:<5}  {thrust:<27}  {m[0]:+8.4f} {m[1]:+8.4f} {m[2]:+8.4f}  "
-                             f"{p[0]:8.4f} {p[1]:8.4f} {p[2]:8.4f}")  # fmt: skip
+                head = f"{c['autopilot']:<9}  {path:<5}  {thrust:<27}  {s['seconds']:5.1f}s"
+                lines.append(f"{head}  {m[0]:+8.4f} {m[1]:+8.4f} {m[2]:+8.4f}  {p[0]:8.4f} {p[1]:8.4f} {p[2]:8.4f}")
             else:
                 lines.append(f"{c['autopilot']:<9}  {path:<5}  {s}")
     return "\n".join(lines)
