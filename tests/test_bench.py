@@ -45,3 +45,27 @@ def test_a_bad_report_path_or_yardstick_is_refused_before_measuring(tmp_path, ca
     ):
         assert main(["bench", "--quick", "--quiet", *args]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_live_accuracy_statistics_are_the_mean_and_the_p95_of_the_error(tmp_path, capsys):
+    """``bench --live``'s numbers on a hand-made series: an estimate of a 1 N downward force that reads
+    1.02 N with one sample in twenty at 1.30 N, and x alternating +-0.01 N; what came before ``t_from`` is
+    left out. Its bad options are refused before anything flies."""
+    import numpy as np
+
+    from vtol_impedance.bench import _wrench_stats
+
+    t = np.arange(200) * 0.02
+    f = np.zeros((200, 3))
+    f[:, 0] = np.where(np.arange(200) % 2 == 0, 0.01, -0.01)
+    f[:, 2] = np.where(np.arange(200) % 20 == 0, 1.30, 1.02)
+    f[:100] = 50.0  # the settling: left out
+    s = _wrench_stats(t, f, np.array([0.0, 0.0, 1.0]), t_from=2.0)
+    assert s["samples"] == 100
+    np.testing.assert_allclose(s["mean_error_N"], [0.0, 0.0, 0.95 * 0.02 + 0.05 * 0.30], atol=1e-12)
+    # 95 of the 100 z errors are 0.02, five are 0.30: the 95th percentile lies between them
+    assert 0.02 <= s["p95_abs_error_N"][2] <= 0.30 and s["p95_abs_error_N"][0] == 0.01
+    for args, message in ((["--live", "--quick"], "not with --live"), (["--live-seconds", "30"], "with --live only"),
+                          (["--live", "--live-seconds", "1"], "--live-seconds")):  # fmt: skip
+        assert main(["bench", "--quiet", "--out", str(tmp_path / "b.json"), *args]) == 2
+        assert message in capsys.readouterr().err

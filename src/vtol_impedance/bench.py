@@ -295,18 +295,10 @@ def _versus(path: Path, n: int, T: float, rounds: int, log=print, ys: Any = None
     }  # fmt: skip
 
 
-def run(
-    out: Path, quick: bool = False, log=print, compile_times: bool = True, yardstick: Path | None = None
-) -> dict[str, Any]:
-    """Measure everything, print a table, write JSON to ``out``; returns the numbers.
-
-    ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes up to a minute);
-    ``yardstick``: the path of the shared yardstick's ``numba_loop.py``, timed against this project in the same
-    run (:func:`_versus`).
-    """
+def _writable_report(out: Path) -> Path:
+    """``out`` as a path where the JSON report can be written, or :class:`InputError` saying why not."""
     from .errors import InputError
 
-    # what can be refused is refused before minutes of measuring: the report's file and the yardstick
     out = Path(out)
     if out.is_dir() or (out.exists() and not out.is_file()):
         raise InputError(f"--out {out} is not a file (give the path of the JSON report)")
@@ -320,6 +312,20 @@ def run(
             except OSError as exc:
                 raise InputError(f"--out {out}: cannot write into {parent} ({exc.strerror or exc})") from None
             break
+    return out
+
+
+def run(
+    out: Path, quick: bool = False, log=print, compile_times: bool = True, yardstick: Path | None = None
+) -> dict[str, Any]:
+    """Measure everything, print a table, write JSON to ``out``; returns the numbers.
+
+    ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes up to a minute);
+    ``yardstick``: the path of the shared yardstick's ``numba_loop.py``, timed against this project in the same
+    run (:func:`_versus`).
+    """
+    # what can be refused is refused before minutes of measuring: the report's file and the yardstick
+    out = _writable_report(out)
     ys = _load_yardstick(yardstick) if yardstick is not None else None
     res: dict[str, Any] = {
         "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "processor": platform.processor()},
@@ -447,4 +453,144 @@ def table(res: dict[str, Any]) -> str:
         lines.append("RotorPy batched                                  needs rotorpy[batched] (torch): not measured")
     else:
         lines.append(f"RotorPy                                          {rp}")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- the live path's accuracy
+
+#: The payload of the live accuracy measurement: its weight, N, downward (NED +z) from the start.
+LIVE_PAYLOAD_N = 1.0
+#: Seconds after the estimator's start left out of the statistics (its settling: 0.5 s at wn = 10 rad/s).
+LIVE_SETTLE_S = 2.0
+#: Longest set-up (s) of a ``bench --live`` session before its estimate starts: the session ends when the
+#: estimate has its seconds, or after this much longer.
+LIVE_SETUP_MAX_S = 60.0
+#: The estimator's rate in ``bench --live`` (the default of ``live``), Hz.
+RATE_HZ = 50.0
+
+
+def _wrench_stats(t: np.ndarray, f_W: np.ndarray, truth_W: np.ndarray, t_from: float) -> dict[str, Any]:
+    """Per world axis: the mean error (signed, N) and the 95th percentile of the absolute error (N) of the
+    estimate ``f_W`` (rows at times ``t``, s) against ``truth_W`` over ``t >= t_from``."""
+    sel = t >= t_from
+    err = f_W[sel] - truth_W
+    return {"samples": int(sel.sum()), "seconds": float(t[sel][-1] - t[sel][0]) if sel.any() else 0.0,
+            "mean_error_N": err.mean(0).tolist(), "p95_abs_error_N": np.percentile(np.abs(err), 95, axis=0).tolist(),
+            "mean_N": f_W[sel].mean(0).tolist()}  # fmt: skip
+
+
+def _live_case(autopilot: str, seconds: float, log=print) -> dict[str, Any]:
+    """One personality of the simulated autopilot (``sim-autopilot case-a-payload --set payload.mass=0
+    --inject-force 0,0,1``: case A's vehicle, sensors and rotors, the payload's weight as a constant
+    downward force the autopilot did not learn into its hover thrust) flown in a thread for ``seconds`` of
+    estimate of ``live`` over UDP loopback (after its set-up); then ``estimate`` on the recorded
+    ``flight.tlog``. Returns both statistics."""
+    import contextlib
+    import socket
+    import threading
+
+    from .live import LiveSettings, run_live
+    from .live.autopilot import SimAutopilot, SimSettings
+    from .scenarios import apply_overrides, get
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    truth = np.array([0.0, 0.0, LIVE_PAYLOAD_N])
+    spec = apply_overrides(get("case-a-payload"), ["payload.mass=0"])
+    sim = SimAutopilot(spec, SimSettings(f"udpout:127.0.0.1:{port}", autopilot=autopilot, inject_force_W=tuple(truth)))
+    ready = threading.Event()
+    th = threading.Thread(target=sim.run, kwargs={"ready": ready}, daemon=True)
+    th.start()
+    ready.wait(10)
+    with tempfile.TemporaryDirectory() as d:
+        stop = threading.Event()
+        rows = int(seconds * RATE_HZ)
+
+        def enough() -> None:
+            # the session's set-up (heartbeats, stream requests, the probe) takes a few seconds, more on a loaded
+            # machine: stop once the estimate (written as it runs, in the run folder's staging copy) has its rows
+            while not stop.wait(0.5):
+                for f in Path(d).glob(".run.staging-*/estimate.csv"):
+                    with contextlib.suppress(OSError):
+                        if f.stat().st_size > 0 and sum(1 for _ in f.open("rb")) > rows:
+                            stop.set()
+
+        watcher = threading.Thread(target=enough, daemon=True)
+        watcher.start()
+        try:
+            settings = LiveSettings(f"udpin:127.0.0.1:{port}", duration=seconds + LIVE_SETUP_MAX_S,
+                                    out=str(Path(d) / "run"), display="none", connect_timeout_s=20.0)  # fmt: skip
+            res = run_live(settings, stop=stop)
+        finally:
+            stop.set()
+            watcher.join(5)
+            sim.stop()
+            th.join(10)
+        est = np.genfromtxt(res.folder / "estimate.csv", delimiter=",", names=True)
+        t = est["t_s"]
+        f = np.stack([est["fx_W_N"], est["fy_W_N"], est["fz_W_N"]], -1)
+        out: dict[str, Any] = {"autopilot": autopilot, "sources": res.summary["estimator"]["sources"],
+                               "thrust_map": res.summary["estimator"]["thrust_map"], "end": res.end,
+                               "live": _wrench_stats(t, f, truth, t[0] + LIVE_SETTLE_S),
+                               "events": [e["text"] for e in res.summary["events"]]}  # fmt: skip
+        log(f"  {autopilot}: re-estimating the recorded flight.tlog ...")
+        from .cli import main
+
+        rc = main(["estimate", str(res.folder / "flight.tlog"), "--vehicle", "pelican", "--out", str(Path(d) / "est"),
+                   "--no-plots", "--quiet"])  # fmt: skip
+        if rc == 0:
+            w = np.genfromtxt(Path(d) / "est" / "wrench.csv", delimiter=",", names=True)
+            tw = w["t_s"]
+            fw = np.stack([w["fx_W_N"], w["fy_W_N"], w["fz_W_N"]], -1)
+            out["tlog"] = _wrench_stats(tw, fw, truth, tw[0] + LIVE_SETTLE_S)
+            # the log reader chooses its own thrust source: say which
+            info = json.loads((Path(d) / "est" / "estimate.json").read_text()).get("info", {})
+            chose = [c for c in info.get("choices", []) if c.startswith("thrust: ") and " at " in c]
+            out["tlog"]["thrust_from"] = chose[0][len("thrust: ") :].split(" at ")[0] if chose else "?"
+        else:
+            out["tlog"] = f"estimate failed (exit {rc})"
+    return out
+
+
+def live_accuracy(out: Path, seconds: float = 20.0, log=print) -> dict[str, Any]:
+    """``bench --live``: the estimate's accuracy along the live path, per autopilot personality of the
+    simulated autopilot, for a 1.0 N payload (:func:`_live_case`); written as JSON to ``out``.
+
+    A measurement, not a test: the numbers depend on the scenario's sensor noise and on the link's timing on
+    this machine (the estimator runs on the vehicle's clock, so load shows only as lost samples)."""
+    from .errors import scalar
+
+    out = _writable_report(out)
+    seconds = scalar("--live-seconds", seconds, lo=5.0, hi=3600.0)
+    machine = {"python": platform.python_version(), "cpus": os.cpu_count()}
+    res: dict[str, Any] = {"payload_N": LIVE_PAYLOAD_N, "seconds": seconds, "settle_s": LIVE_SETTLE_S,
+                           "machine": machine, "cases": []}  # fmt: skip
+    for autopilot in ("px4", "ardupilot"):
+        log(f"live accuracy: simulated {autopilot}, {seconds:g} s with a {LIVE_PAYLOAD_N:g} N payload ...")
+        res["cases"].append(_live_case(autopilot, seconds, log))
+    write_text(out, json.dumps(res, indent=1))
+    return res
+
+
+def live_table(res: dict[str, Any]) -> str:
+    """The table ``bench --live`` prints: per personality and path, mean error and p95 |error| per axis (N)."""
+    lines = [
+        f"live-path accuracy, {res['payload_N']:g} N payload (truth f_W = [0, 0, +{res['payload_N']:g}] N, NED), "
+        f"after {res['settle_s']:g} s of settling",
+        "autopilot  path   thrust from                  over    mean error x / y / z (N)    p95 |error| x / y / z (N)",
+        "---------  -----  ---------------------------  ------  --------------------------  --------------------------",
+    ]
+    for c in res["cases"]:
+        src = c["sources"]
+        for path in ("live", "tlog"):
+            s = c.get(path)
+            if isinstance(s, dict):
+                thrust = src.get("rpm") or src.get("outputs") or src.get("thrust", "?")
+                thrust = s.get("thrust_from", thrust)
+                m, p = s["mean_error_N"], s["p95_abs_error_N"]
+                head = f"{c['autopilot']:<9}  {path:<5}  {thrust:<27}  {s['seconds']:5.1f}s"
+                lines.append(f"{head}  {m[0]:+8.4f} {m[1]:+8.4f} {m[2]:+8.4f}  {p[0]:8.4f} {p[1]:8.4f} {p[2]:8.4f}")
+            else:
+                lines.append(f"{c['autopilot']:<9}  {path:<5}  {s}")
     return "\n".join(lines)
