@@ -127,7 +127,9 @@ def _dataflash(path, params, volt=None):
     return write_dataflash(path, msgs)
 
 
-def _tlog(path, params):
+def _tlog(path, params, probe_s: float = 0.0):
+    """A 20 s hover at 50 Hz; ``probe_s``: ATTITUDE_TARGET also streamed, fast, for that long at the start (a
+    ground station's probe) with a thrust that is not the vehicle's."""
     n = 1000
     boot = 5.0 + np.arange(n) * 0.02
     vz = _vz(boot - boot[0])
@@ -147,6 +149,12 @@ def _tlog(path, params):
         msgs.append((rx, "SERVO_OUTPUT_RAW", {"time_usec": ms * 1000, "port": 0, "servo1_raw": p, "servo2_raw": p,
                                               "servo3_raw": p, "servo4_raw": p, "servo5_raw": 0, "servo6_raw": 0,
                                               "servo7_raw": 0, "servo8_raw": 0}))  # fmt: skip
+        if boot[i] - boot[0] < probe_s:
+            for k in range(2):  # at 100 Hz
+                msgs.append((rx + 0.01 * k, "ATTITUDE_TARGET", {"time_boot_ms": ms + 10 * k, "type_mask": 0,
+                                                               "q": [1.0, 0.0, 0.0, 0.0], "body_roll_rate": 0.0,
+                                                               "body_pitch_rate": 0.0, "body_yaw_rate": 0.0,
+                                                               "thrust": 0.2}))  # fmt: skip
         if i % 10 == 0:  # VFR_HUD throttle: the fallback when the outputs are refused
             msgs.append((rx, "VFR_HUD", {"airspeed": 0.0, "groundspeed": 0.0, "heading": 0, "alt": 0.0, "climb": 0.0,
                                          "throttle": 40 + i % 20}))  # fmt: skip
@@ -198,6 +206,15 @@ def test_tlog_servo_output_raw_hover_with_a_payload(tmp_path):
     raw, _ = read_any(_tlog(tmp_path / "noexpo.tlog", params))
     assert raw.thrust.source.startswith("VFR_HUD")
     assert any("SERVO_OUTPUT_RAW refused as thrust" in n and "MOT_THST_EXPO" in n for n in raw.notes)
+
+
+def test_a_fast_stream_of_a_few_seconds_does_not_replace_one_that_covers_the_flight(tmp_path):
+    """ATTITUDE_TARGET at 100 Hz for the first 3 s of a 20 s tlog (what a ground station's probe leaves), the
+    motor outputs at 50 Hz throughout: the outputs give the thrust (by rate alone the short stream won, and
+    its thrust is not the vehicle's)."""
+    fz, raw = _fz(_tlog(tmp_path / "probe.tlog", PARAMS, probe_s=3.0))
+    assert "SERVO_OUTPUT_RAW" in raw.thrust.source
+    assert fz == pytest.approx(PAYLOAD_N, abs=0.05)
 
 
 # --------------------------------------------------------------------------------------------- live

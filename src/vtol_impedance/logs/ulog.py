@@ -66,6 +66,9 @@ TOPICS = (
 )
 #: Rates within this factor of the best count as equal (the earlier option wins).
 RATE_TIE = 1.2
+#: A source chosen by its rate must span this share of the longest source's time: a stream requested for
+#: seconds (a ground station's probe) loses to one that covers the flight, however fast.
+SPAN_SHARE = 0.5
 
 VELOCITY = [
     ("vehicle_local_position", ["vx", "vy", "vz"], 1.0),
@@ -229,10 +232,17 @@ def fastest(
     role: str, found: list[tuple[str, np.ndarray, np.ndarray, float]], choices: list[str]
 ) -> tuple[str, np.ndarray, np.ndarray]:
     """The first of ``found = [(source, t, values, rate_hz)]`` within :data:`RATE_TIE` of the highest rate
-    (the order of preference breaks near-ties), recorded in ``choices`` with the others the log has."""
-    best_rate = max(f[3] for f in found)
-    pick = next(f for f in found if f[3] * RATE_TIE >= best_rate)
-    others = [f"{f[0]} {f[3]:.3g} Hz" for f in found if f is not pick]
+    (the order of preference breaks near-ties) among those spanning at least :data:`SPAN_SHARE` of the
+    longest one's time, recorded in ``choices`` with the others the log has."""
+    spans = [float(np.max(f[1]) - np.min(f[1])) if len(f[1]) > 1 else 0.0 for f in found]
+    cover = [f for f, s in zip(found, spans, strict=True) if s >= SPAN_SHARE * max(spans)]
+    best_rate = max(f[3] for f in cover)
+    pick = next(f for f in cover if f[3] * RATE_TIE >= best_rate)
+    others = [
+        f"{f[0]} {f[3]:.3g} Hz" + ("" if f in cover else f" over only {s:.3g} of {max(spans):.3g} s")
+        for f, s in zip(found, spans, strict=True)
+        if f is not pick
+    ]
     choices.append(
         f"{role}: {pick[0]} at {pick[3]:.3g} Hz" + (f" (also in the log: {'; '.join(others)})" if others else "")
     )
