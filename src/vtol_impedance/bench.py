@@ -588,6 +588,8 @@ def live_table(res: dict[str, Any]) -> str:
             if isinstance(s, dict):
                 thrust = src.get("rpm") or src.get("outputs") or src.get("thrust", "?")
                 thrust = s.get("thrust_from", thrust)
+                if "thrust curve" in thrust:  # the tlog reader names every channel
+                    thrust = thrust.split(".")[0] + " (curve)"
                 m, p = s["mean_error_N"], s["p95_abs_error_N"]
                 head = f"{c['autopilot']:<9}  {path:<5}  {thrust:<27}  {s['seconds']:5.1f}s"
                 lines.append(f"{head}  {m[0]:+8.4f} {m[1]:+8.4f} {m[2]:+8.4f}  {p[0]:8.4f} {p[1]:8.4f} {p[2]:8.4f}")
