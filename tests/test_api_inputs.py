@@ -581,8 +581,15 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
     ),
     "logs.MotorCurve": (
         lambda: dict(),
-        {"expo": "real", "spin_min": "nonneg", "spin_max": "nonneg", "pwm_min": "nonneg", "pwm_max": "nonneg",
-         "bat_volt_max": "nonneg", "bat_volt_min": "nonneg"},
+        {
+            "expo": "real",
+            "spin_min": "nonneg",
+            "spin_max": "nonneg",
+            "pwm_min": "nonneg",
+            "pwm_max": "nonneg",
+            "bat_volt_max": "nonneg",
+            "bat_volt_min": "nonneg",
+        },
     ),  # fmt: skip
     "logs.log_format": (lambda: dict(path=csv_file()), {"path": "path"}),
     "logs.read_any": (lambda: dict(path=csv_file()), {"path": "path", "conventions": "choice", "world": "choice"}),

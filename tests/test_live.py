@@ -593,8 +593,9 @@ def _control_run(tmp_path, variant: str, event: str | None, duration: float, aut
     settings = LiveSettings(f"udpin:127.0.0.1:{port}", duration=duration, out=str(tmp_path / variant),
                             display="none", control=c, connect_timeout_s=30)  # fmt: skip
     extra = ["--event", event] if event else []
-    with sim_process("case-a-payload", port, "--set", "payload.mass=0", "--inject-force", f"{force},0,0",
-                     "--inject-at", f"{t_on}", "--duration", "40", "--autopilot", autopilot, *extra) as sim:  # fmt: skip
+    args = ("--set", "payload.mass=0", "--inject-force", f"{force},0,0", "--inject-at", f"{t_on}", "--duration", "40",
+            "--autopilot", autopilot, *extra)  # fmt: skip
+    with sim_process("case-a-payload", port, *args) as sim:
         res = run_live(settings)
         sim.send_signal(signal.SIGINT)
         _, err = sim.communicate(timeout=20)
