@@ -28,7 +28,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_live_telemetry import Clock, ScriptedLink, Vehicle
+from test_live_telemetry import Clock, Vehicle, patch_session
 
 from vtol_impedance.live import ControlSettings, LiveError, LiveSettings, control, run_live
 from vtol_impedance.live.control import MODE_RESEND_MAX_S, MODE_RESEND_S, OffboardController, OuterLoop
@@ -456,23 +456,13 @@ def _mode_of(profile, m) -> str:
 def session(monkeypatch, tmp_path):
     """``fly(duration, control=ControlSettings(...), **vehicle)`` runs ``run_live`` with ``--control`` against a
     :class:`ModeVehicle` in simulated time: ``(result, vehicle, screen text)``."""
-    from vtol_impedance.io import RunFolder
-    from vtol_impedance.live.link import TlogWriter
 
     def patch(setup=None, **kw) -> ModeVehicle:
         clock = Clock()
         vehicle = fly.vehicle = ModeVehicle(clock, **kw)
         if setup is not None:
             setup(vehicle)
-
-        def open_(self) -> None:
-            self.folder = RunFolder(tmp_path / "run")
-            self.tlog = TlogWriter(self.folder.path("flight.tlog"))
-            self.link = ScriptedLink(vehicle, clock)
-            self.link.recorder = self.tlog
-
-        monkeypatch.setattr(Session, "now", lambda self: clock.t)
-        monkeypatch.setattr(Session, "open", open_)
+        patch_session(monkeypatch, tmp_path / "run", vehicle, clock)
         return vehicle
 
     def fly(duration: float, control: ControlSettings | None = None, autopilot: str = "auto", rate=RATE, **kw):

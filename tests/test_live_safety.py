@@ -20,11 +20,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from test_live_telemetry import Clock, patch_session
 
 from vtol_impedance.live import ControlSettings, LiveSettings, run_live
 from vtol_impedance.live.estimator import EstimatorSettings
-from vtol_impedance.live.link import SOURCE_COMPONENT, SOURCE_SYSTEM, Link, LinkStats, mavutil, parse_address
-from vtol_impedance.live.session import POLL_S, Session
+from vtol_impedance.live.link import SOURCE_COMPONENT, SOURCE_SYSTEM, mavutil
+from vtol_impedance.live.session import POLL_S
 from vtol_impedance.live.streams import Decoder, VehicleClock
 from vtol_impedance.logs.ardupilot import MotorCurve
 
@@ -38,14 +39,6 @@ P0 = np.array([0.0, 0.0, -1.0])  # where the vehicle hovers before the hand-over
 # the autopilots' mode numbers, from their documentation (PX4 px4_custom_mode.h; ArduCopter's mode list)
 PX4_MODES = {"POSCTL": (3, 0), "OFFBOARD": (6, 0), "AUTO_LOITER": (4, 3), "AUTO_LAND": (4, 6)}
 APM_MODES = {"LOITER": (5, 0), "GUIDED_NOGPS": (20, 0), "LAND": (9, 0)}
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def _at_rest(t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -136,57 +129,14 @@ class Flyer:
                 if m.get_type() == "COMMAND_LONG" and m.command == MAV.MAV_CMD_DO_SET_MODE]  # fmt: skip
 
 
-class FlyerLink(Link):
-    """:class:`~vtol_impedance.live.link.Link` on a :class:`Flyer` and simulated time: each poll advances it."""
-
-    def __init__(self, vehicle: Flyer, clock: Clock) -> None:
-        self.address = parse_address("udpin:127.0.0.1:14550")
-        self.mu = MU
-        self.recorder = None
-        self.peers = {}
-        self.stats = LinkStats()
-        self.target = None
-        self._last_seq = None
-        self.now = clock
-        self.vehicle = vehicle
-
-        class Conn:
-            mav = MAV.MAVLink(None, srcSystem=SOURCE_SYSTEM, srcComponent=SOURCE_COMPONENT)
-            write = staticmethod(vehicle.write)
-
-            def close(self) -> None:
-                pass
-
-        self.conn = Conn()
-
-    def poll(self, timeout, on_message=None, max_messages=2000) -> int:
-        self.now.t += max(timeout, POLL_S)
-        msgs = self.vehicle.advance(self.now.t)
-        for msg in msgs:
-            self._received(msg)
-            if on_message is not None:
-                on_message(msg)
-        return len(msgs)
-
-
 @pytest.fixture
 def fly(monkeypatch, tmp_path):
     """``fly(control, duration, **vehicle)``: one controlled session against a :class:`Flyer`."""
-    from vtol_impedance.io import RunFolder
-    from vtol_impedance.live.link import TlogWriter
 
     def run(control: ControlSettings, duration: float, **kw) -> tuple[object, Flyer]:
         clock = Clock()
         vehicle = Flyer(clock, **kw)
-
-        def open_(self) -> None:
-            self.folder = RunFolder(tmp_path / "run")
-            self.tlog = TlogWriter(self.folder.path("flight.tlog"))
-            self.link = FlyerLink(vehicle, clock)
-            self.link.recorder = self.tlog
-
-        monkeypatch.setattr(Session, "now", lambda self: clock.t)
-        monkeypatch.setattr(Session, "open", open_)
+        patch_session(monkeypatch, tmp_path / "run", vehicle, clock)
         settings = LiveSettings("udpin:127.0.0.1:14550", display="none", duration=duration, out=str(tmp_path / "run"),
                                 estimator=EstimatorSettings(backend="numpy"), control=control)  # fmt: skip
         return run_live(settings), vehicle

@@ -163,25 +163,31 @@ class ScriptedLink(Link):
         return len(msgs)
 
 
+def patch_session(monkeypatch, folder, vehicle, clock: Clock) -> None:
+    """Sessions opened from now on talk to ``vehicle`` over a :class:`ScriptedLink` on ``clock``'s time and
+    record into ``folder``."""
+    from vtol_impedance.io import RunFolder
+    from vtol_impedance.live.link import TlogWriter
+
+    def open_(self) -> None:
+        self.folder = RunFolder(folder)
+        self.tlog = TlogWriter(self.folder.path("flight.tlog"))
+        self.link = ScriptedLink(vehicle, clock)
+        self.link.recorder = self.tlog
+
+    monkeypatch.setattr(Session, "now", lambda self: clock.t)
+    monkeypatch.setattr(Session, "open", open_)
+
+
 @pytest.fixture
 def scripted(monkeypatch, tmp_path):
     """``fly(duration, **vehicle)`` runs one session against a scripted vehicle: ``(result, vehicle)``."""
-    from vtol_impedance.io import RunFolder
-    from vtol_impedance.live.link import TlogWriter
 
     def fly(duration: float, display: str = "none", stream=None, **kw):
         clock = Clock()
         vehicle = Vehicle(clock, **kw)
         fly.vehicles.append(vehicle)
-
-        def open_(self) -> None:
-            self.folder = RunFolder(tmp_path / "run")
-            self.tlog = TlogWriter(self.folder.path("flight.tlog"))
-            self.link = ScriptedLink(vehicle, clock)
-            self.link.recorder = self.tlog
-
-        monkeypatch.setattr(Session, "now", lambda self: clock.t)
-        monkeypatch.setattr(Session, "open", open_)
+        patch_session(monkeypatch, tmp_path / "run", vehicle, clock)
         settings = LiveSettings("udpin:127.0.0.1:14550", display=display, duration=duration,
                                 out=str(tmp_path / "run"), estimator=EstimatorSettings(backend="numpy"))  # fmt: skip
         return run_live(settings, stream=stream), vehicle

@@ -535,21 +535,19 @@ def _live_case(autopilot: str, seconds: float, log=print) -> dict[str, Any]:
                                "live": _wrench_stats(t, f, truth, t[0] + LIVE_SETTLE_S),
                                "events": [e["text"] for e in res.summary["events"]]}  # fmt: skip
         log(f"  {autopilot}: re-estimating the recorded flight.tlog ...")
-        from .cli import main
+        from .errors import InputError
+        from .logs import estimate_file
+        from .model import load_preset
 
-        rc = main(["estimate", str(res.folder / "flight.tlog"), "--vehicle", "pelican", "--out", str(Path(d) / "est"),
-                   "--no-plots", "--quiet"])  # fmt: skip
-        if rc == 0:
-            w = np.genfromtxt(Path(d) / "est" / "wrench.csv", delimiter=",", names=True)
-            tw = w["t_s"]
-            fw = np.stack([w["fx_W_N"], w["fy_W_N"], w["fz_W_N"]], -1)
-            out["tlog"] = _wrench_stats(tw, fw, truth, tw[0] + LIVE_SETTLE_S)
-            # the log reader chooses its own thrust source: say which
-            info = json.loads((Path(d) / "est" / "estimate.json").read_text()).get("info", {})
-            chose = [c for c in info.get("choices", []) if c.startswith("thrust: ") and " at " in c]
-            out["tlog"]["thrust_from"] = chose[0][len("thrust: ") :].split(" at ")[0] if chose else "?"
+        try:  # what `vtol-impedance estimate flight.tlog --vehicle pelican` computes
+            logged = estimate_file(res.folder / "flight.tlog", vehicle=load_preset("pelican"))
+        except InputError as exc:
+            out["tlog"] = f"estimate failed: {exc}"
         else:
-            out["tlog"] = f"estimate failed (exit {rc})"
+            out["tlog"] = _wrench_stats(logged.t, logged.f_W, truth, logged.t[0] + LIVE_SETTLE_S)
+            # the log reader chooses its own thrust source: say which
+            chose = [c for c in logged.info.get("choices", []) if c.startswith("thrust: ") and " at " in c]
+            out["tlog"]["thrust_from"] = chose[0][len("thrust: ") :].split(" at ")[0] if chose else "?"
     return out
 
 
