@@ -118,9 +118,12 @@ def test_no_more_threads_than_vehicles_and_the_setting_restored(monkeypatch):
 
 
 def test_log_modes_agree():
-    spec = apply_overrides(
-        get("case-c-circle"), ["trajectory.hover_duration=1", "trajectory.circle_laps=0.25", "trajectory.land=false"]
-    )
+    # 7 s (no take-off, a short settle): the task window (1 s to 6.1 s) still starts and ends inside the flight,
+    # so the in-kernel metrics must leave out samples on both sides of it; the NumPy run is the slow one
+    spec = apply_overrides(get("case-c-circle"), [
+        "trajectory.start_on_ground=false", "trajectory.hover_duration=1", "trajectory.circle_laps=0.25",
+        "trajectory.settle_duration=1", "trajectory.land=false",
+    ])  # fmt: skip
     full = simulate(spec)
     dec = simulate(spec, log="decimate:5")
     met = simulate(spec, log="metrics")
@@ -129,6 +132,8 @@ def test_log_modes_agree():
     np.testing.assert_array_equal(dec.t, full.t[::5])
     for k in full.data:
         np.testing.assert_array_equal(dec[k], full[k][:, ::5], err_msg=k)
+    window = full.config["window"]
+    assert 0.5 < window[0] and window[1] < full.t[-1] - 0.5  # premise: samples outside the window, both sides
     ref = compute_metrics(full)
     for got in (compute_metrics(met), compute_metrics(met_np)):
         for a, b in zip(ref, got, strict=True):
