@@ -50,6 +50,23 @@ def test_design_cache_is_read_while_the_code_is_unchanged(counted_design):
     assert len(list((Path(os.environ["VTOL_IMPEDANCE_CACHE"]) / "designs").glob("*.json"))) == 1
 
 
+def test_no_design_is_remembered_as_a_design_is(counted_design, monkeypatch):
+    """Gains no bandwidth keeps stable: the search (the longest, as it looks for the Dp that would do) runs
+    once; later calls, in this process or another one (the disk), raise the same DesignError."""
+
+    def no_design(vehicle, kp, dp, rate, t):
+        counted_design.append((kp, dp, rate))
+        raise rd.DesignError("no attitude bandwidth keeps the position loop stable: Dp must come down")
+
+    monkeypatch.setattr(rd, "_design_search", no_design)
+    for fresh_process in (False, False, True):
+        if fresh_process:
+            rd._design_cached.cache_clear()
+        with pytest.raises(rd.DesignError, match="Dp must come down"):
+            _design_once()
+    assert len(counted_design) == 1
+
+
 def test_design_cache_is_recomputed_when_the_code_changes(counted_design, monkeypatch, tmp_path):
     _design_once()
     rd._design_cached.cache_clear()
