@@ -369,6 +369,20 @@ def test_cli_refuses_a_tiny_sweep_under_a_tiny_bound(tmp_path, capsys):
     assert rc == 2 and "--max-minutes must be a positive number of minutes, got -3" in err
 
 
+def test_a_bad_trial_count_is_refused_before_the_corners_are_designed(tmp_path, capsys, monkeypatch):
+    def no_work(*a, **k):
+        raise AssertionError("work started before the refusal")
+
+    monkeypatch.setattr(rd, "_design_search", no_work)
+    monkeypatch.setenv("VTOL_IMPEDANCE_CACHE", str(tmp_path / "cache"))  # nothing designed before
+    rd._design_cached.cache_clear()
+    (tmp_path / "t.toml").write_text(
+        'name = "t"\nbase = "case-a-payload"\n[search]\n"control.Kp" = {min = 4.0, max = 40.0}\n'
+    )
+    rc, err = _cli(["tune", str(tmp_path / "t.toml"), "--trials", "0", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "--trials" in err and "work started" not in err and not (tmp_path / "o").exists()
+
+
 def test_cli_refuses_a_tuning_before_designing_anything(tmp_path, capsys, monkeypatch):
     def no_work(*a, **k):
         raise AssertionError("work started before the refusal")
