@@ -6,8 +6,20 @@ from vtol_impedance.bench import table
 from vtol_impedance.cli import main
 
 
-def test_quick_bench_writes_a_complete_report(tmp_path, capsys):
-    """``bench --quick --quiet``: no cold compile, the table (and only the table) printed, the JSON written."""
+def test_quick_bench_writes_a_complete_report(tmp_path, capsys, monkeypatch):
+    """``bench --quick --quiet``: no cold compile, the table (and only the table) printed, the JSON written.
+    The sweep on a 2-worker LocalCluster is the in-process sweep's code with ``workers=2``: asked for, it is
+    left to tests/test_sweeps.py, which runs that cluster (two worker processes cost ~10 s on two cores);
+    the in-process sweep runs and must have flown (a failed sweep is reported as text, not raised)."""
+    import vtol_impedance.bench as bench
+
+    real_sweep, asked = bench._sweep, []
+
+    def sweep(workers, quick):
+        asked.append(workers)
+        return real_sweep(workers, quick) if workers is None else "left out by tests/test_bench.py"
+
+    monkeypatch.setattr(bench, "_sweep", sweep)
     out = tmp_path / "bench.json"
     assert main(["bench", "--quick", "--quiet", "--out", str(out)]) == 0
     printed = capsys.readouterr()
@@ -20,12 +32,15 @@ def test_quick_bench_writes_a_complete_report(tmp_path, capsys):
     for key in ("single_compiled", "single_numpy", "single_mujoco", "batch_mujoco", "free_flight_mujoco"):
         assert saved[key]["real_time_factor"] > 0
     assert saved["batch_mujoco"]["vehicles"] == 2
+    assert asked == [None, 2]
+    assert saved["sweep_in_process"]["flights"] == 2 * 2 * 2  # rates x estimator bandwidths x controllers
     lat = saved["latency"]
     assert 0 < lat["step_arrays_median_us"] <= lat["step_arrays_p99_us"]
     assert 0 < lat["step_arrays_call_median_us"]  # the call into a kernel that does nothing
     text = table(saved)
     assert "NumPy ref." in text and "batched N = 10" in text and "RotorPy" in text and "MuJoCo plant" in text
     assert "2 vehicles on MuJoCo (threads), per vehicle" in text and "MuJoCo, free flight" in text
+    assert "sweep flights/s, in this process" in text
 
 
 def test_a_bad_report_path_or_yardstick_is_refused_before_measuring(tmp_path, capsys, monkeypatch):

@@ -50,6 +50,23 @@ def test_design_cache_is_read_while_the_code_is_unchanged(counted_design):
     assert len(list((Path(os.environ["VTOL_IMPEDANCE_CACHE"]) / "designs").glob("*.json"))) == 1
 
 
+def test_no_design_is_remembered_as_a_design_is(counted_design, monkeypatch):
+    """Gains no bandwidth keeps stable: the search (the longest, as it looks for the Dp that would do) runs
+    once; later calls, in this process or another one (the disk), raise the same DesignError."""
+
+    def no_design(vehicle, kp, dp, rate, t):
+        counted_design.append((kp, dp, rate))
+        raise rd.DesignError("no attitude bandwidth keeps the position loop stable: Dp must come down")
+
+    monkeypatch.setattr(rd, "_design_search", no_design)
+    for fresh_process in (False, False, True):
+        if fresh_process:
+            rd._design_cached.cache_clear()
+        with pytest.raises(rd.DesignError, match="Dp must come down"):
+            _design_once()
+    assert len(counted_design) == 1
+
+
 def test_design_cache_is_recomputed_when_the_code_changes(counted_design, monkeypatch, tmp_path):
     _design_once()
     rd._design_cached.cache_clear()
@@ -350,6 +367,20 @@ def test_cli_refuses_a_tiny_sweep_under_a_tiny_bound(tmp_path, capsys):
     assert rc == 2 and "over the bound of 0.001 min" in err and not (tmp_path / "o").exists()
     rc, err = _cli(["sweep", str(tmp_path / "tiny.toml"), "--max-minutes", "-3"], capsys)
     assert rc == 2 and "--max-minutes must be a positive number of minutes, got -3" in err
+
+
+def test_a_bad_trial_count_is_refused_before_the_corners_are_designed(tmp_path, capsys, monkeypatch):
+    def no_work(*a, **k):
+        raise AssertionError("work started before the refusal")
+
+    monkeypatch.setattr(rd, "_design_search", no_work)
+    monkeypatch.setenv("VTOL_IMPEDANCE_CACHE", str(tmp_path / "cache"))  # nothing designed before
+    rd._design_cached.cache_clear()
+    (tmp_path / "t.toml").write_text(
+        'name = "t"\nbase = "case-a-payload"\n[search]\n"control.Kp" = {min = 4.0, max = 40.0}\n'
+    )
+    rc, err = _cli(["tune", str(tmp_path / "t.toml"), "--trials", "0", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "--trials" in err and "work started" not in err and not (tmp_path / "o").exists()
 
 
 def test_cli_refuses_a_tuning_before_designing_anything(tmp_path, capsys, monkeypatch):

@@ -6,11 +6,13 @@ The rules (docs/install.md, "Every code block runs", says the same to readers):
   (a user following the docs in one place).
 - ``bash`` blocks: every ``vtol-impedance ...`` command runs in that folder through the CLI's ``main``
   and must exit with 0. To keep this test short, commands that fly are cut to 2 s (``--duration 2``)
-  and, with ``margins``, draw no figures or animations (``--no-plots``, ``--animate`` dropped: the
-  figures are tested by ``test_cli`` and ``test_interaction``); ``sweep`` flies the first and last value of
-  each axis with one seed, 2 s flights and no margin check; ``tune`` two trials of two plants over 3 s
-  flights; ``--workers`` is dropped (``tests/test_sweeps.py`` runs the cluster). Square brackets mark
-  optional arguments and are left out. A command already run by an earlier page is not run again.
+  and, with ``margins`` and ``estimate``, draw no figures or animations (``--no-plots``, ``--animate``
+  dropped: the figures are tested by ``test_cli``, ``test_interaction`` and ``test_logs``); plain
+  ``paper`` is run by ``test_first_hour`` (with figures, its output and report checked); ``sweep`` flies
+  the first and last value of each axis with one seed, 2 s flights and no margin check; ``tune`` two
+  trials of two plants over 3 s flights; ``--workers`` is dropped (``tests/test_sweeps.py`` runs the
+  cluster). Square brackets mark optional arguments and are left out. A command already run by an
+  earlier page is not run again.
 - Setup lines (venv, pip, sourcing, the docs build, the test suite, MuJoCo's viewer) are in
   ``NOT_RUN`` with the reason; any other line fails the test, so a new block cannot go untested.
 - ``toml`` blocks are loaded as what they are: a scenario file, a sweep, a tuning file, a vehicle, or
@@ -65,6 +67,11 @@ RUN_ELSEWHERE = {
 KNOWN_FAILURES: dict[tuple[str, ...], tuple[str, str]] = {}
 FLYING = {"run", "compare", "paper"}
 FLIGHT_S = "2"
+#: Whole commands (as reduced) run elsewhere with more checked, and where.
+RUN_ELSEWHERE_ARGV = {
+    ("paper", "--duration", FLIGHT_S, "--no-plots"): "tests/test_first_hour.py runs `paper` (1 s flights, with its "
+    "figures) and checks its terminal output and report",
+}
 
 
 @dataclass(frozen=True)
@@ -243,7 +250,7 @@ def reduced(argv: list[str]) -> list[str]:
     sub, argv = argv[0], list(argv)
     if sub in FLYING and "--duration" not in argv:
         argv += ["--duration", FLIGHT_S]
-    if sub in (*FLYING, "margins"):
+    if sub in (*FLYING, "margins", "estimate"):
         argv = [w for w in argv if w != "--animate"]
         if "--no-plots" not in argv:
             argv.append("--no-plots")
@@ -340,7 +347,7 @@ def run_command(command: str, block: Block, folder: Path) -> None:
     if argv and argv[0] in RUN_ELSEWHERE:
         return
     argv = reduced(argv)
-    if tuple(argv) in _RAN:
+    if tuple(argv) in _RAN or tuple(argv) in RUN_ELSEWHERE_ARGV:
         return
     from vtol_impedance.cli import main
 
@@ -455,6 +462,10 @@ def test_the_block_rules_catch_what_they_are_for(tmp_path, monkeypatch):
     assert cli_argv("vtol-impedance paper [--out DIR] [--jobs N]") == ["paper"]
     assert reduced(["run", "case-a-payload"]) == ["run", "case-a-payload", "--duration", "2", "--no-plots"]
     assert reduced(["compare", "x", "--animate"]) == ["compare", "x", "--duration", "2", "--no-plots"]
+    assert reduced(["estimate", "f.ulg"]) == ["estimate", "f.ulg", "--no-plots"]
+    assert tuple(reduced(["paper"])) in RUN_ELSEWHERE_ARGV and tuple(reduced(["paper", "--tuning", "design"])) not in (
+        RUN_ELSEWHERE_ARGV
+    )
     assert commands("a \\\n  b  # c\nd && e") == ["a b", "d", "e"]
     with pytest.raises(AssertionError, match="neither a vtol-impedance command"):
         run_command("rm -rf results", Block("x.md", 1, "bash", ""), tmp_path)

@@ -11,8 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_controller_in_your_loop_example():
     mod = runpy.run_path(str(ROOT / "examples" / "controller_in_your_loop.py"))
-    f_hat = mod["main"](6.0)
-    assert f_hat[2] == pytest.approx(0.110 * 9.81, rel=0.01)
+    f_hat = mod["main"](3.0)  # the estimate settles in ~0.5 s (10 rad/s): 3 s of this Python loop suffice
+    assert f_hat[2] == pytest.approx(0.110 * 9.81, rel=1e-3)  # 1e-4 at 3 s; the estimator's bias would show
     np.testing.assert_allclose(f_hat[:2], 0.0, atol=1e-3)
 
 

@@ -427,11 +427,12 @@ def test_gust_turbulence_correlates_over_the_standard_length_in_metres():
 def test_wall_contact_agrees_between_backends():
     """The wall's force law flown by both backends (pressed against it, complying): the same motion."""
     spec = set_value(get("wall-contact"), "trajectory.start_on_ground", False)
-    for key, value in (("duration", 6.0), ("trajectory.hover_duration", 0.5), ("trajectory.move_duration", 2.0),
+    # 4 s: the impact (~1.6 s) and 2 s of steady pressing (1.5 N from 3.5 s); the NumPy backend is the slow one
+    for key, value in (("duration", 4.0), ("trajectory.hover_duration", 0.5), ("trajectory.move_duration", 2.0),
                        ("interaction.switches", []), ("interaction.comply", [1.0, 0.0, 0.0])):  # fmt: skip
         spec = set_value(spec, key, value)
     a = simulate(spec, ["comply"], backend="numpy")
     b = simulate(spec, ["comply"], backend="compiled")
-    assert -a["f_ext_W"][0, :, 0].min() > 0.5  # it did touch and press
+    assert -a["f_ext_W"][0, :, 0].min() > 0.5 and -a["f_ext_W"][0, -50:, 0].max() > 0.5  # it touched and presses
     np.testing.assert_allclose(a["p_W"], b["p_W"], atol=1e-8)
     np.testing.assert_allclose(a["f_ext_W"], b["f_ext_W"], atol=1e-6)

@@ -415,10 +415,13 @@ def test_unbounded_work_is_refused_up_front_with_the_estimate():
         run_closed_loop(
             PlantParams(veh), ctrls, traj, 100.0, plant_rate=1e5, log="metrics", limits=Limits(max_plant_steps=1e6)
         )
-    # 100,000 vehicles with full traces over 30 s: refused, not allocated
-    many = [ControllerParams.paper()] * 100_000
+    # 1,000 vehicles with full traces over 3,000 s (~100 GB; one vehicle's would fit): refused, not allocated
+    # (not 100,000 over 30 s: the same bytes, but 100,000 controllers take seconds to check and pack first)
+    many = [ControllerParams.paper()] * 1_000
     with pytest.raises(InputError, match="GB of memory"):
-        run_closed_loop(PlantParams(veh), many, traj, 30.0)
+        run_closed_loop(PlantParams(veh), many, traj, 3000.0)
+    with pytest.raises(InputError, match="plant steps"):  # checked after the memory: one vehicle's traces fit
+        run_closed_loop(PlantParams(veh), many[:1], traj, 3000.0, limits=Limits(max_plant_steps=1.0))
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     assert peak < 500e6  # refused before the traces were allocated (they would take tens of GB)

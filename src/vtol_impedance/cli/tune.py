@@ -21,6 +21,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from ..sweeps.tune import _optuna, best_scenario_toml, bound_notes, load_tuning, trials_csv, tune
 
     _optuna()  # a missing extra is said at once, before anything compiles
+    if args.trials is not None:  # refused before the corners are designed (seconds each), as tune() would
+        from ..errors import scalar
+
+        scalar("--trials", args.trials, lo=1, hi=100_000, integer=True)
     t = load_tuning(args.spec, check_corners=False)
     out = check_folder_path(Path(args.out) if args.out else _default_out("tune", t.name))
     seconds = tuning_seconds(t, t.trials if args.trials is None else args.trials, args.backend, args.workers)

@@ -188,7 +188,10 @@ def design(
         [vehicle.to_dict(), kp, dp, rate, timing.velocity_delay, timing.attitude_delay, timing.rotor_tau, code_key()],
         sort_keys=True, default=str,
     )  # fmt: skip
-    return _design_cached(key, vehicle, kp, dp, rate, timing)
+    found = _design_cached(key, vehicle, kp, dp, rate, timing)
+    if isinstance(found, str):  # no bandwidth keeps the loop stable: remembered as a design is
+        raise DesignError(found)
+    return found
 
 
 _PACKAGE = Path(__file__).resolve().parent.parent
@@ -223,24 +226,31 @@ def cache_dir() -> Path | None:
 
 
 @functools.lru_cache(maxsize=64)
-def _design_cached(key: str, vehicle: VehicleParams, kp: tuple, dp: tuple, rate: float, t: Timing) -> Design:
+def _design_cached(key: str, vehicle: VehicleParams, kp: tuple, dp: tuple, rate: float, t: Timing) -> Design | str:
     """:func:`_design_search` remembered in memory and on disk (one small JSON file per argument set,
-    written atomically; an unreadable file is recomputed)."""
+    written atomically; an unreadable file is recomputed). No design is remembered too, as the
+    :class:`DesignError` message (a str): its search is the longest, and a tuning meets the same gains
+    again (the corners checked, the warm-up, the trials)."""
     folder = cache_dir()
     path = None if folder is None else folder / f"{hashlib.sha256(key.encode()).hexdigest()[:32]}.json"
     if path is not None and path.is_file():
         try:
             d = json.loads(path.read_text())
+            if "no_design" in d:
+                return str(d["no_design"])
             return Design(d["wn_o"], d["wn_o_yaw"], d["attitude_filter_wn"], d["estimator_wn"], t,
                           d["worst_pd"], d["worst_pdc"], tuple(d["notes"]))  # fmt: skip
         except (OSError, ValueError, KeyError, TypeError):
             pass
-    result = _design_search(vehicle, kp, dp, rate, t)
+    try:
+        result: Design | str = _design_search(vehicle, kp, dp, rate, t)
+    except DesignError as exc:
+        result = str(exc)
     if path is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(result.to_dict()))
+            tmp.write_text(json.dumps({"no_design": result} if isinstance(result, str) else result.to_dict()))
             os.replace(tmp, path)
         except OSError:  # a read-only home: no cache, same answer
             pass
