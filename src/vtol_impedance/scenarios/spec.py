@@ -711,6 +711,18 @@ def get_value(spec: ScenarioSpec, key: str) -> Any:
     return obj
 
 
+def _dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A scenario's plain data (``to_dict``) by the dotted keys :func:`set_value` takes (``control.Kp``);
+    lists and the disturbances kept whole."""
+    out: dict[str, Any] = {}
+    for k, v in data.items():
+        if isinstance(v, dict):
+            out.update(_dotted(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 def set_value(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
     """Return a copy of ``spec`` with the dotted ``key`` (``payload.mass``, ``disturbances.0.mean_force``, or
     one component of a vector value, ``payload.offset_B[0]``) set."""

@@ -51,7 +51,7 @@ from ..errors import InputError, ScenarioError, check_keys, flag, instance, path
 from ..estimator.momentum import EstimatorBandwidthWarning
 from ..io import read_toml
 from ..scenarios import get, load_toml, set_value
-from ..scenarios.spec import ScenarioSpec, check, check_name
+from ..scenarios.spec import ScenarioSpec, _dotted, check, check_name
 
 MODES = ("grid", "zip", "random")
 KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "samples", "chunk", "traces",
@@ -294,7 +294,7 @@ def from_dict(
     fixed = data.get("set", {})
     if not isinstance(fixed, dict):
         raise InputError(f"[set] must be a table of scenario values, got {fixed!r}")
-    for key, value in _flatten(fixed).items():
+    for key, value in _dotted(fixed).items():
         if key == "seed":
             raise InputError("[set] seed: the sweep sets each flight's seed itself (from 'seed' and 'seeds')")
         base = set_param(base, key, value)
@@ -399,23 +399,13 @@ def _fmt_point(p: dict[str, Any]) -> str:
     return ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items())
 
 
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
     """Every scenario value set in one place only, among ``fixed`` (the ``[set]`` table) and the axes of
     ``groups`` (joint axes count each of their keys): a second place would silently override the first
     (two axes over one key label flights by values they never flew)."""
     seen: dict[str, str] = {}
     if isinstance(fixed, dict):
-        seen.update({k: "[set]" for k in _flatten(fixed)})
+        seen.update({k: "[set]" for k in _dotted(fixed)})
     for group, axes in groups.items():
         for a in axes:
             for k in (x.strip() for x in a.key.split(",")):

@@ -46,10 +46,10 @@ from ..control.impedance import VARIANTS
 from ..errors import InputError, check_keys, scalar
 from ..io import read_toml
 from ..robust.design import DesignError
-from ..scenarios.spec import _INDEXED, get_value
+from ..scenarios.spec import _INDEXED, _dotted, get_value
 from .budget import Progress, minutes
 from .run import METRICS, Executor, warm_up
-from .spec import Axis, _axis, _flatten, distinct_keys, from_dict
+from .spec import Axis, _axis, distinct_keys, from_dict
 
 KEYS = ("name", "description", "base", "controller", "trials", "seed", "population", "set", "search", "spread", "cost")
 COST_KEYS = ("metric", "saturation_weight", "failure_penalty", "min_phase_margin_deg", "margin_penalty")
@@ -123,7 +123,7 @@ class Tuning:
         from .spec import set_param
 
         spec = self.base
-        for k, v in _flatten(self.data.get("set", {})).items():
+        for k, v in _dotted(self.data.get("set", {})).items():
             spec = set_param(spec, k, v)
         return spec
 
@@ -131,7 +131,7 @@ class Tuning:
         """The sweep description flying ``params`` on the whole population (one point per member)."""
         rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(2**30,)))
         members = [{a.key: a.draw(rng) for a in self.spread} for _ in range(self.population)]
-        fixed = dict(_flatten(self.data.get("set", {})))
+        fixed = dict(_dotted(self.data.get("set", {})))
         fixed.update(params)
         if self.spread:  # one point per member, one seed each
             axes, seeds = {a.key: [m[a.key] for m in members] for a in self.spread}, 1
@@ -303,7 +303,7 @@ def best_scenario_toml(t: Tuning, best: dict[str, Any]) -> str:
     from .spec import set_param
 
     spec = t.base_spec()
-    fixed = _flatten(t.data.get("set", {}))
+    fixed = _dotted(t.data.get("set", {}))
     for k, v in best.items():
         spec = set_param(spec, k, v)
     keys = []

@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import InputError, ScenarioError, VtolImpedanceError, choice, instance, scalar
 from ..robust import LOOPS
 from ..scenarios import ScenarioSpec, check, get, set_value, simulate
-from ..scenarios.spec import DESIGNED, check_name, get_value, parse_value, resolved_control
+from ..scenarios.spec import DESIGNED, _dotted, check_name, get_value, parse_value, resolved_control
 
 #: What the page promises: a change shown within this many milliseconds (measured by the page).
 BUDGET_MS = 200.0
@@ -109,17 +109,6 @@ def _finite(x: Any, decimals: int = 3) -> list[float | None]:
     out = a.tolist()
     if not np.all(np.isfinite(a)):
         out = [v if math.isfinite(v) else None for v in out]
-    return out
-
-
-def _leaves(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """A scenario's plain data by dotted key (``control.Kp``); lists and the disturbances kept whole."""
-    out: dict[str, Any] = {}
-    for k, v in data.items():
-        if isinstance(v, dict):
-            out.update(_leaves(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
     return out
 
 
@@ -220,7 +209,7 @@ class TunePage:
             ref, head = get(self.base_name), [f"base = {json.dumps(self.base_name)}"]
         except ScenarioError:  # a scenario of the caller's own: written from the defaults
             ref, head = ScenarioSpec(name=spec.name), []
-        new, old = _leaves(spec.to_dict()), _leaves(ref.to_dict())
+        new, old = _dotted(spec.to_dict()), _dotted(ref.to_dict())
         keys = dict.fromkeys([*(f.key.partition("[")[0] for f in FIELDS), *(k for k in new if new[k] != old.get(k))])
         keys.pop("disturbances", None)
         lines = ["# written by vtol-impedance tune-page; fly it with: vtol-impedance compare FILE --controllers pd,pdc",
