@@ -19,6 +19,8 @@ existing Dask cluster; every wait on the scheduler bounded, every fault an event
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import json
 import logging
 import os
@@ -30,6 +32,10 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError, VtolImpedanceError
+
+#: What a Dask future raises when it was cancelled under us (its scheduler lost): concurrent's (an
+#: Exception) and asyncio's (a BaseException), both caught so the loss is said, not reported as a crash.
+CANCELLED = (concurrent.futures.CancelledError, asyncio.CancelledError)
 
 #: Deadline for reaching and hearing from the scheduler (connect and first answer; each later ping), s.
 CONNECT_TIMEOUT_S = 10.0
@@ -338,7 +344,7 @@ class Executor:
         if force or now - self._last_ping >= PING_S:
             try:
                 ident = self.client.sync(self.client.scheduler.identity, callback_timeout=self.connect_timeout)
-            except Exception as exc:  # noqa: BLE001 (any failure to hear back is the loss of the scheduler)
+            except (Exception, *CANCELLED) as exc:  # noqa: BLE001 (no answer: the scheduler is lost)
                 why = "no answer" if isinstance(exc, TimeoutError) else f"it stopped answering ({type(exc).__name__})"
                 raise self._lost(f"{why} within {self.connect_timeout:g} s") from None
             self._last_ping = now
@@ -449,28 +455,31 @@ class Executor:
                 live[fut] = k
                 ac.add(fut)
 
-        refill(self._watch())
-        while live:
-            if not ac.has_ready():
-                time.sleep(0.05)
-                refill(self._watch())
-                continue
-            for fut in ac.next_batch(block=False):
-                k = live.pop(fut)
-                if fut.status == "finished":
-                    result = fut.result()
-                    fut.release()  # the worker may drop it: it is written once handed over
-                    yield result
-                    continue
-                exc = fut.exception() if fut.status == "error" else None
-                fut.release()
-                if exc is None:  # cancelled: the connection to the scheduler was lost (or it forgot the task)
-                    self._watch(force=True)  # names the loss when the scheduler is gone
-                    raise self._lost(f"chunk {k} was cancelled by the scheduler")
-                if isinstance(exc, DesignError):
-                    raise exc
-                failures.append((k, _chunk_params(sweep, k), f"{type(exc).__name__}: {exc}"))
+        try:
             refill(self._watch())
+            while live:
+                if not ac.has_ready():
+                    time.sleep(0.05)
+                    refill(self._watch())
+                    continue
+                for fut in ac.next_batch(block=False):
+                    k = live.pop(fut)
+                    if fut.status == "finished":
+                        result = fut.result()
+                        fut.release()  # the worker may drop it: it is written once handed over
+                        yield result
+                        continue
+                    exc = fut.exception() if fut.status == "error" else None
+                    fut.release()
+                    if exc is None:  # cancelled: the connection to the scheduler was lost (or it forgot the task)
+                        self._watch(force=True)  # names the loss when the scheduler is gone
+                        raise self._lost(f"chunk {k} was cancelled by the scheduler")
+                    if isinstance(exc, DesignError):
+                        raise exc
+                    failures.append((k, _chunk_params(sweep, k), f"{type(exc).__name__}: {exc}"))
+                refill(self._watch())
+        except CANCELLED:  # a future cancelled under us (Dask's FutureCancelledError): the scheduler is gone
+            raise self._lost("its futures were cancelled (the connection to it was lost)") from None
         self._watch(force=True)  # a worker lost near the end is counted too
         if failures:
             lines = "; ".join(f"chunk {k} ({p}): {e}" for k, p, e in failures[:5])
