@@ -222,6 +222,39 @@ def test_losing_the_scheduler_is_a_cluster_error_in_the_library_too(monkeypatch)
         ex._watch()
 
 
+@pytest.mark.parametrize("where", ["scheduler_info", "wait_for_workers", "identity"])
+def test_a_connection_closed_mid_call_is_the_schedulers_loss_not_a_file_error(where):
+    """Dask's CommClosedError ("ConnectionPool closing") is an OSError: raised from any call to a scheduler
+    that went away (seen in CI while waiting for workers), it is said as the loss, never as a file error."""
+    from distributed.comm.core import CommClosedError
+
+    from vtol_impedance.sweeps.cluster import Executor
+
+    ex = Executor(scheduler="tcp://127.0.0.1:9", log=lambda m: None, wait_workers=5.0)
+
+    def closing(*a, **k):
+        raise CommClosedError("ConnectionPool closing.")
+
+    class Client:
+        status = "running"
+        scheduler = type("S", (), {"identity": None})()
+
+        def scheduler_info(self):
+            return closing() if where == "scheduler_info" else {"workers": {}}
+
+        def wait_for_workers(self, n, timeout):
+            if where == "wait_for_workers":
+                closing()
+            raise TimeoutError  # none joined: the count is asked next
+
+        def sync(self, f, callback_timeout):
+            return closing() if where == "identity" else {"workers": {}}
+
+    ex.client = Client()
+    with pytest.raises(ClusterError, match=r"lost the Dask scheduler at tcp://127.0.0.1:9: .*CommClosedError"):
+        ex._watch(force=True)
+
+
 def test_the_warm_up_flight_warns_of_nothing(recwarn):
     """A base with a timed disturbance: the short warm-up flight ends before it, which is not the user's."""
     import warnings

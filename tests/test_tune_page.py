@@ -217,7 +217,7 @@ def test_the_command_serves_until_stopped(tmp_path):
     import sys
 
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    cmd = [sys.executable, "-m", "vtol_impedance", "tune-page", "--port", "0", "--workers", "0", "--no-browser"]
+    cmd = [sys.executable, "-m", "vtol_impedance", "tune-page", "--port", "0", "--workers", "1", "--no-browser"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
     try:
         line = proc.stdout.readline()

@@ -27,8 +27,9 @@ def cmd_tune_page(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"warmed up in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
+    warming = threading.Thread(target=warm, daemon=True)
     try:
-        threading.Thread(target=warm, daemon=True).start()
+        warming.start()
         host, port = server.server_address[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}/"
         print(f"tuning page at {url} (Ctrl-C stops it)", flush=True)
@@ -37,6 +38,19 @@ def cmd_tune_page(args: argparse.Namespace) -> int:
 
             webbrowser.open(url)
         server.serve_forever()
+    except KeyboardInterrupt:
+        if warming.is_alive():
+            # Stopped while the warm-up still runs compiled code: the interpreter's shutdown would tear the
+            # native thread pools down under it and abort the process (seen in CI as a -6 exit). Nothing is
+            # written by this command, so the process ends here, with the CLI's message and code.
+            server.server_close()
+            app.close(wait=False)
+            print("interrupted; no results were written", file=sys.stderr, flush=True)
+            sys.stdout.flush()
+            import os
+
+            os._exit(130)
+        raise
     finally:
         server.server_close()
         app.close()

@@ -36,6 +36,10 @@ from ..errors import InputError, VtolImpedanceError
 #: What a Dask future raises when it was cancelled under us (its scheduler lost): concurrent's (an
 #: Exception) and asyncio's (a BaseException), both caught so the loss is said, not reported as a crash.
 CANCELLED = (concurrent.futures.CancelledError, asyncio.CancelledError)
+#: What talking to a scheduler that went away raises besides: Dask's ``CommClosedError`` ("ConnectionPool
+#: closing") is an ``OSError``, as are refused and reset connections. No file is touched while talking to
+#: it (results are written by the caller), so here an ``OSError`` is always the connection's.
+LOST = (*CANCELLED, OSError)
 
 #: Deadline for reaching and hearing from the scheduler (connect and first answer; each later ping), s.
 CONNECT_TIMEOUT_S = 10.0
@@ -330,7 +334,10 @@ class Executor:
     # ------------------------------------------------------------------ waits and watching
 
     def _workers(self) -> dict[str, Any]:
-        return dict(self.client.scheduler_info().get("workers", {}))
+        try:
+            return dict(self.client.scheduler_info().get("workers", {}))
+        except LOST as exc:
+            raise self._lost(f"it stopped answering ({type(exc).__name__})") from None
 
     def _lost(self, what: str) -> ClusterError:
         return ClusterError(f"lost {self.where}: {what}")
@@ -378,11 +385,13 @@ class Executor:
             try:
                 self.client.wait_for_workers(1, timeout=min(left, 10.0))
                 return
-            except TimeoutError:
+            except TimeoutError:  # (an OSError: caught before the connection's others)
                 n = len(self._workers())
                 if n:
                     return
                 self.log(f"waiting for workers ({n} connected), {left:.0f} s left")
+            except LOST as exc:  # the scheduler went away while we waited
+                raise self._lost(f"it stopped answering ({type(exc).__name__})") from None
             if self.client.status not in ("running", "connecting", "newly-created"):
                 raise self._lost(f"the client's connection is {self.client.status}")
 
@@ -478,8 +487,8 @@ class Executor:
                         raise exc
                     failures.append((k, _chunk_params(sweep, k), f"{type(exc).__name__}: {exc}"))
                 refill(self._watch())
-        except CANCELLED:  # a future cancelled under us (Dask's FutureCancelledError): the scheduler is gone
-            raise self._lost("its futures were cancelled (the connection to it was lost)") from None
+        except LOST as exc:  # a future cancelled under us (FutureCancelledError), a closed comm: it is gone
+            raise self._lost(f"the connection to it was lost ({type(exc).__name__})") from None
         self._watch(force=True)  # a worker lost near the end is counted too
         if failures:
             lines = "; ".join(f"chunk {k} ({p}): {e}" for k, p, e in failures[:5])

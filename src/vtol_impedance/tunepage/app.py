@@ -231,11 +231,14 @@ class TunePage:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
         self.evaluate({})
 
-    def close(self) -> None:
-        """Stop the worker processes."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+    def close(self, wait: bool = True) -> None:
+        """Stop the worker processes: after their current job, or (``wait=False``) at once."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            if not wait:  # no shutdown API for running workers before Python 3.14
+                for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                    proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)  # quick once terminated; frees the queues' locks
 
     def _submit(self, spec: ScenarioSpec, variants: list[str]) -> Callable[[], tuple[Any, list[float]]]:
         """Start the margins of ``variants`` (in the workers, at once) and return the wait for them: the
