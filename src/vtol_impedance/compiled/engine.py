@@ -147,20 +147,27 @@ def _failure(pp, x):
 
 @kernel(inline="always")
 def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, r, logs_b, dec, acc_b, win,
-                  o, y, noise, f_l, t_l, tau_prev):  # fmt: skip
+                  o, y, noise, f_l, t_l, tau_prev, rc):  # fmt: skip
     """Control tick ``k`` (time ``t``) of one vehicle, whichever plant flies it: its sensors (the states
     ``xm``, ``xi`` they read, and twelve normals from ``gen`` in the order of ``NoiseSource.block``), the
     controller step (the rotor command in ``o``), the lumped wrench from the truth at ``t`` (the state ``x``,
     the body origin's acceleration ``a_o`` (world), ``w_dot`` (body) and ``env = [f_ext_W, tau_ext_B]``),
-    the window metrics and the log row (the last three only where :func:`_truth_needed`). ``y``, ``noise``,
-    ``f_l``, ``t_l``, ``tau_prev`` are scratch."""
+    the window metrics and the log row (the last three only where :func:`_truth_needed`). ``r`` is the
+    reference row ``[p_d, v_d, a_d, psi, psi_dot, psi_ddot, comply (6), p_d, v_d at the measurement's
+    time (6)]`` (:func:`vtol_impedance.sim.loop.reference_rows`): the controller is given the last six in
+    place of the first, the metrics and log the first. ``y``, ``noise``, ``f_l``, ``t_l``, ``tau_prev``,
+    ``rc`` (18) are scratch."""
     for i in range(12):  # [position, velocity, attitude, gyro]
         noise[i] = gen.standard_normal()
     _measure(pp_b, xm, xi, sigma, noise, y)
     u_prev = s_b.thrust_prev
     for i in range(3):
         tau_prev[i] = s_b.tau_B_prev[i]
-    controller_step(p_b, des, s_b, h_b, y, r, o)
+    for i in range(18):
+        rc[i] = r[i]
+    for i in range(6):
+        rc[i] = r[18 + i]
+    controller_step(p_b, des, s_b, h_b, y, rc, o)
     if not _truth_needed(k, t, dec, win):
         return
     R = _R_of(x.q_WB)
@@ -190,7 +197,7 @@ def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sig
     ``X (B,)``: plant states; ``hist (B, H)``, ``hcount``, ``hhead``: each vehicle's ring of past states for
     the sensor delays; ``S (B,)``, ``EH (B, H_est)``: controller states and timing histories; ``p (B,)``,
     ``d (1,)``, ``pp (B,)``: controllers, shared design, plants; ``dists (D,)``, ``series``: disturbances;
-    ``refs (N, 18)``: reference samples; ``gens``: each vehicle's noise generator (a typed list,
+    ``refs (N, 24)``: reference samples (:func:`_control_tick`); ``gens``: each vehicle's noise generator (a typed list,
     :func:`noise_generators`). ``logs (B, n_log)`` gets row ``k // dec`` when ``dec > 0`` and
     ``k % dec == 0``; ``acc (B,)`` collects the window metrics (``win = [t0, t1, tail_start]``).
     """
@@ -216,6 +223,7 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     f_l = np.empty(3)
     t_l = np.empty(3)
     tau_prev = np.empty(3)
+    rc = np.empty(18)
     up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0  # directions without lag
     has_dists = dists.shape[0] > 0
     for i in range(6):
@@ -238,7 +246,7 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
                 env[i] = e[i]
         xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
         _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, refs[k], logs[b], dec,
-                      acc[b], win, o, y, noise, f_l, t_l, tau_prev)  # fmt: skip
+                      acc[b], win, o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
         f_cmd = o.f_rotor
 
         # hold the command over the period
@@ -275,13 +283,13 @@ def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, gens, S, EH, p, d, p
     :func:`run_block`."""
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
-    y, noise, f_l, t_l, tau_prev = np.empty(12), np.empty(12), np.empty(3), np.empty(3), np.empty(3)
+    y, noise, f_l, t_l, tau_prev, rc = np.empty(12), np.empty(12), np.empty(3), np.empty(3), np.empty(3), np.empty(18)
     for b in range(X.shape[0]):
         if alive[b]:
             w_dot = (W_DOT[b, 0], W_DOT[b, 1], W_DOT[b, 2])
             _control_tick(k, k * Ts, pp[b], p[b], d[0], S[b], EH[b], XM[b], XI[b], X[b], A_O[b], w_dot, ENV[b],
                           sigma, gens[b], refs[k], logs[b], dec, acc[b], win,
-                          o, y, noise, f_l, t_l, tau_prev)  # fmt: skip
+                          o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
             for i in range(F.shape[1]):
                 F[b, i] = o.f_rotor[i]
 

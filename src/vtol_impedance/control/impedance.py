@@ -72,7 +72,15 @@ PAPER_KI = 0.5
 
 @dataclass(frozen=True, eq=False)
 class ControllerParams:
-    """Everything one controller needs; ``vehicle`` is the *nominal* model, never the true plant."""
+    """Everything one controller needs; ``vehicle`` is the *nominal* model, never the true plant.
+
+    ``reference_delay`` (s, default 0) is for whoever samples the reference from a trajectory (the
+    simulator's loop, :func:`~vtol_impedance.sim.run_closed_loop`): the error of eq. (18a) compares the
+    position and velocity measured ``d`` seconds ago with the reference *of that instant*, ``p_d(t - d)``,
+    ``v_d(t - d)``, while the feed-forward ``p_ddot_d`` and the yaw are today's. With ``d`` the
+    measurement's latency the loop no longer tracks a trajectory ``d`` late (``v d`` of error: 10 mm on
+    the paper's circle at 0.5 m/s and 20 ms); the feedback, and so every margin, is unchanged. A user's
+    loop does the same by giving :meth:`vtol_impedance.runtime.Controller.step` that reference."""
 
     vehicle: VehicleParams
     gains: ImpedanceGains
@@ -86,6 +94,7 @@ class ControllerParams:
     integral_limit: float = 3.0
     thrust_shift_max: float = THRUST_SHIFT_MAX
     impedance: Impedance | None = None  # what "comply" yields with; default: M = m, D = Dp, K = Kp
+    reference_delay: float = 0.0  # s: the age of the measurement the reference's p_d, v_d are aligned to
 
     def __post_init__(self) -> None:
         if self.impedance is not None and not isinstance(self.impedance, Impedance):
@@ -101,6 +110,7 @@ class ControllerParams:
             raise InputError(f"Ts = {self.Ts} s is not a control period a multirotor can fly with (at most 1 s)")
         object.__setattr__(self, "thrust_shift_max", scalar("thrust_shift_max", self.thrust_shift_max, lo=0.0, hi=1.0))
         object.__setattr__(self, "tilt_max", scalar("tilt_max", self.tilt_max))
+        object.__setattr__(self, "reference_delay", scalar("reference_delay", self.reference_delay, lo=0.0, hi=1.0))
         if not 0.0 < self.tilt_max < np.pi / 2:
             raise InputError(f"tilt_max must be in (0, pi/2) rad, got {self.tilt_max}")
         if self.attitude_filter_wn * self.Ts >= np.pi:

@@ -161,6 +161,9 @@ class ControlSpec:
     ``wn_o``, ``wn_o_yaw``: attitude bandwidths (roll/pitch, yaw), rad/s, ``zeta_o`` their damping;
     ``estimator_timing``: align the estimator to the latencies the controller assumes and pass its
     commands through the rotor model (:mod:`vtol_impedance.estimator.momentum`, "Timing");
+    ``reference_timing``: compare the measured position and velocity with the reference of the instant
+    they were measured (``velocity_delay`` ago; the feed-forward acceleration is today's), so that a
+    trajectory is not tracked a latency late (``ControllerParams.reference_delay``; margins unchanged);
     ``velocity_delay``, ``attitude_delay``: those latencies (s; ``None``: the sensor model's, as a real
     system reads them off its timestamps); ``rotor_tau``: the rotors' nominal time constant (s), what the
     controller assumes (the true plant's are ``plant.rotor_tau_up``/``down``).
@@ -178,6 +181,7 @@ class ControlSpec:
     estimator_order: int = 2
     estimator_prototype: str = "zeta"
     estimator_timing: bool = True
+    reference_timing: bool = False
     attitude_filter_wn: float | None = None
     velocity_delay: float | None = None
     attitude_delay: float | None = None
@@ -471,6 +475,7 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
         integral_limit=c.integral_limit,
         thrust_shift_max=c.thrust_shift_max,
         impedance=Impedance(**{k: getattr(spec.interaction, k) for k in ("M", "D", "K", "M_o", "D_o", "K_o")}),
+        reference_delay=t.velocity_delay if c.reference_timing else 0.0,
     )
 
 

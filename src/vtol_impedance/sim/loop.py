@@ -226,7 +226,7 @@ class _Setup:
     dist: DisturbanceSet
     sensors: SensorParams
     noise: NoiseSource
-    refs: np.ndarray  # (N, 18): Trajectory.sample_many
+    refs: np.ndarray  # (N, 24): reference_rows
     x0: np.ndarray  # (B, state_size(n))
     Ts: float
     dt: float
@@ -444,7 +444,7 @@ def _prepare(
         raise InputError(f"start_W must be one point of shape (3,), got shape {start.shape}")
     for d in disturbances:
         d.check_start(start)
-    refs = trajectory.sample_many(np.append(t_grid, duration))  # the control ticks and the end
+    refs = reference_rows(trajectory, np.append(t_grid, duration), controllers)  # the control ticks and the end
     _check_clearance(refs, plants, Ts, duration)
     x0 = initial_state(PA, np.broadcast_to(start, (B, 3)), np.array([0.0, 0.0, trajectory.yaw0]))
     # A vehicle set down with a contact point (a low-slung payload) under the ground is lifted onto it.
@@ -453,6 +453,23 @@ def _prepare(
     setup = _Setup(CA, PA, dist, sensors, NoiseSource(seeds), refs[:-1], x0, Ts, dt, n_sub, N, dec,
                    _window(window, t_grid))  # fmt: skip
     return setup, lift
+
+
+def reference_rows(trajectory: Trajectory, t: np.ndarray, controllers: list[ControllerParams]) -> np.ndarray:
+    """The reference at the control ticks ``t`` as the engines take it, ``(N, 24)``: the row of
+    :meth:`Trajectory.sample_many` (what the flight is judged against: metrics, log), then the position
+    and velocity the controllers are given, sampled ``reference_delay`` earlier
+    (:class:`~vtol_impedance.control.impedance.ControllerParams`; before the start, the start's). The
+    batch shares one reference, so its controllers must share that delay."""
+    delays = sorted({float(c.reference_delay) for c in controllers})
+    if len(delays) > 1:
+        raise InputError(
+            f"the controllers of one batch align the reference to different delays ({delays} s): fly them in "
+            "separate runs, or give them one reference_delay"
+        )
+    rows = trajectory.sample_many(t)
+    aligned = trajectory.sample_many(np.maximum(t - delays[0], 0.0))[:, 0:6] if delays[0] > 0 else rows[:, 0:6]
+    return np.concatenate([rows, aligned], axis=1)
 
 
 def _check_clearance(refs: np.ndarray, plants: list[PlantParams], Ts: float, duration: float) -> None:
@@ -687,10 +704,10 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
             noise = s.noise.block(min(BLOCK_TICKS, s.N - k))
         t = k * s.Ts
         meas = sens.measure(noise[:, k % BLOCK_TICKS])  # sense
-        ref = _reference(s.refs[k])
+        ref, given = _reference(s.refs[k]), _reference(s.refs[k], aligned=True)
         held = (CS.thrust_prev, CS.tau_B_prev)  # the command the plant flew over the period that ends now
-        CS, out = controller_step(CA, CS, meas, ref)  # estimate, control, allocate
-        _log_tick(logs, k, alive, _truth_row(s, plant, t, held, meas, ref, out))  # log
+        CS, out = controller_step(CA, CS, meas, given)  # estimate, control, allocate
+        _log_tick(logs, k, alive, _truth_row(s, plant, t, held, meas, ref, out))  # log (the true reference)
         plant.advance(t, out.f_rotor, s.n_sub, s.dt, sens.push)  # actuate, integrate
         _stop_failed(check_vehicles(PA, plant.x), t + s.Ts, alive, fail_code, fail_time, plant, x_park)  # check
         if progress is not None and (k % report_every == 0 or k == s.N - 1):
@@ -704,9 +721,11 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
     return logs[:, :: s.dec], [], failures
 
 
-def _reference(r: np.ndarray) -> Reference:
-    """One row of :meth:`Trajectory.sample_many` as the controller's :class:`Reference`."""
-    return Reference(r[0:3], r[3:6], r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:18])
+def _reference(r: np.ndarray, aligned: bool = False) -> Reference:
+    """One row of :func:`reference_rows` as a :class:`Reference`: the trajectory's, or (``aligned``) the
+    one the controllers are given."""
+    p, v = (r[18:21], r[21:24]) if aligned else (r[0:3], r[3:6])
+    return Reference(p, v, r[6:9], np.asarray(r[9]), np.asarray(r[10]), np.asarray(r[11]), r[12:18])
 
 
 def _truth_row(
