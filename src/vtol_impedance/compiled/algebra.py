@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ..conventions import G
 from .jit import kernel
 
@@ -141,3 +143,24 @@ def _beta_lin(e0, e1, e2, u, m):
     ct, st = math.cos(e1), math.sin(e1)
     cp, sp = math.cos(e2), math.sin(e2)
     return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G  # eq. (8), linear part
+
+
+@kernel()
+def triangular_response(T, b, c, z, out):
+    """``out[f] += c (z_f I - T)^-1 b`` for an upper-triangular complex ``T (n, n)`` (a Schur form), by back
+    substitution at each frequency point ``z (F,)``: the frequency response of a state-space loop
+    (:class:`vtol_impedance.robust.margins.FrequencyResponse`). Serial, so the sums are the same whatever
+    the machine's thread count."""
+    n = T.shape[0]
+    x = np.empty(n, dtype=np.complex128)
+    for f in range(z.shape[0]):
+        zf = z[f]
+        for i in range(n - 1, -1, -1):
+            s = b[i]
+            for j in range(i + 1, n):
+                s += T[i, j] * x[j]
+            x[i] = s / (zf - T[i, i])
+        acc = 0j
+        for i in range(n):
+            acc += c[i] * x[i]
+        out[f] += acc

@@ -198,7 +198,7 @@ _PACKAGE = Path(__file__).resolve().parent.parent
 #: The code a design depends on: the rule, the linearisation and margins, and every model they call.
 DESIGN_SOURCES: tuple[Path, ...] = tuple(
     sorted(p for sub in ("robust", "control", "estimator", "model", "sim") for p in (_PACKAGE / sub).glob("*.py"))
-) + (_PACKAGE / "conventions.py",)
+) + (_PACKAGE / "conventions.py", _PACKAGE / "compiled" / "algebra.py")  # the frequency responses
 
 
 def code_key() -> str:

@@ -161,7 +161,8 @@ class FrequencyResponse:
         A, B, C, D = (np.asarray(m, dtype=float) for m in (L.A, L.B, L.C, L.D))
         if A.shape[0]:
             T, U = scipy.linalg.schur(A, output="complex")
-            self.T, self.b, self.c = T, U.conj().T @ B[:, 0], C[0] @ U
+            self.T = np.ascontiguousarray(T)
+            self.b, self.c = np.ascontiguousarray(U.conj().T @ B[:, 0]), np.ascontiguousarray(C[0] @ U)
         else:
             self.T = np.zeros((0, 0))
         self.d = complex(D[0, 0])
@@ -171,28 +172,41 @@ class FrequencyResponse:
         out = np.full(omega.shape, self.d, dtype=complex)
         if not self.T.shape[0]:
             return out
-        # (z I - T) x = b by back substitution, all frequencies at once
-        z = np.exp(1j * omega * self.Ts)
-        T, n = self.T, self.T.shape[0]
-        x = np.empty((n, z.size), dtype=complex)
-        for i in range(n - 1, -1, -1):  # einsum, not BLAS: the same sums whatever the thread count
-            x[i] = (self.b[i] + np.einsum("j,jf->f", T[i, i + 1 :], x[i + 1 :])) / (z - T[i, i])
-        return out + np.einsum("j,jf->f", self.c, x)
+        from ..compiled.algebra import triangular_response
+
+        # (z I - T) x = b by back substitution at each frequency (compiled: a page of sliders waits for it)
+        z = np.ascontiguousarray(np.exp(1j * omega.ravel() * self.Ts))
+        flat = out.ravel().copy()
+        triangular_response(self.T, self.b, self.c, z, flat)
+        return flat.reshape(out.shape)
 
 
-def _refine(fn: Any, a: float, b: float) -> float:
-    """Where the vectorised ``fn`` changes sign in ``[a, b]``: two rounds of a 17-point log subgrid, then
-    linear interpolation (about 1e-7 relative for a crossing bracketed by a 2 % grid step)."""
+def _refine(fn: Any, brackets: list[tuple[float, float]]) -> list[float]:
+    """Where the vectorised ``fn`` changes sign in each ``[a, b]`` of ``brackets``: two rounds of a
+    17-point log subgrid, then linear interpolation (about 1e-7 relative for a crossing bracketed by a 2 %
+    grid step). Every bracket is refined in the same call of ``fn`` (one triangular solve per round for
+    all of them: the margins of a loop cost three solves, not three per crossing)."""
+    if not brackets:
+        return []
+    ab = np.array(brackets, dtype=float)
+    done = np.full(len(ab), np.nan)
     for _ in range(2):
-        w = np.geomspace(a, b, 17)
-        f = fn(w)
-        change = np.flatnonzero(np.sign(f[:-1]) != np.sign(f[1:]))
-        if not change.size:  # touches zero without crossing: the closest point
-            return float(w[np.argmin(np.abs(f))])
-        i = int(change[0])
-        a, b = w[i], w[i + 1]
-    fa, fb = f[i], f[i + 1]
-    return float(a + (b - a) * fa / (fa - fb)) if fa != fb else float(a)
+        w = np.geomspace(ab[:, 0], ab[:, 1], 17, axis=1)  # (K, 17)
+        f = fn(w.ravel()).reshape(w.shape)
+        for k in range(len(ab)):
+            if not np.isnan(done[k]):
+                continue
+            change = np.flatnonzero(np.sign(f[k, :-1]) != np.sign(f[k, 1:]))
+            if not change.size:  # touches zero without crossing: the closest point
+                done[k] = w[k, np.argmin(np.abs(f[k]))]
+                continue
+            i = int(change[0])
+            ab[k] = w[k, i], w[k, i + 1]
+            fa, fb = f[k, i], f[k, i + 1]
+            if _ == 1:
+                a, b = ab[k]
+                done[k] = a + (b - a) * fa / (fa - fb) if fa != fb else a
+    return [float(x) for x in done]
 
 
 def loop_margins(name: str, L: ct.StateSpace, omega: np.ndarray | None = None) -> LoopMargins:
@@ -221,18 +235,14 @@ def loop_margins(name: str, L: ct.StateSpace, omega: np.ndarray | None = None) -
 
     # Gain crossovers |L| = 1: phase margins and delay margins.
     logmag = np.log(np.abs(H))
-    pms, wcs = [], []
-    for i in np.flatnonzero(np.sign(logmag[:-1]) != np.sign(logmag[1:])):
-        w = _refine(mag, omega[i], omega[i + 1])
-        pms.append(float(np.degrees(np.angle(-resp(w)[0]))))  # 180 deg + angle(L), wrapped
-        wcs.append(w)
+    at = np.flatnonzero(np.sign(logmag[:-1]) != np.sign(logmag[1:]))
+    wcs = _refine(mag, [(omega[i], omega[i + 1]) for i in at])
     # Phase crossovers: L crosses the negative real axis (and the Nyquist end, where L is real).
-    gains = []
-    for i in np.flatnonzero(np.sign(H.imag[:-1]) != np.sign(H.imag[1:])):
-        w = _refine(imag, omega[i], omega[i + 1])
-        Lw = resp(w)[0]
-        if Lw.real < 0:
-            gains.append(1.0 / abs(Lw))
+    at = np.flatnonzero(np.sign(H.imag[:-1]) != np.sign(H.imag[1:]))
+    wps = _refine(imag, [(omega[i], omega[i + 1]) for i in at])
+    L_at = resp(np.array(wcs + wps))
+    pms = [float(np.degrees(np.angle(-v))) for v in L_at[: len(wcs)]]  # 180 deg + angle(L), wrapped
+    gains = [1.0 / abs(v) for v in L_at[len(wcs) :] if v.real < 0]
     if H[-1].real < 0 and abs(H[-1].imag) < 1e-9 * max(1.0, abs(H[-1])):
         gains.append(1.0 / abs(H[-1]))
     g = np.asarray(gains)
