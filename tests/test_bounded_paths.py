@@ -95,7 +95,8 @@ def test_design_cache_is_recomputed_after_an_upgrade(counted_design, monkeypatch
 def test_design_sources_are_the_code_it_runs():
     names = {(p.parent.name, p.name) for p in rd.DESIGN_SOURCES}
     for needed in [("robust", "design.py"), ("robust", "linear.py"), ("robust", "margins.py"),
-                   ("sim", "plant.py"), ("control", "impedance.py"), ("estimator", "momentum.py")]:  # fmt: skip
+                   ("sim", "plant.py"), ("control", "impedance.py"), ("estimator", "momentum.py"),
+                   ("compiled", "algebra.py")]:  # fmt: skip
         assert needed in names
     assert all(p.is_file() for p in rd.DESIGN_SOURCES)
 
