@@ -61,6 +61,7 @@ RUN_ELSEWHERE = {
     "live": "tests/test_live.py runs `live` against `sim-autopilot` over UDP loopback (they run until stopped)",
     "sim-autopilot": "tests/test_live.py runs it with `live` over UDP loopback",
     "tune-page": "tests/test_tune_page.py serves the page and drives it in Chromium (it serves until stopped)",
+    "design": "tests/test_tracking_design.py runs `design` on a grid of one and two tunings (the full one takes 40 s)",
 }
 #: Documented commands that fail today, by the start of their argv: (the error they give, why). The test
 #: fails when one starts to pass, so that it is taken off this list.

@@ -159,6 +159,9 @@ class ControlSpec:
     hand. :data:`PAPER_CONTROL` is the paper's own choice (``vtol-impedance paper`` flies it).
 
     ``wn_o``, ``wn_o_yaw``: attitude bandwidths (roll/pitch, yaw), rad/s, ``zeta_o`` their damping;
+    ``estimator_wn``: the estimator's bandwidth (rad/s), and of its moment channels too unless
+    ``estimator_wn_moment`` sets theirs (the moment estimate is fed forward inside the attitude loop,
+    whose margin a fast one costs; the force estimate is what rejects a gust: :mod:`.tracking`);
     ``estimator_timing``: align the estimator to the latencies the controller assumes and pass its
     commands through the rotor model (:mod:`vtol_impedance.estimator.momentum`, "Timing");
     ``reference_timing``: compare the measured position and velocity with the reference of the instant
@@ -177,6 +180,7 @@ class ControlSpec:
     wn_o_yaw: float | None = None
     zeta_o: float = 1.0
     estimator_wn: float | None = None
+    estimator_wn_moment: float | None = None
     estimator_zeta: float = 1.0
     estimator_order: int = 2
     estimator_prototype: str = "zeta"
@@ -192,7 +196,7 @@ class ControlSpec:
 
     _positive: ClassVar[tuple[str, ...]] = (
         "rate", "Kp", "Dp", "zeta_o", "estimator_zeta", "tilt_max_deg", "wn_o", "wn_o_yaw", "estimator_wn",
-        "attitude_filter_wn",
+        "attitude_filter_wn", "estimator_wn_moment",
     )  # fmt: skip
     _nonneg: ClassVar[tuple[str, ...]] = (
         "Ki", "rotor_tau", "integral_limit", "thrust_shift_max", "estimator_order", "velocity_delay", "attitude_delay",
@@ -456,7 +460,7 @@ def controller_params(spec: ScenarioSpec, variant: str) -> ControllerParams:
     )
     t = assumed_timing(spec)
     est = EstimatorParams(
-        wn=c.estimator_wn,
+        wn=[c.estimator_wn] * 3 + [c.estimator_wn if c.estimator_wn_moment is None else c.estimator_wn_moment] * 3,
         zeta=c.estimator_zeta,
         order=int(c.estimator_order),
         prototype=c.estimator_prototype,
@@ -589,6 +593,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "control.rotor_tau": (0.0, 1.0, False),
     "control.zeta_o": (0.0, 100.0, True),
     "control.estimator_wn": (0.0, 1e5, True),
+    "control.estimator_wn_moment": (0.0, 1e5, True),
     "control.estimator_zeta": (0.0, 100.0, True),
     "control.estimator_order": (1, 8, False),
     "control.attitude_filter_wn": (0.0, 1e5, True),
@@ -653,6 +658,7 @@ def _gain_value(path: str, value: Any) -> Any:
 #: Keys whose default ``None`` means "chosen for you" (designed, or from the sensor model); ``"design"`` or
 #: ``"auto"`` sets them back to that.
 _OPTIONAL = {"control.wn_o", "control.wn_o_yaw", "control.attitude_filter_wn", "control.estimator_wn",
+             "control.estimator_wn_moment",
              "control.velocity_delay", "control.attitude_delay", "plant.rotor_drag"}  # fmt: skip
 
 
