@@ -17,6 +17,7 @@ from .spec import (
     controller_params,
     set_value,
 )
+from .tracking import TrackingDesign, tracking_design
 
 __all__ = [
     "DEFAULT",
@@ -37,4 +38,6 @@ __all__ = [
     "register",
     "set_value",
     "simulate",
+    "tracking_design",
+    "TrackingDesign",
 ]

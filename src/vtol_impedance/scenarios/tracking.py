@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import InputError, VtolImpedanceError, function, scalar
-from .margins import scenario_margins
 from .registry import get
 from .simulate import simulate
 from .spec import PAPER_CONTROL, apply_overrides
@@ -100,6 +99,8 @@ def candidate_settings(kp: float, dp: float, wn_o: float, wn_f: float, wn_m: flo
 def _worst_margins(vehicle: str, cases: Sequence[str], settings: dict[str, Any]) -> dict[str, float] | None:
     """PD+C's worst phase and gain margin over the cases' operating points; ``None`` when a loop is
     unstable or has no margins (no trim)."""
+    from .margins import scenario_margins  # python-control: loaded when a design is asked for
+
     pm, gm = float("inf"), float("inf")
     for case in cases:
         spec = apply_overrides(get(case), [f"vehicle={json.dumps(vehicle)}", *_pairs(settings)])
