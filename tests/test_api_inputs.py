@@ -506,6 +506,16 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         {"spec": Obj(scenarios.ScenarioSpec), "variant": "choice"},
     ),
     "scenarios.get": (lambda: dict(name="case-a-payload-v1"), {"name": "choice"}),
+    "scenarios.tracking_design": (
+        lambda: dict(vehicle="pelican", cases=["gust"]),
+        {
+            "vehicle": "choice",
+            "min_phase_deg": "nonneg",
+            "min_gain_db": "nonneg",
+            "grid": "mapping",
+            "progress": "func",
+        },
+    ),
     "scenarios.load_toml": (lambda: dict(path=Path("x.toml")), {"path": "path", "base": Obj(scenarios.ScenarioSpec)}),
     "scenarios.register": (lambda: dict(spec=spec()), {"spec": Obj(scenarios.ScenarioSpec)}),
     "scenarios.set_value": (
@@ -825,7 +835,7 @@ EXEMPT = {
         "control.ControlOutput", "control.ControllerArrays", "control.ControllerState", "runtime.EstimatorOutput",
         "robust.Design", "robust.LoopMargins", "robust.MarginReport", "robust.LinearLoop", "robust.OperatingPoint",
         "logs.ConventionReport", "logs.FlightLog", "logs.LogEstimate", "logs.Verdict", "live.LiveResult", "live.Tick",
-        "sweeps.Sweep", "sweeps.Unit")},
+        "sweeps.Sweep", "sweeps.Unit", "scenarios.TrackingDesign")},
 }  # fmt: skip
 
 

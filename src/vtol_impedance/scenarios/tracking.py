@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import itertools
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -152,8 +152,10 @@ def tracking_design(
     min_gain_db = scalar("min_gain_db", min_gain_db, lo=0.0, hi=60.0)
     if progress is not None:
         function("progress", progress)
+    if grid is not None and not isinstance(grid, Mapping):
+        raise InputError(f"grid must map each of {', '.join(GRID)} to its values, got {grid!r:.80}")
     grid = dict(GRID if grid is None else grid)
-    if set(grid) != set(GRID) or not all(len(v) for v in grid.values()):
+    if set(grid) != set(GRID) or not all(isinstance(v, Sequence) and len(v) for v in grid.values()):
         raise InputError(f"grid must give values for each of {', '.join(GRID)}, got {sorted(grid)}")
     combos = list(itertools.product(*(grid[k] for k in GRID)))
     printed = dict(PAPER_CONTROL)
