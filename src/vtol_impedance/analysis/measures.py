@@ -35,7 +35,9 @@ def _fit(t: np.ndarray, e: np.ndarray, ed: np.ndarray, f: np.ndarray, sel: np.nd
     return np.linalg.lstsq(A, f[sel], rcond=None)[0]
 
 
-def wall_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
+def wall_numbers(result: Result) -> list[dict[str, Any]] | None:
+    """Per vehicle, the wall contact numbers of :func:`wall_measures`: ``held_N``, ``commanded_N`` and
+    ``error_pct`` (``nan`` but for comply), ``estimate_N``, ``lost`` (bool); ``None`` without a wall."""
     walls = _dist(result, "wall")
     if not walls:
         return None
@@ -50,8 +52,7 @@ def wall_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
     m = window_mask(result)
     t = result.t
     last = m & (t > t[m][-1] - 4.0)
-    head = ["controller", "contact force held [N]", "commanded [N]", "error [%]", "estimate [N]", "contact lost"]
-    rows = []
+    out = []
     for b, lab in enumerate(result.labels):
         held = float(-(result["f_ext_W"][b, last] @ n).mean())
         est = float(-(result["f_hat_W"][b, last] @ n).mean())
@@ -60,11 +61,28 @@ def wall_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
         lost = bool(touching.any() and not np.all(touching[t > t[np.argmax(touching)] + 3.0]))
         commanded = K_n * (target - contact) if lab == "comply" else float("nan")
         err = 100.0 * (held - commanded) / commanded if lab == "comply" else float("nan")
-        rows.append([lab, f"{held:.3f}", _f(commanded, 3), _f(err, 1), f"{est:.3f}", "yes" if lost else "no"])
+        out.append({"held_N": held, "commanded_N": commanded, "error_pct": err, "estimate_N": est, "lost": lost})
+    return out
+
+
+def wall_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
+    got = wall_numbers(result)
+    if got is None:
+        return None
+    head = ["controller", "contact force held [N]", "commanded [N]", "error [%]", "estimate [N]", "contact lost"]
+    rows = [
+        [lab, f"{r['held_N']:.3f}", _f(r["commanded_N"], 3), _f(r["error_pct"], 1), f"{r['estimate_N']:.3f}",
+         "yes" if r["lost"] else "no"]
+        for lab, r in zip(result.labels, got, strict=True)
+    ]  # fmt: skip
     return head, rows
 
 
-def push_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
+def push_numbers(result: Result, fit: bool = True) -> list[dict[str, Any]] | None:
+    """Per vehicle, the push numbers of :func:`push_measures`: ``peak_cm`` (the largest displacement along
+    the push while it acts and 2 s after), ``left_cm`` (2 s after it), ``fit`` (comply's identified
+    ``M, D, K`` when ``fit``, else ``nan``); ``None`` without a push (or without traces before and during
+    it)."""
     pushes = [d for d in _dist(result, "push") if np.any(np.asarray(d.get("force_W", (0, 0, 0))) != 0)]
     if not pushes:
         return None
@@ -78,20 +96,31 @@ def push_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
     before = (t > t0 - 2.0) & (t < t0)
     if not during.any() or not before.any():
         return None
-    head = ["controller", "yield along the push [cm]", "left 2 s after it [cm]", "M [kg]", "D [N s/m]", "K [N/m]"]
-    rows = []
+    out = []
     for b, lab in enumerate(result.labels):
         x = result["p_W"][b] @ d
         base = x[before].mean()
-        peak = 100.0 * np.abs(x[during] - base).max()
-        left = 100.0 * np.abs(x[after] - base).mean() if after.any() else float("nan")
-        fit = [float("nan")] * 3
-        if lab == "comply":
+        peak = 100.0 * float(np.abs(x[during] - base).max())
+        left = 100.0 * float(np.abs(x[after] - base).mean()) if after.any() else float("nan")
+        mdk = [float("nan")] * 3
+        if lab == "comply" and fit and np.all(np.isfinite(x)):  # a failed flight's traces end in nan
             e = x - result["p_ref_W"][b] @ d
             ed = result["v_W"][b] @ d - result["v_ref_W"][b] @ d
             sel = (t > t0 - 0.5) & (t < t[-1] - 0.5)
-            fit = _fit(t, e, ed, result["f_lumped_W"][b] @ d, sel).tolist()
-        rows.append([lab, f"{peak:.2f}", _f(left, 2), _f(fit[0], 3), _f(fit[1], 2), _f(fit[2], 2)])
+            mdk = _fit(t, e, ed, result["f_lumped_W"][b] @ d, sel).tolist()
+        out.append({"peak_cm": peak, "left_cm": left, "fit": mdk})
+    return out
+
+
+def push_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
+    got = push_numbers(result)
+    if got is None:
+        return None
+    head = ["controller", "yield along the push [cm]", "left 2 s after it [cm]", "M [kg]", "D [N s/m]", "K [N/m]"]
+    rows = [
+        [lab, f"{r['peak_cm']:.2f}", _f(r["left_cm"], 2), _f(r["fit"][0], 3), _f(r["fit"][1], 2), _f(r["fit"][2], 2)]
+        for lab, r in zip(result.labels, got, strict=True)
+    ]
     return head, rows
 
 

@@ -145,6 +145,6 @@ def plot_case(result: Result, folder: Path, stem: str) -> list[Path]:
         plot_inputs(result, folder / f"{stem}_inputs.png", f"{name}: inputs"),
         plot_wrench(result, folder / f"{stem}_wrench.png", title=f"{name}: estimated wrench (PD+C)"),
     ]
-    if result.config.get("scenario", {}).get("trajectory", {}).get("kind") == "circle":
+    if result.config.get("scenario", {}).get("trajectory", {}).get("kind") in ("circle", "figure-eight"):
         paths.append(plot_xy(result, folder / f"{stem}_xy.png", f"{name}: x-y path"))
     return paths

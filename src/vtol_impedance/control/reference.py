@@ -1,6 +1,6 @@
 """Reference trajectories for the flat outputs (position and yaw) with their derivatives.
 
-A :class:`Trajectory` is a sequence of segments (hold, minimum-jerk move, circle) played one after
+A :class:`Trajectory` is a sequence of segments (hold, minimum-jerk move, circle, figure-eight) played one after
 another; yaw is a planned piecewise-constant profile (steps are passed to the controller as they are,
 which is how the yaw-step stress test asks the allocation for more than the rotors can give).
 """
@@ -103,23 +103,7 @@ class Circle:
 
     def _angle(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Angle travelled and its two derivatives at times ``tau`` (array) into the segment."""
-        w, Tr, T = self._w, self.ramp, self.duration
-        tau = np.asarray(tau, dtype=float)
-        if Tr == 0:
-            return w * tau, np.full_like(tau, w), np.zeros_like(tau)
-        # ramp up: integral of the min-jerk speed profile; ramp down: its mirror from the end
-        u_up = np.clip(tau / Tr, 0.0, 1.0)
-        u_dn = np.clip((T - tau) / Tr, 0.0, 1.0)
-        s_up, ds_up, _ = _smooth5(u_up)
-        s_dn, ds_dn, _ = _smooth5(u_dn)
-        integ = lambda u: Tr * (u * u) ** 2 * (2.5 - 3 * u + u * u)  # noqa: E731
-        up, down = tau < Tr, tau > T - Tr
-        th = np.where(
-            up, w * integ(u_up), np.where(down, 2 * np.pi * self.laps - w * integ(u_dn), w * (Tr / 2 + (tau - Tr)))
-        )
-        thd = np.where(up, w * s_up, np.where(down, w * s_dn, w))
-        thdd = np.where(up, w * ds_up / Tr, np.where(down, -w * ds_dn / Tr, 0.0))
-        return th, thd, thdd
+        return _ramped_angle(tau, self._w, self.ramp, self.duration, self.laps)
 
     def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         th, thd, thdd = (v[:, None] for v in self._angle(tau))
@@ -131,7 +115,77 @@ class Circle:
         return c + R * radial, R * thd * tangent, R * thdd * tangent - R * thd * thd * radial
 
 
-Segment = Hold | MinJerk | Circle
+@dataclass(frozen=True)
+class FigureEight:
+    """A lemniscate of Gerono in the horizontal plane, centred on ``start_W`` and entered and left there.
+
+    ``p(th) = start + a [sin th, sin th cos th, 0]`` with ``a = half_length``: two lobes along x (NED north),
+    ``2 a`` long and ``a`` wide, crossing at the start. The parameter rate ramps from 0 to ``w`` in
+    ``ramp`` seconds (the circle's minimum-jerk profile), holds and ramps back so that exactly ``laps``
+    eights are flown; position, velocity and acceleration are analytic and continuous (what the
+    controller uses). ``speed`` is the speed at the crossing, the fastest point: ``|dp/dth| = a sqrt(2)``
+    there and ``a`` at the lobes' tips, so ``w = speed / (a sqrt(2))``; the curve is 6.097 ``a`` long, so
+    the mean speed is 0.686 ``speed`` (6.097 / (2 pi sqrt(2))).
+    """
+
+    start_W: tuple[float, float, float]
+    half_length: float = 1.0
+    speed: float = 0.5
+    laps: float = 2.0
+    ramp: float = 2.0
+
+    def __post_init__(self) -> None:
+        positive("figure-eight half length", self.half_length)
+        positive("figure-eight speed", self.speed)
+        positive("figure-eight laps", self.laps)
+        positive("figure-eight ramp", self.ramp, allow_zero=True)
+        if self._w * self.ramp > 2 * np.pi * self.laps:
+            raise InputError("figure-eight ramp is too long for the number of laps at this speed")
+
+    @property
+    def _w(self) -> float:
+        return self.speed / (self.half_length * np.sqrt(2.0))
+
+    @property
+    def duration(self) -> float:
+        return 2 * np.pi * self.laps / self._w + self.ramp
+
+    def start(self) -> np.ndarray:
+        return np.asarray(self.start_W, dtype=float)
+
+    end = start
+
+    def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        th, thd, thdd = (v[:, None] for v in _ramped_angle(tau, self._w, self.ramp, self.duration, self.laps))
+        a = self.half_length
+        s1, c1, s2, c2, z = np.sin(th), np.cos(th), np.sin(2 * th), np.cos(2 * th), np.zeros_like(th)
+        p = np.concatenate([a * s1, 0.5 * a * s2, z], -1)  # sin th cos th = sin(2 th) / 2
+        dp = np.concatenate([a * c1, a * c2, z], -1)  # d/dth
+        ddp = np.concatenate([-a * s1, -2 * a * s2, z], -1)
+        return self.start() + p, dp * thd, ddp * thd * thd + dp * thdd
+
+
+def _ramped_angle(
+    tau: np.ndarray, w: float, Tr: float, T: float, laps: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angle travelled at rate ``w`` with minimum-jerk ramps of ``Tr`` s at both ends of a segment of
+    ``T`` s covering ``laps`` turns, and its two derivatives, at times ``tau`` (array) into the segment."""
+    tau = np.asarray(tau, dtype=float)
+    if Tr == 0:
+        return w * tau, np.full_like(tau, w), np.zeros_like(tau)
+    u_up = np.clip(tau / Tr, 0.0, 1.0)
+    u_dn = np.clip((T - tau) / Tr, 0.0, 1.0)
+    s_up, ds_up, _ = _smooth5(u_up)
+    s_dn, ds_dn, _ = _smooth5(u_dn)
+    integ = lambda u: Tr * (u * u) ** 2 * (2.5 - 3 * u + u * u)  # noqa: E731
+    up, down = tau < Tr, tau > T - Tr
+    th = np.where(up, w * integ(u_up), np.where(down, 2 * np.pi * laps - w * integ(u_dn), w * (Tr / 2 + (tau - Tr))))
+    thd = np.where(up, w * s_up, np.where(down, w * s_dn, w))
+    thdd = np.where(up, w * ds_up / Tr, np.where(down, -w * ds_dn / Tr, 0.0))
+    return th, thd, thdd
+
+
+Segment = Hold | MinJerk | Circle | FigureEight
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InputError, scalar
 from ..model.kinematics import rotation_zyx
 from ..robust import MarginReport, Thresholds, linearize, margins
 from .spec import Built, ScenarioSpec, checked
@@ -40,20 +41,41 @@ def steady_wrench(built: Built, p_W: np.ndarray, psi: float) -> tuple[np.ndarray
     return f, tau
 
 
-def operating_point_of(built: Built) -> dict[str, Any]:
-    """Where a scenario's margins are taken: the reference at the start of its task window."""
-    row = built.trajectory.sample_many(np.array([built.window[0]]))[0]
+def engaged_time(built: Built) -> float:
+    """The first time in the task window at which the comply fractions (summed over the axes) reach their
+    largest value there; the window's start when they never change in it. A scenario that switches
+    comply on once airborne starts its window with comply off (the switch is blended over ``blend_s``)."""
+    t0, t1 = built.window
+    times = np.linspace(t0, t1, 1 + max(1, int(round((t1 - t0) / 0.01))))  # 10 ms: a blend is 0.5 s
+    total = built.trajectory.comply_at(times).sum(axis=1)
+    return float(times[int(np.argmax(total >= total.max() - 1e-9))])
+
+
+def operating_point_of(built: Built, at: float | None = None) -> dict[str, Any]:
+    """Where a scenario's margins are taken: the reference at the start of its task window, or at the
+    time ``at`` (s; e.g. :func:`engaged_time`)."""
+    t = built.window[0] if at is None else float(at)
+    row = built.trajectory.sample_many(np.array([t]))[0]
     p, psi = row[0:3], float(row[9])
     f, tau = steady_wrench(built, p, psi)
     return {"p_W": p, "psi": psi, "comply": row[12:18], "force_W": f, "torque_B": tau}
 
 
-def scenario_margins(spec: ScenarioSpec, variants: Sequence[str] = ("pd", "pid", "pdc")) -> dict[str, MarginReport]:
-    """Margins of each controller variant of ``spec`` (see the module docstring)."""
+def scenario_margins(
+    spec: ScenarioSpec, variants: Sequence[str] = ("pd", "pid", "pdc"), at: float | str | None = None
+) -> dict[str, MarginReport]:
+    """Margins of each controller variant of ``spec`` (see the module docstring), at the start of the task
+    window, at the time ``at`` (s) or, with ``at = "engaged"``, at :func:`engaged_time`."""
     from threadpoolctl import threadpool_limits
 
     built, ctrls = checked(spec, list(variants))
-    op = operating_point_of(built)
+    if isinstance(at, str):
+        if at != "engaged":
+            raise InputError(f"at must be a time in s or 'engaged', got {at!r}")
+        at = engaged_time(built)
+    elif at is not None:
+        at = scalar("at", at, lo=0.0)
+    op = operating_point_of(built, at)
     out = {}
     with threadpool_limits(limits=1, user_api="blas"):  # the same numbers whatever the thread count
         for variant, ctrl in zip(variants, ctrls, strict=True):

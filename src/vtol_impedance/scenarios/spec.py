@@ -21,7 +21,7 @@ import numpy as np
 
 from ..control.gains import Impedance, ImpedanceGains
 from ..control.impedance import ATTITUDE_FILTER_WN, PAPER_KI, VARIANTS, ControllerParams, compile_controllers
-from ..control.reference import Circle, Hold, MinJerk, Trajectory
+from ..control.reference import Circle, FigureEight, Hold, MinJerk, Trajectory
 from ..errors import InputError, ScenarioError, as_finite, flag, instance, scalar
 from ..estimator.momentum import EstimatorParams
 from ..model.mixer import THRUST_SHIFT_MAX
@@ -70,7 +70,12 @@ def _check_fields(obj: Any) -> None:
 
 @dataclass(frozen=True)
 class TrajectorySpec:
-    """Take-off, the task (hover or circle), optional landing. Times in s, distances in m.
+    """Take-off, the task (hover, circle or figure-eight), optional landing. Times in s, distances in m.
+
+    ``kind = "figure-eight"`` flies a lemniscate of Gerono (:class:`~vtol_impedance.control.reference.FigureEight`)
+    with the circle's fields: ``circle_radius`` its half length along x (it is half as wide), ``circle_speed``
+    its speed at the crossing (the fastest point; the mean is 0.686 of it), ``circle_laps`` how many eights,
+    ``circle_ramp`` the speed ramps.
 
     The run starts on the ground (z = 0) or, with ``start_on_ground = false``, hovering at the altitude.
     ``yaw_step_time < 0`` disables the yaw step.
@@ -348,10 +353,14 @@ class Built:
     start_W: np.ndarray
 
 
+#: The trajectory kinds (``trajectory.kind``): the task after take-off.
+KINDS = ("hover", "circle", "figure-eight")
+
+
 def build_trajectory(ts: TrajectorySpec) -> tuple[Trajectory, tuple[float, float], dict[str, float]]:
     """The reference of a scenario, its task window (for metrics) and named phase times."""
-    if ts.kind not in ("hover", "circle"):
-        raise InputError(f"trajectory.kind must be 'hover' or 'circle', got {ts.kind!r}")
+    if ts.kind not in KINDS:
+        raise InputError(f"trajectory.kind must be one of {', '.join(KINDS)}, got {ts.kind!r}")
     hover = (0.0, 0.0, -float(ts.altitude))
     ground = (0.0, 0.0, 0.0)
     segs: list[Any] = []
@@ -373,9 +382,10 @@ def build_trajectory(ts: TrajectorySpec) -> tuple[Trajectory, tuple[float, float
     if ts.kind == "hover":
         window = (phases["hover"], t)
     else:
-        c = Circle(hover, ts.circle_radius, ts.circle_speed, ts.circle_laps, ts.circle_ramp)
+        shape = Circle if ts.kind == "circle" else FigureEight
+        c = shape(hover, ts.circle_radius, ts.circle_speed, ts.circle_laps, ts.circle_ramp)
         segs.append(c)
-        phases["circle"] = t
+        phases[ts.kind] = t
         window = (t, t + c.duration)
         t += c.duration
         segs.append(Hold(hover, ts.settle_duration))

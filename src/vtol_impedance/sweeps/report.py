@@ -358,6 +358,9 @@ def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, 
     check = plot_margin_check(s, folder / "margin-check.png")
     if check is not None:
         figs.append(check)
+    judged = "settle_ev_cms" in s["cols"] and "margin_stable" in s["cols"]
+    if judged:
+        figs.append(plot_verdict_outcome({s["sweep"]["name"]: s["cols"]}, folder / "verdict-outcome.png"))
     files += figs
     table_rows = [
         [str(r["point"]), LABELS.get(r["controller"], r["controller"])]
@@ -371,7 +374,7 @@ def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, 
         f"{len(s['controllers'])} controllers; metric {METRIC_LABELS[metric]} over each scenario's task window.",
         f"{fails} point/controller pairs had failed flights (red x in the figures); they are left out of the means.",
     ]
-    if "margin_stable" in s["cols"]:
+    if "margin_stable" in s["cols"] and "settle_ev_cms" not in s["cols"]:  # else: the verdict notes below
         for c, a in margin_agreement(s).items():
             if c in ("pd", "pid"):  # their RMS holds the payload's sag: "above 0.5 cm" is no oscillation test
                 continue
@@ -380,6 +383,25 @@ def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, 
                 f"{a['oscillating']} oscillated (RMS |e_p| above {OSCILLATING_CM} cm or failed): agreement "
                 f"{100 * a['agreement']:.1f} %."
             )
+    if judged:
+        vo = verdict_outcome(s["cols"])
+        for c, a in vo["counts"].items():
+            notes.append(
+                f"{LABELS.get(c, c)}: of {a['cells']} flights the check's verdict (stable or not) agrees with the "
+                f"flight in {a['agree']}, {a['false_alarm']} false alarms (unstable, settled), {a['miss']} misses "
+                f"(stable, wobbled: failed, wobble above {WOBBLE_CMS} cm/s or a transient above "
+                f"{TRANSIENT_FACTOR:g} x the median peak); against the thresholds {a['agree_t']} / "
+                f"{a['false_alarm_t']} / {a['miss_t']}"
+                + (f"; {a['scoped']} rows' check leaves a loop out (margin_scope)" if a["scoped"] else "")
+            )
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        w.writerow(["unit", "controller", "verdict", "margin_scope", "wobbled", "settle_ev_cms", "rms_ep_cm"])
+        cols = s["cols"]
+        for i in range(len(cols["unit"])):
+            w.writerow([cols["unit"][i], cols["controller"][i], vo["verdict"][i], vo["scope"][i],
+                        int(vo["wobbled"][i]), cols["settle_ev_cms"][i], cols["rms_ep_cm"][i]])  # fmt: skip
+        files.append(write_text(folder / "verdict.csv", buf.getvalue()))
     files.append(
         write_html(
             folder, f"Sweep {s['sweep']['name']}",
@@ -398,3 +420,97 @@ def write_report(folder: Path, metric: str = "rms_ep_cm", x: str | None = None, 
     }
     files.append(write_text(folder / MANIFEST, json.dumps(manifest, indent=1)))
     return files
+
+
+# ----------------------------------------------------------------------------- verdict against outcome
+
+#: A flight "wobbled" (``measures = true`` sweeps) when it failed, when ``settle_ev_cms`` (the velocity
+#: error's wobble over the task window's last 4 s) is above this, or, in a scenario with a push, when
+#: its largest error is above :data:`TRANSIENT_FACTOR` times the median of the cells sharing its
+#: controller and the :data:`GROUP_BY` values present (a transient that grew before it decayed; a
+#: trajectory's largest error grows with latency without any oscillation, so it has no such clause).
+#: Measured on the three widened robustness studies (docs/guide/margins.md): the settled flights'
+#: wobble is at most 0.74 cm/s, the oscillating ones' at least 1.11 cm/s; 0.9 is between (geometric mean).
+WOBBLE_CMS = 0.9
+TRANSIENT_FACTOR = 2.0
+#: Axes whose values set a push's excursion without any oscillation (PD's payload sag).
+GROUP_BY = ("payload.mass", "trajectory.kind", "trajectory.kind,trajectory.circle_speed")
+
+
+def verdict_outcome(cols: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Per flight row of a ``measures = true`` sweep (the columns of :func:`summarise`): the check's verdict
+    (``"unstable"``, ``"thin"``: stable with margins below the thresholds, ``"passes"``), whether the flight
+    wobbled (see :data:`WOBBLE_CMS`), and the counts per controller: ``cells``; against the strict verdict
+    (unstable or not) ``agree``, ``false_alarm`` (unstable, settled), ``miss`` (stable, wobbled); against
+    the thresholds ``agree_t``, ``false_alarm_t`` (below, settled), ``miss_t`` (passes, wobbled); and the
+    six cells of verdict x outcome (``passes/settled`` ...), plus ``scoped``: rows whose check leaves out a
+    loop (``margin_scope``)."""
+    if "settle_ev_cms" not in cols or "margin_stable" not in cols:
+        raise InputError("the sweep has no outcome or margin columns: it needs measures = true and margins = true")
+    ctrl = cols["controller"].astype(str)
+    failed = cols["diverged"].astype(bool)
+    settle = cols["settle_ev_cms"].astype(float)
+    pushed = np.isfinite(cols["push_peak_cm"].astype(float))
+    peak = np.where(pushed, cols["max_ep_cm"].astype(float), np.nan)
+    big = np.zeros(len(ctrl), dtype=bool)
+    keys = [ctrl] + [cols[k].astype(str) for k in GROUP_BY if k in cols]
+    group = np.array(["|".join(parts) for parts in zip(*keys, strict=True)])
+    for g in np.unique(group):
+        sel = group == g
+        alive = peak[sel][~failed[sel] & np.isfinite(peak[sel])]
+        if alive.size:  # no push (nan): no transient clause
+            big[sel] = peak[sel] > TRANSIENT_FACTOR * np.median(alive)
+    wobbled = failed | ~(settle <= WOBBLE_CMS) | big
+    stable = cols["margin_stable"].astype(float) > 0.5
+    ok = cols["margin_ok"].astype(float) > 0.5
+    verdict = np.where(~stable, "unstable", np.where(ok, "passes", "thin"))
+    scope = cols["margin_scope"].astype(str) if "margin_scope" in cols else np.full(len(ctrl), "")
+    counts: dict[str, dict[str, int]] = {}
+    for c in dict.fromkeys(ctrl.tolist()):
+        sel = ctrl == c
+        w, st, k = wobbled[sel], stable[sel], ok[sel]
+        row = {
+            "cells": int(sel.sum()),
+            "agree": int(np.sum(st & ~w) + np.sum(~st & w)), "false_alarm": int(np.sum(~st & ~w)),
+            "miss": int(np.sum(st & w)),
+            "agree_t": int(np.sum(k & ~w) + np.sum(~k & w)), "false_alarm_t": int(np.sum(~k & ~w)),
+            "miss_t": int(np.sum(k & w)), "scoped": int(np.sum(scope[sel] != "")),
+        }  # fmt: skip
+        for v in ("passes", "thin", "unstable"):
+            for o, mask in (("settled", ~w), ("wobbled", w)):
+                row[f"{v}/{o}"] = int(np.sum((verdict[sel] == v) & mask))
+        counts[c] = row
+    return {"verdict": verdict, "wobbled": wobbled, "scope": scope, "counts": counts}
+
+
+def plot_verdict_outcome(studies: dict[str, dict[str, np.ndarray]], path: Path) -> Path:
+    """One panel: every flight of ``studies`` (name -> columns) at its worst phase margin (unstable: at the
+    left edge) against its wobble (failed: at the top), coloured by study and controller; the threshold
+    lines of the check and of the outcome."""
+    from ..analysis.plots import _save, plt
+    from ..robust import Thresholds
+
+    fig, ax = plt.subplots(figsize=(8.0, 4.8))
+    markers = {"pd": "s", "pdc": "o", "comply": "^"}
+    colours = iter(plt.rcParams["axes.prop_cycle"].by_key()["color"])
+    for name, cols in studies.items():
+        colour = next(colours)
+        ctrl = cols["controller"].astype(str)
+        for c in dict.fromkeys(ctrl.tolist()):
+            sel = ctrl == c
+            stable = cols["margin_stable"][sel].astype(float) > 0.5
+            x = np.where(stable, cols["pm_min_deg"][sel].astype(float), -4.0)
+            y = cols["settle_ev_cms"][sel].astype(float)
+            y = np.where(cols["diverged"][sel].astype(bool) | ~np.isfinite(y), 300.0, np.maximum(y, 0.02))
+            ax.plot(x, y, markers.get(c, "o"), ms=5, color=colour, alpha=0.75, mfc="none" if c == "pd" else colour,
+                    label=f"{name}: {LABELS.get(c, c)} ({int(sel.sum())})")  # fmt: skip
+    ax.axvline(Thresholds().phase_deg, color="k", lw=0.8)
+    ax.axvline(0.0, color="k", lw=0.5, ls=":")
+    ax.axhline(WOBBLE_CMS, color="tab:red", lw=0.8, ls="--")
+    ax.set_yscale("log")
+    ax.set_xlabel("worst phase margin the check computed [deg] (unstable: drawn at -4)")
+    ax.set_ylabel("wobble: RMS of e_v less its 1 s mean, last 4 s [cm/s] (failed: top)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title("Widened robustness study: the check's margin against the flight's wobble", fontsize=10)
+    return _save(fig, path)

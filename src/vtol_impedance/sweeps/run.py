@@ -43,16 +43,80 @@ METRICS = ("rms_ep_cm", "max_ep_cm", "ss_ep_cm", "rms_ev_cms", "rms_f_err_N", "r
 MARGINS = ("margin_stable", "pm_min_deg", "gm_min_db", "dm_min_ms", "ms_max", "growth_rate", "damping_min", "margin_ok")
 
 
-def point_margins(spec: Any, controllers: list[str]) -> dict[str, dict[str, float]]:
-    """The margin columns of one sweep point, per controller (``nan`` where it cannot hover)."""
-    from ..robust import TrimError
-    from ..scenarios.margins import scenario_margins
+#: Outcome columns of a sweep with ``measures = true`` (flights logged every :data:`MEASURE_DECIMATE`-th
+#: control tick): ``settle_ev_cms`` the RMS over the last :data:`SETTLE_S` of the task window of the
+#: velocity error less its centred mean over :data:`WOBBLE_S` (the wobble: a settled loop has none; a
+#: steady offset, a trajectory's smooth lag or a slow yield to a push are removed), ``push_peak_cm`` the largest
+#: displacement along a push while it acts and 2 s after, ``wall_force_N`` the contact force held over the
+#: window's last 4 s and ``wall_force_err_pct`` its error against comply's command (``nan`` where the
+#: scenario has no push or wall, or the controller commands no force).
+OUTCOMES = ("settle_ev_cms", "push_peak_cm", "wall_force_N", "wall_force_err_pct")
+#: With margins and ``measures`` (or ``margins_at`` other than "window"): where the margins were taken
+#: (``margin_at_s``) and what the linear model leaves out at this point (``margin_scope``, "" when nothing).
+SCOPE = ("margin_at_s", "margin_scope")
+MEASURE_DECIMATE = 2
+SETTLE_S = 4.0
+WOBBLE_S = 1.0
 
+
+def outcome_columns(result: Any) -> list[dict[str, float]]:
+    """The flight outcome columns of :data:`OUTCOMES` per vehicle of a traced ``result``."""
+    from ..analysis.measures import push_numbers, wall_numbers
+    from ..analysis.metrics import window_mask
+
+    t = result.t
+    dt = float(np.median(np.diff(t)))
+    k = max(1, int(round(WOBBLE_S / dt)))
+    m = window_mask(result)
+    # the tail, where a centred mean over WOBBLE_S fits inside the trace
+    tail = m & (t >= t[m][-1] - SETTLE_S) & (t <= t[-1] - 0.5 * WOBBLE_S - dt)
+    pushes, walls = push_numbers(result, fit=False), wall_numbers(result)
+    nan = float("nan")
+    out = []
+    for b in range(len(result.labels)):
+        ev = result.e_v[b]
+        slow = np.stack([np.convolve(ev[:, i], np.ones(k) / k, mode="same") for i in range(3)], -1)
+        w = np.linalg.norm((ev - slow)[tail], axis=-1)
+        out.append({
+            "settle_ev_cms": 100.0 * float(np.sqrt(np.mean(w * w))) if w.size and np.all(np.isfinite(w)) else nan,
+            "push_peak_cm": pushes[b]["peak_cm"] if pushes else nan,
+            "wall_force_N": walls[b]["held_N"] if walls else nan,
+            "wall_force_err_pct": walls[b]["error_pct"] if walls else nan,
+        })  # fmt: skip
+    return out
+
+
+def margin_scope(spec: Any, controller: str, comply: Any) -> str:
+    """What the margin check of ``controller`` at this point does not cover ("" when nothing): a wall's
+    contact (the linearisation is of free flight), comply with its fractions all zero at the operating
+    point (then it is checked as reject)."""
+    out = []
+    if any(d.get("kind") == "wall" for d in spec.disturbances):
+        out.append("wall contact not in the linear model (free flight checked)")
+    if controller == "comply" and not np.any(np.asarray(comply) > 0):
+        out.append("comply off at the operating point (checked as reject)")
+    return "; ".join(out)
+
+
+def point_margins(spec: Any, controllers: list[str], at: str | None = None) -> dict[str, dict[str, Any]]:
+    """The margin columns of one sweep point, per controller (``nan`` where it cannot hover); with ``at``
+    (``"engaged"``, see :func:`~vtol_impedance.scenarios.margins.scenario_margins`) also ``margin_at_s``
+    and ``margin_scope``."""
+    from ..robust import TrimError
+    from ..scenarios.margins import engaged_time, operating_point_of, scenario_margins
+    from ..scenarios.spec import checked
+
+    extra: dict[str, dict[str, Any]] = {c: {} for c in controllers}
+    if at is not None:
+        built = checked(spec, list(controllers))[0]
+        t_op = engaged_time(built) if at == "engaged" else built.window[0]
+        comply = operating_point_of(built, t_op)["comply"]
+        extra = {c: {"margin_at_s": float(t_op), "margin_scope": margin_scope(spec, c, comply)} for c in controllers}
     try:
-        reports = scenario_margins(spec, controllers)
+        reports = scenario_margins(spec, controllers, at=at if at == "engaged" else None)
     except TrimError:
         nan = float("nan")
-        return {c: {k: nan for k in MARGINS} | {"margin_stable": 0.0, "margin_ok": 0.0} for c in controllers}
+        return {c: {k: nan for k in MARGINS} | {"margin_stable": 0.0, "margin_ok": 0.0} | extra[c] for c in controllers}
     out = {}
     for c, r in reports.items():
         s = r.summary()
@@ -60,7 +124,7 @@ def point_margins(spec: Any, controllers: list[str]) -> dict[str, dict[str, floa
             "margin_stable": s["stable"], "pm_min_deg": s["pm_min_deg"], "gm_min_db": s["gm_min_db"],
             "dm_min_ms": s["dm_min_ms"], "ms_max": s["ms_max"], "growth_rate": s["growth_rate"],
             "damping_min": s["damping_min"], "margin_ok": float(not r.violations()),
-        }  # fmt: skip
+        } | extra[c]  # fmt: skip
     return out
 
 
@@ -90,6 +154,11 @@ def run_units(
     rows.update(diverged=[], failure_reason=[], failure_time_s=[])
     if sweep.margins:
         rows.update({m: [] for m in MARGINS})
+    scoped = sweep.margins and (sweep.measures or sweep.margins_at != "window")
+    if scoped:
+        rows.update({m: [] for m in SCOPE})
+    if sweep.measures:
+        rows.update({m: [] for m in OUTCOMES})
     margins_of: dict[int, dict[str, dict[str, float]]] = {}
     traces: dict[str, list] | None = None
     if sweep.traces:
@@ -98,14 +167,20 @@ def run_units(
     for u in units:
         spec = sweep.point_spec(u.point)
         log = f"decimate:{sweep.traces}" if sweep.traces else "metrics"
+        if sweep.measures and not sweep.traces:
+            log = f"decimate:{MEASURE_DECIMATE}"
         with warnings.catch_warnings():  # a study may mean to go near the sampling rate; the spec counts them
             warnings.simplefilter("ignore", EstimatorBandwidthWarning)
             r = simulate(spec, sweep.controllers, seed=u.seed, backend=backend, log=log)
         if sweep.margins and u.point not in margins_of:  # once per point: the seed does not change them
-            margins_of[u.point] = point_margins(spec, sweep.controllers)
+            margins_of[u.point] = point_margins(spec, sweep.controllers, sweep.margins_at if scoped else None)
+        outcomes = outcome_columns(r) if sweep.measures else None
         for b, row in enumerate(compute_metrics(r)):
             if sweep.margins:
                 for k, v in margins_of[u.point][sweep.controllers[b]].items():
+                    rows[k].append(v)
+            if outcomes is not None:
+                for k, v in outcomes[b].items():
                     rows[k].append(v)
             rows["unit"].append(u.index)
             rows["point"].append(u.point)

@@ -14,6 +14,8 @@ A sweep file (TOML)::
     samples = 40                          # random mode: how many points
     chunk = 8                             # units (point x seed) per chunk of work
     traces = 0                            # keep every K-th control tick of |e_p| and the estimate (0: none)
+    measures = false                      # also the flight outcome of an interaction (settling, push, wall)
+    margins_at = "window"                 # margins at the task window's start, or "engaged" (comply on)
     [set]                                 # fixed overrides of the base
     duration = 20.0
     [axes]
@@ -55,7 +57,11 @@ from ..scenarios.spec import ScenarioSpec, _dotted, check, check_name
 
 MODES = ("grid", "zip", "random")
 KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "samples", "chunk", "traces",
-        "max_flights", "margins", "set", "axes")  # fmt: skip
+        "max_flights", "margins", "margins_at", "measures", "set", "axes")  # fmt: skip
+#: Where a sweep takes each point's margins (``margins_at``): the start of the task window (as the
+#: ``margins`` command), or where the comply fractions first reach their largest value in the window
+#: (a scenario that switches comply on once airborne would otherwise be checked with comply off).
+MARGINS_AT = ("window", "engaged")
 MAX_FLIGHTS = 200_000
 
 
@@ -172,6 +178,8 @@ class Sweep:
     traces: int
     source: dict[str, Any] = field(default_factory=dict)
     margins: bool = True  # margin columns in every flight row
+    margins_at: str = "window"  # see MARGINS_AT
+    measures: bool = False  # outcome columns (settling, push, wall contact): flights logged decimated
     fast_estimator_points: list[int] = field(default_factory=list)  # |p| Ts > 0.5: noise barely filtered
     #: The base's vehicle file (``vehicle = "my_quad.toml"``) as read here: ``{"path": ..., "text": ...}``;
     #: a worker flies this text, and its content is part of the hash.
@@ -217,19 +225,24 @@ class Sweep:
 
     def to_dict(self) -> dict[str, Any]:
         """Everything that determines the results (hashed for resuming)."""
-        return {
-            "name": self.name,
-            "description": self.description,
-            "base": self.base.to_dict(),
-            "controllers": self.controllers,
-            "axes": [a.key for a in self.axes],
-            "points": self.points,
-            "seeds": self.seeds,
-            "seed": self.seed,
-            "chunk": self.chunk,
-            "traces": self.traces,
-            "margins": self.margins,
-        } | ({"vehicle_file": _vehicle_content(self.vehicle_file)} if self.vehicle_file else {})
+        return (
+            {
+                "name": self.name,
+                "description": self.description,
+                "base": self.base.to_dict(),
+                "controllers": self.controllers,
+                "axes": [a.key for a in self.axes],
+                "points": self.points,
+                "seeds": self.seeds,
+                "seed": self.seed,
+                "chunk": self.chunk,
+                "traces": self.traces,
+                "margins": self.margins,
+            }
+            | ({"vehicle_file": _vehicle_content(self.vehicle_file)} if self.vehicle_file else {})
+            | ({"margins_at": self.margins_at} if self.margins_at != "window" else {})
+            | ({"measures": True} if self.measures else {})
+        )  # absent at their defaults: older folders resume
 
     def digest(self) -> str:
         """The content hash: SHA-256 of :meth:`to_dict`, the resolved scenario (a base file's content, not
@@ -319,6 +332,12 @@ def from_dict(
     margins = data.get("margins", True)
     if not isinstance(margins, bool):
         raise InputError(f"margins must be true or false, got {margins!r}")
+    margins_at = data.get("margins_at", "window")
+    if margins_at not in MARGINS_AT:
+        raise InputError(f"margins_at must be one of {', '.join(MARGINS_AT)}, got {margins_at!r}")
+    measures = data.get("measures", False)
+    if not isinstance(measures, bool):
+        raise InputError(f"measures must be true or false, got {measures!r}")
     raw_axes = data.get("axes", {})
     if not isinstance(raw_axes, dict) or not raw_axes:
         raise InputError("a sweep needs [axes]: at least one scenario value to vary")
@@ -358,7 +377,8 @@ def from_dict(
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
         points = [{a.key: a.draw(rng) for a in axes} for _ in range(n_points)]
     sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
-                  source=data, margins=margins, vehicle_file=_read_vehicle(base.vehicle))  # fmt: skip
+                  source=data, margins=margins, margins_at=margins_at, measures=measures,
+                  vehicle_file=_read_vehicle(base.vehicle))  # fmt: skip
     if check_points:
         for i in range(len(points)):
             with warnings.catch_warnings(record=True) as caught:
