@@ -25,10 +25,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         log = Path(args.log)
         if not log.is_file():
             raise InputError(f"cannot read log file {log}: {explain_path(log) or 'not a regular file'}")
+    from ..estimator import EstimatorParams
+
     read_options: dict[str, Any] = {"conventions": args.conventions}
+    params = EstimatorParams(wn=args.wn, velocity_delay=args.velocity_delay, attitude_delay=args.attitude_delay)
     res = identify_file(
         log, vehicle=args.vehicle, mass=args.mass, t_start=args.start, t_end=args.end, read_options=read_options,
-        hover_thrust=args.hover_thrust, force=args.force,
+        hover_thrust=args.hover_thrust, force=args.force, params=params,
     )  # fmt: skip
     if args.json:
         print(json.dumps(res.to_dict(), indent=2))
@@ -38,7 +41,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
             print("  " + c.text())
         print(
             f"  fit: residual RMS {res.rms_residual_N:.3g} N, R^2 {res.r2:.3f}, effective samples {res.n_eff:.0f};"
-            f" constant force {', '.join(f'{b:.3g}' for b in res.bias_W_N)} N (world NED)"
+            f" constant force {', '.join(f'{b:.3g}' for b in res.bias_W_N)} N (world NED), thrust missing"
+            f" {100 * res.thrust_loss:.2g} % of the command"
         )
         for n in res.notes:
             print("  note: " + n)
@@ -70,6 +74,12 @@ def register(sub: Any) -> None:
     sp.add_argument("--conventions", default="check", choices=["check", "auto", "unchecked"],
                     help="as for estimate: check the log's conventions against physics (default)")  # fmt: skip
     sp.add_argument("--hover-thrust", type=float, default=None, help="normalised hover thrust (0..1), as for estimate")
+    sp.add_argument("--velocity-delay", type=float, default=0.0, metavar="S",
+                    help="latency of the logged velocity against the commands, s (left out, it is read as rotor "
+                    "lag)")  # fmt: skip
+    sp.add_argument("--attitude-delay", type=float, default=0.0, metavar="S",
+                    help="latency of the logged attitude against the commands, s")  # fmt: skip
+    sp.add_argument("--wn", type=float, default=10.0, help="estimator bandwidth, rad/s (default 10, as estimate)")
     sp.add_argument("--start", type=float, default=None, help="fit from this time on, s")
     sp.add_argument("--end", type=float, default=None, help="fit up to this time, s")
     sp.add_argument("--force", action="store_true", help="fit even when the log's verdict is refused")
