@@ -41,7 +41,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             print("  " + c.text())
         print(
             f"  fit: residual RMS {res.rms_residual_N:.3g} N, R^2 {res.r2:.3f}, effective samples {res.n_eff:.0f};"
-            f" constant force {', '.join(f'{b:.3g}' for b in res.bias_W_N)} N (world NED), thrust missing"
+            f" constant force {', '.join(f'{b:.3g}' for b in res.bias_W_N)} N (world NED x, y), thrust missing"
             f" {100 * res.thrust_loss:.2g} % of the command"
         )
         for n in res.notes:

@@ -11,8 +11,8 @@ with ``D = diag(d_x, d_y, d_z)`` on the body FRD axes (``rotor_drag`` x, y and `
 vehicle TOML), ``v_B = R_WB^T v_W`` the body velocity, ``u`` the commanded collective thrust (N), ``T``
 the thrust the rotors give (``u`` through a first-order lag of time constant ``tau``), ``z_B_W`` the body
 z axis in the world (thrust acts along ``-z_B``), ``k`` the share of the commanded thrust the rotors do
-not give (a thrust-map error; a mass error looks the same: ``thrust_loss``), ``b_W`` a constant (a
-steady wind) and ``e`` the rest (sensor noise, gusts, a fan). The fit:
+not give (a thrust-map error; a mass error looks the same: ``thrust_loss``), ``b_W`` a constant horizontal
+force (a steady wind) and ``e`` the rest (sensor noise, gusts, a fan). The fit:
 
 * the estimator is rerun with its own rotor model at ``tau`` (``EstimatorParams.rotor_tau``): its momentum
   residual (:func:`~vtol_impedance.estimator.series.momentum_residual`) then has no lag term, and the
@@ -26,7 +26,7 @@ steady wind) and ``e`` the rest (sensor noise, gusts, a fan). The fit:
   least squares, :func:`scipy.optimize.minimize_scalar`).
 
 Confidence intervals: ``cov = s^2 (J^T J)^-1 n / n_eff`` with ``J`` the Jacobian of the residual in
-``(d_x, d_y, d_z, b_W, k, tau)`` (``tau`` by central differences), ``s^2 = RSS / (n - p)`` and ``n_eff``
+``(d_x, d_y, d_z, b_x, b_y, k, tau)`` (``tau`` by central differences), ``s^2 = RSS / (n - p)`` and ``n_eff``
 the effective sample count: the residual is not white (the estimator filters it, gusts are slow), so
 ``n`` is divided by the integrated autocorrelation time ``1 + 2 sum rho_k`` of the residual (summed while
 ``rho_k > 0``, the largest over the three components; about 20 samples at the default ``wn`` of
@@ -100,7 +100,7 @@ class Coefficient:
 @dataclass
 class Identification:
     """The fit of :func:`identify` (module docstring): the four coefficients; the nuisance terms ``bias_W_N``
-    (constant force, world NED, N) and ``thrust_loss`` (share of the commanded thrust missing); the residual's
+    (constant horizontal force, world NED x and y, N) and ``thrust_loss`` (share of the commanded thrust missing); the residual's
     RMS (N, per world component) and ``r2`` (share of the estimate's variance the fit explains); the samples
     used and ``n_eff`` (effective independent samples, per component)."""
 
@@ -108,7 +108,7 @@ class Identification:
     rotor_drag_y: Coefficient
     inflow_damping: Coefficient
     rotor_tau: Coefficient
-    bias_W_N: tuple[float, float, float]
+    bias_W_N: tuple[float, float]
     thrust_loss: float
     rms_residual_N: float
     r2: float
@@ -218,7 +218,9 @@ def identify(est: LogEstimate, *, tau_bounds: tuple[float, float] = TAU_BOUNDS) 
         e_k = np.zeros(3)
         e_k[k] = 1.0
         cols.append(filtered(np.einsum("nij,nj->ni", R, aero_force_B(v_B, e_k, np.zeros(3)))))
-    for k in range(3):
+    # a constant horizontal force (a steady wind; a vertical constant is the thrust column's near hover: the
+    # two together were collinear on the sample logs, 64 % thrust loss against -7 N)
+    for k in range(2):
         c = np.zeros((n, 3))
         c[:, k] = 1.0
         cols.append(filtered(c))
@@ -300,7 +302,7 @@ def identify(est: LogEstimate, *, tau_bounds: tuple[float, float] = TAU_BOUNDS) 
     y_c = (y3 - y3.mean(0)).reshape(-1)
     r2 = 1.0 - float(r @ r) / max(float(y_c @ y_c), 1e-300)
     return Identification(
-        out[0], out[1], out[2], tau_c, tuple(float(x) for x in beta[3:6]), float(beta[6]),  # type: ignore[arg-type]
+        out[0], out[1], out[2], tau_c, (float(beta[3]), float(beta[4])), float(beta[5]),  # type: ignore[arg-type]
         float(np.sqrt(np.mean(r**2))), r2, n_use, float(n_eff / 3.0), (float(fl.t[0]), float(fl.t[-1])), m, notes,
     )  # fmt: skip
 
