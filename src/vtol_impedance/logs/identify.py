@@ -99,10 +99,11 @@ class Coefficient:
 
 @dataclass
 class Identification:
-    """The fit of :func:`identify` (module docstring): the four coefficients; the nuisance terms ``bias_W_N``
-    (constant horizontal force, world NED x and y, N) and ``thrust_loss`` (share of the commanded thrust missing); the residual's
-    RMS (N, per world component) and ``r2`` (share of the estimate's variance the fit explains); the samples
-    used and ``n_eff`` (effective independent samples, per component)."""
+    """The fit of :func:`identify` (module docstring): the four coefficients; the nuisance terms
+    ``bias_W_N`` (constant horizontal force, world NED x and y, N) and ``thrust_loss`` (share of the
+    commanded thrust missing); the residual's RMS (N, per world component) and ``r2`` (share of the
+    estimate's variance the fit explains); the samples used and ``n_eff`` (effective independent samples,
+    per component)."""
 
     rotor_drag_x: Coefficient
     rotor_drag_y: Coefficient
