@@ -16,8 +16,10 @@ PLANTED = {"rotor_drag[0]": 0.30, "rotor_drag[1]": 0.20, "inflow_damping": 0.25,
 PRESETS = Path(__file__).resolve().parents[1] / "src" / "vtol_impedance" / "presets"
 
 
-def _log(tmp: Path, kind: str, move: tuple[float, float, float] = (1.5, -1.5, -1.0)) -> Path:
-    """A flight of the simulator with the planted terms, written as a CSV log (thrust command in N)."""
+def _log(tmp: Path, kind: str, move: tuple[float, float, float] = (1.5, -1.5, -1.0), airborne: bool = False) -> Path:
+    """A flight of the simulator with the planted terms, written as a CSV log (thrust command in N): the
+    case C circle at 1 m/s (take-off 1 m in 4 s, two laps) or a hover (``move``: a step of the set point),
+    from the ground or, ``airborne``, from hovering at the altitude."""
     from vtol_impedance.logs.writers import write_csv
     from vtol_impedance.model.kinematics import quat_from_euler
     from vtol_impedance.scenarios import get, simulate
@@ -27,7 +29,7 @@ def _log(tmp: Path, kind: str, move: tuple[float, float, float] = (1.5, -1.5, -1
     (tmp / "v.toml").write_text(text)
     spec = get("case-c-circle")
     traj = replace(spec.trajectory, kind=kind, circle_speed=1.0, move_offset=move, move_duration=1.5,
-                   move_hold=2.0)  # fmt: skip
+                   move_hold=2.0, start_on_ground=not airborne)  # fmt: skip
     spec = replace(
         spec, vehicle=str(tmp / "v.toml"), disturbances=(), payload=replace(spec.payload, mass=0.0),
         trajectory=traj, plant=replace(spec.plant, rotor_tau_up=0.04, rotor_tau_down=0.04), duration=25.0,
@@ -50,10 +52,15 @@ def _latency() -> EstimatorParams:
     return EstimatorParams(velocity_delay=s.mocap_delay, attitude_delay=s.imu_delay)
 
 
-def test_planted_terms_recovered_within_5_percent(tmp_path):
+@pytest.fixture(scope="module")
+def circle_log(tmp_path_factory):
+    return _log(tmp_path_factory.mktemp("identify"), "circle")
+
+
+def test_planted_terms_recovered_within_5_percent(circle_log):
     """Sensor noise and latency on (the scenario's); no payload (a mass offset off the centre of mass is not
-    in the model) and no wind."""
-    res = identify_file(_log(tmp_path, "circle"), vehicle="hexarotor", params=_latency())
+    in the model) and no wind. The truth is what the plant flew (the vehicle TOML and plant.rotor_tau_*)."""
+    res = identify_file(circle_log, vehicle="hexarotor", params=_latency())
     for c in res.coefficients:
         truth = PLANTED[c.key]
         assert c.identifiable, c.text()
@@ -68,8 +75,19 @@ def test_planted_terms_recovered_within_5_percent(tmp_path):
     assert vehicle_from_dict({**tomllib.loads((PRESETS / "hexarotor.toml").read_text()), **keys}).rotor_drag
 
 
+def test_latency_left_out_reads_as_rotor_lag(circle_log):
+    """The velocity's 20 ms latency, not given, adds to the lag: the fit finds about tau + latency."""
+    from vtol_impedance.scenarios import get
+
+    res = identify_file(circle_log, vehicle="hexarotor")
+    seen = PLANTED["rotor_tau"] + get("case-c-circle").sensors.mocap_delay
+    assert res.rotor_tau.value == pytest.approx(seen, rel=0.1)
+
+
 def test_hover_only_log_is_not_identifiable(tmp_path):
-    res = identify_file(_log(tmp_path, "hover", (0.0, 0.0, 0.0)), vehicle="hexarotor", params=_latency())
+    """A hover that starts in the air: no speed on any body axis."""
+    res = identify_file(_log(tmp_path, "hover", (0.0, 0.0, 0.0), airborne=True), vehicle="hexarotor",
+                        params=_latency())  # fmt: skip
     for c in (res.rotor_drag_x, res.rotor_drag_y, res.inflow_damping):
         assert not c.identifiable and c.value is None
         assert "not identifiable from this log" in c.text()

@@ -60,10 +60,10 @@ from ..model.aero import aero_force_B
 from ..model.kinematics import rotation_zyx
 from .estimate import LogEstimate
 
-#: Body speed RMS (m/s) under which a drag axis is not identifiable: a hover log's speed noise and
-#: position-hold motion stay near 0.05 m/s (the hover test log: 0.03-0.06 m/s), a moving flight of the
-#: sample logs reaches 0.3 m/s; a drag of 0.2 N per m/s at 0.2 m/s is 0.04 N, the size of the estimate's
-#: noise on a 1-2 kg vehicle.
+#: Body speed RMS (m/s) under which a drag axis is not identifiable. Measured: a simulated hover holds
+#: 0.003 m/s horizontally (0.17 m/s vertically, from take-off and landing); the sample logs, a 1.2 m move in
+#: 3 s, reach 0.09-0.15 m/s, where the fit's intervals span +-2 N per m/s; the 1 m/s test circle 0.55 m/s
+#: (intervals +-1-3 %). At 0.2 m/s a drag of 0.2 N per m/s is 0.04 N, five times that flight's residual RMS.
 MIN_SPEED_RMS = 0.2
 #: A 95 % interval wider than this share of the value (either side) is not an identification...
 MAX_REL_CI = 0.5
