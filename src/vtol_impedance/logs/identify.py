@@ -164,15 +164,24 @@ def _acf_time(r: np.ndarray) -> float:
     return max(1.0, 1.0 + 2.0 * float(np.sum(acf[1 : k + 1])))
 
 
+def _bounds(tau_bounds: Any) -> tuple[float, float]:
+    try:
+        a, b = tau_bounds
+    except (TypeError, ValueError):
+        raise InputError(f"tau_bounds must be two times in seconds (low, high), got {tau_bounds!r}") from None
+    lo, hi = scalar("tau_bounds[0] (s)", a, lo=0.0), scalar("tau_bounds[1] (s)", b, lo=0.0, hi=10.0)
+    if not hi > lo:
+        raise InputError(f"tau_bounds must be (low, high) with high > low, got {tau_bounds!r}")
+    return lo, hi
+
+
 def identify(est: LogEstimate, *, tau_bounds: tuple[float, float] = TAU_BOUNDS) -> Identification:
     """Fit rotor drag, inflow damping and the rotor time constant to an estimate on a log (module docstring).
 
     ``est`` must have its thrust from the commands (``thrust_from="commands"``): measured rotor speeds carry
     no command lag, so ``tau`` is then reported not identifiable."""
     instance("est", est, LogEstimate)
-    lo, hi = (scalar("tau_bounds[0] (s)", tau_bounds[0], lo=0.0), scalar("tau_bounds[1] (s)", tau_bounds[1], lo=0.0))
-    if not hi > lo:
-        raise InputError(f"tau_bounds must be (low, high) with high > low, got {tau_bounds!r}")
+    lo, hi = _bounds(tau_bounds)
     fl = est.flight
     m = float(est.info["mass_kg"])
     thrust = np.asarray(est.thrust_N, dtype=float)
@@ -325,6 +334,7 @@ def identify_file(
     commands and the estimator without a rotor model unless given) and :func:`identify` on it."""
     from .pipeline import estimate_file
 
+    _bounds(tau_bounds)  # before the log is read
     estimate_options.setdefault("thrust_from", "commands")
     params = estimate_options.pop("params", None) or EstimatorParams()
     est = estimate_file(path, mass, None, params, vehicle=vehicle, **estimate_options)
