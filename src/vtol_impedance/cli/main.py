@@ -8,10 +8,38 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from . import bench, design, estimate, listing, live, margins, paper, run, sim_autopilot, sweep, tune, tune_page
+from . import (
+    bench,
+    design,
+    estimate,
+    identify,
+    listing,
+    live,
+    margins,
+    paper,
+    run,
+    sim_autopilot,
+    sweep,
+    tune,
+    tune_page,
+)
 
 #: The commands, in the order ``--help`` lists them.
-COMMANDS = (paper, run, margins, design, estimate, sweep, tune, tune_page, bench, live, sim_autopilot, listing)
+COMMANDS = (
+    paper,
+    run,
+    margins,
+    design,
+    estimate,
+    identify,
+    sweep,
+    tune,
+    tune_page,
+    bench,
+    live,
+    sim_autopilot,
+    listing,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,6 +1,7 @@
 """Wrench estimation on flight logs: CSV, PX4 ULog, ArduPilot DataFlash and MAVLink tlog readers,
 conventions checked against physics, frame conversion, resampling onto one time base with gaps bridged,
-thrust from commands or rotor speeds, and the estimator (causal or zero-phase) with a bias calibration.
+thrust from commands or rotor speeds, and the estimator (causal or zero-phase) with a bias calibration;
+rotor drag, inflow damping and the rotor time constant identified from a log (:mod:`.identify`).
 Sample logs with a known wrench ship in :mod:`vtol_impedance.logs.samples`."""
 
 from pathlib import Path
@@ -10,6 +11,7 @@ from .checks import ConventionReport, check_conventions, evidence
 from .csvlog import read_csv, read_csv_table, table_to_raw
 from .estimate import LogEstimate, check_inertia, commands_in_si, estimate, fit_hover_thrust, fit_hover_windows
 from .frames import Conventions
+from .identify import Coefficient, Identification, identify, identify_file
 from .pipeline import estimate_file, log_format, read_any
 from .timeseries import DEFAULT_RATE_HZ, FlightLog, RawLog, Signal, default_max_gap, resample
 from .ulog import read_ulog, torque_per_unit
@@ -34,9 +36,11 @@ def read_log(path, **csv_options) -> RawLog:
 
 __all__ = [
     "DEFAULT_RATE_HZ",
+    "Coefficient",
     "ConventionReport",
     "Conventions",
     "FlightLog",
+    "Identification",
     "LogEstimate",
     "LogRefused",
     "MotorCurve",
@@ -52,6 +56,8 @@ __all__ = [
     "evidence",
     "fit_hover_thrust",
     "fit_hover_windows",
+    "identify",
+    "identify_file",
     "judge",
     "log_format",
     "read_any",
