@@ -580,6 +580,8 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         {"path": "path", "mass": "pos", "rate_hz": "pos", "airframe": "text"},
     ),
     "logs.evidence": (lambda: dict(raw=raw()), {"raw": Obj(logs.RawLog)}),
+    "logs.identify": (lambda: dict(), {"est": Obj(logs.LogEstimate)}),
+    "logs.identify_file": (lambda: dict(path=csv_file(), mass=1.2), {"path": "path", "mass": "pos"}),
     "logs.fit_hover_thrust": (
         lambda: dict(flight=flight(), mass=1.2, segment=(0.1, 1.5)),
         {"flight": Obj(logs.FlightLog), "mass": "pos", "segment": "mapping"},
@@ -835,7 +837,7 @@ EXEMPT = {
         "control.ControlOutput", "control.ControllerArrays", "control.ControllerState", "runtime.EstimatorOutput",
         "robust.Design", "robust.LoopMargins", "robust.MarginReport", "robust.LinearLoop", "robust.OperatingPoint",
         "logs.ConventionReport", "logs.FlightLog", "logs.LogEstimate", "logs.Verdict", "live.LiveResult", "live.Tick",
-        "sweeps.Sweep", "sweeps.Unit", "scenarios.TrackingDesign")},
+        "sweeps.Sweep", "sweeps.Unit", "scenarios.TrackingDesign", "logs.Coefficient", "logs.Identification")},
 }  # fmt: skip
 
 
