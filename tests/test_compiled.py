@@ -128,11 +128,12 @@ def test_case_c_starts_as_case_a_within_5s():
 
 
 def test_log_modes_agree():
-    # 7 s (no take-off, a short settle): the task window (1 s to 6.1 s) still starts and ends inside the flight,
-    # so the in-kernel metrics must leave out samples on both sides of it; the NumPy run is the slow one
+    # 3.15 s (no take-off, a tenth of a lap with a 0.5 s ramp, a short settle): the task window (0.8 s to 2.56 s)
+    # still starts and ends inside the flight, so the in-kernel metrics must leave out samples on both sides of
+    # it; the NumPy run is the slow one (15 s here, 42 s for the 7 s flight this test flew before)
     spec = apply_overrides(get("case-c-circle"), [
-        "trajectory.start_on_ground=false", "trajectory.hover_duration=1", "trajectory.circle_laps=0.25",
-        "trajectory.settle_duration=1", "trajectory.land=false",
+        "trajectory.start_on_ground=false", "trajectory.hover_duration=0.8", "trajectory.circle_laps=0.1",
+        "trajectory.circle_ramp=0.5", "trajectory.settle_duration=0.6", "trajectory.land=false",
     ])  # fmt: skip
     full = simulate(spec)
     dec = simulate(spec, log="decimate:5")
