@@ -27,6 +27,7 @@ def cmd_tune_page(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"warmed up in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
+    app.open_pool()  # here, not in the warm-up: an interrupt then always finds the pool to stop
     warming = threading.Thread(target=warm, daemon=True)
     try:
         warming.start()
@@ -43,12 +44,18 @@ def cmd_tune_page(args: argparse.Namespace) -> int:
             # Stopped while the warm-up still runs compiled code: the interpreter's shutdown would tear the
             # native thread pools down under it and abort the process (seen in CI as a -6 exit). Nothing is
             # written by this command, so the process ends here, with the CLI's message and code.
-            server.server_close()
-            app.close(wait=False)
-            print("interrupted; no results were written", file=sys.stderr, flush=True)
-            sys.stdout.flush()
+            import gc
+            import multiprocessing.util
             import os
 
+            server.server_close()
+            app.close(wait=False)
+            gc.collect()  # the pool's queues, and with them their locks
+            # what the interpreter's exit would do for multiprocessing (its finalizers: the locks a queue of
+            # the warm-up still holds), without the native thread pools' teardown
+            getattr(multiprocessing.util, "_exit_function", lambda: None)()
+            print("interrupted; no results were written", file=sys.stderr, flush=True)
+            sys.stdout.flush()
             os._exit(130)
         raise
     finally:

@@ -222,13 +222,17 @@ class TunePage:
 
     # ------------------------------------------------------------------ computing
 
-    def start(self) -> None:
-        """Start the worker processes and warm them and the compiled engine up (a first change is then
-        as fast as the next)."""
+    def open_pool(self) -> None:
+        """Make the pool of worker processes (they start with the first job)."""
         if self.workers and self._pool is None:
             import multiprocessing
 
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def start(self) -> None:
+        """Start the worker processes and warm them and the compiled engine up (a first change is then
+        as fast as the next)."""
+        self.open_pool()
         self.evaluate({})
 
     def close(self, wait: bool = True) -> None:
