@@ -62,8 +62,44 @@ class MinJerk:
         return self.start() + s * d, ds / T * d, dds / (T * T) * d
 
 
+class _Laps:
+    """What the lapped segments share (:class:`Circle`, :class:`FigureEight`): ``laps`` turns of an angle
+    at the rate ``_w`` (rad/s, from ``speed`` and the segment's size), with minimum-jerk ramps of ``ramp``
+    seconds at both ends, entered and left at ``start_W``."""
+
+    start_W: tuple[float, float, float]
+    speed: float
+    laps: float
+    ramp: float
+
+    @property
+    def _w(self) -> float:
+        raise NotImplementedError
+
+    def _check_laps(self, what: str) -> None:
+        positive(f"{what} speed", self.speed)
+        positive(f"{what} laps", self.laps)
+        positive(f"{what} ramp", self.ramp, allow_zero=True)
+        if self._w * self.ramp > 2 * np.pi * self.laps:
+            raise InputError(f"{what} ramp is too long for the number of laps at this speed")
+
+    @property
+    def duration(self) -> float:
+        # Each ramp covers half the angle it would at full speed.
+        return 2 * np.pi * self.laps / self._w + self.ramp
+
+    def start(self) -> np.ndarray:
+        return np.asarray(self.start_W, dtype=float)
+
+    end = start
+
+    def _angle(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Angle travelled and its two derivatives at times ``tau`` (array) into the segment."""
+        return _ramped_angle(tau, self._w, self.ramp, self.duration, self.laps)
+
+
 @dataclass(frozen=True)
-class Circle:
+class Circle(_Laps):
     """Circle in the horizontal plane, entered and left at ``start_W`` with a smooth speed ramp.
 
     The tangential speed ramps from 0 to ``speed`` in ``ramp`` seconds (minimum-jerk profile), holds,
@@ -80,30 +116,11 @@ class Circle:
 
     def __post_init__(self) -> None:
         positive("circle radius", self.radius)
-        positive("circle speed", self.speed)
-        positive("circle laps", self.laps)
-        positive("circle ramp", self.ramp, allow_zero=True)
-        w = self.speed / self.radius
-        if w * self.ramp > 2 * np.pi * self.laps:
-            raise InputError("circle ramp is too long for the number of laps at this speed")
+        self._check_laps("circle")
 
     @property
     def _w(self) -> float:
         return self.speed / self.radius
-
-    @property
-    def duration(self) -> float:
-        # Each ramp covers half the angle it would at full speed.
-        return 2 * np.pi * self.laps / self._w + self.ramp
-
-    def start(self) -> np.ndarray:
-        return np.asarray(self.start_W, dtype=float)
-
-    end = start
-
-    def _angle(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Angle travelled and its two derivatives at times ``tau`` (array) into the segment."""
-        return _ramped_angle(tau, self._w, self.ramp, self.duration, self.laps)
 
     def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         th, thd, thdd = (v[:, None] for v in self._angle(tau))
@@ -116,7 +133,7 @@ class Circle:
 
 
 @dataclass(frozen=True)
-class FigureEight:
+class FigureEight(_Laps):
     """A lemniscate of Gerono in the horizontal plane, centred on ``start_W`` and entered and left there.
 
     ``p(th) = start + a [sin th, sin th cos th, 0]`` with ``a = half_length``: two lobes along x (NED north),
@@ -136,27 +153,14 @@ class FigureEight:
 
     def __post_init__(self) -> None:
         positive("figure-eight half length", self.half_length)
-        positive("figure-eight speed", self.speed)
-        positive("figure-eight laps", self.laps)
-        positive("figure-eight ramp", self.ramp, allow_zero=True)
-        if self._w * self.ramp > 2 * np.pi * self.laps:
-            raise InputError("figure-eight ramp is too long for the number of laps at this speed")
+        self._check_laps("figure-eight")
 
     @property
     def _w(self) -> float:
         return self.speed / (self.half_length * np.sqrt(2.0))
 
-    @property
-    def duration(self) -> float:
-        return 2 * np.pi * self.laps / self._w + self.ramp
-
-    def start(self) -> np.ndarray:
-        return np.asarray(self.start_W, dtype=float)
-
-    end = start
-
     def sample(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        th, thd, thdd = (v[:, None] for v in _ramped_angle(tau, self._w, self.ramp, self.duration, self.laps))
+        th, thd, thdd = (v[:, None] for v in self._angle(tau))
         a = self.half_length
         s1, c1, s2, c2, z = np.sin(th), np.cos(th), np.sin(2 * th), np.cos(2 * th), np.zeros_like(th)
         p = np.concatenate([a * s1, 0.5 * a * s2, z], -1)  # sin th cos th = sin(2 th) / 2

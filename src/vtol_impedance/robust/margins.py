@@ -190,7 +190,7 @@ def _refine(fn: Any, brackets: list[tuple[float, float]]) -> list[float]:
         return []
     ab = np.array(brackets, dtype=float)
     done = np.full(len(ab), np.nan)
-    for _ in range(2):
+    for last in (False, True):
         w = np.geomspace(ab[:, 0], ab[:, 1], 17, axis=1)  # (K, 17)
         f = fn(w.ravel()).reshape(w.shape)
         for k in range(len(ab)):
@@ -203,7 +203,7 @@ def _refine(fn: Any, brackets: list[tuple[float, float]]) -> list[float]:
             i = int(change[0])
             ab[k] = w[k, i], w[k, i + 1]
             fa, fb = f[k, i], f[k, i + 1]
-            if _ == 1:
+            if last:
                 a, b = ab[k]
                 done[k] = a + (b - a) * fa / (fa - fb) if fa != fb else a
     return [float(x) for x in done]

@@ -96,14 +96,19 @@ def candidate_settings(kp: float, dp: float, wn_o: float, wn_f: float, wn_m: flo
     }
 
 
-def _worst_margins(vehicle: str, cases: Sequence[str], settings: dict[str, Any]) -> dict[str, float] | None:
+def _specs(vehicle: str, cases: Sequence[str], settings: dict[str, Any]) -> dict[str, Any]:
+    """Each case with ``settings`` on ``vehicle``."""
+    over = [f"vehicle={json.dumps(vehicle)}", *_pairs(settings)]
+    return {case: apply_overrides(get(case), over) for case in cases}
+
+
+def _worst_margins(specs: dict[str, Any]) -> dict[str, float] | None:
     """PD+C's worst phase and gain margin over the cases' operating points; ``None`` when a loop is
     unstable or has no margins (no trim)."""
     from .margins import scenario_margins  # python-control: loaded when a design is asked for
 
     pm, gm = float("inf"), float("inf")
-    for case in cases:
-        spec = apply_overrides(get(case), [f"vehicle={json.dumps(vehicle)}", *_pairs(settings)])
+    for spec in specs.values():
         try:
             s = scenario_margins(spec, ("pdc",))["pdc"].summary()
         except VtolImpedanceError:
@@ -114,15 +119,13 @@ def _worst_margins(vehicle: str, cases: Sequence[str], settings: dict[str, Any])
     return {"pm_deg": pm, "gm_db": gm}
 
 
-def _rms_mm(vehicle: str, cases: Sequence[str], settings: dict[str, Any]) -> dict[str, float]:
+def _rms_mm(specs: dict[str, Any]) -> dict[str, float]:
     """PD+C's RMS position error (mm) over each case's task window."""
     from ..sim.result import compute_metrics
 
-    out = {}
-    for case in cases:
-        spec = apply_overrides(get(case), [f"vehicle={json.dumps(vehicle)}", *_pairs(settings)])
-        out[case] = 10.0 * float(compute_metrics(simulate(spec, ("pdc",)))[0]["rms_ep_cm"])
-    return out
+    return {
+        case: 10.0 * float(compute_metrics(simulate(spec, ("pdc",)))[0]["rms_ep_cm"]) for case, spec in specs.items()
+    }
 
 
 def _pairs(settings: dict[str, Any]) -> list[str]:
@@ -158,17 +161,18 @@ def tracking_design(
     if set(grid) != set(GRID) or not all(isinstance(v, Sequence) and len(v) for v in grid.values()):
         raise InputError(f"grid must give values for each of {', '.join(GRID)}, got {sorted(grid)}")
     combos = list(itertools.product(*(grid[k] for k in GRID)))
-    printed = dict(PAPER_CONTROL)
-    printed_margins = _worst_margins(vehicle, cases, printed) or {"pm_deg": float("nan"), "gm_db": float("nan")}
-    printed_rms = _rms_mm(vehicle, cases, printed)
+    printed = _specs(vehicle, cases, dict(PAPER_CONTROL))
+    printed_margins = _worst_margins(printed) or {"pm_deg": float("nan"), "gm_db": float("nan")}
+    printed_rms = _rms_mm(printed)
     best: tuple[float, float, dict[str, Any], dict[str, float], dict[str, float]] | None = None
     feasible = 0
     for i, combo in enumerate(combos):
         settings = candidate_settings(*combo)
-        m = _worst_margins(vehicle, cases, settings)
+        specs = _specs(vehicle, cases, settings)
+        m = _worst_margins(specs)
         if m is not None and m["pm_deg"] >= min_phase_deg and m["gm_db"] >= min_gain_db:
             feasible += 1
-            rms = _rms_mm(vehicle, cases, settings)
+            rms = _rms_mm(specs)
             score = sum(rms[c] / printed_rms[c] for c in cases) / len(cases)
             if best is None or (score, -m["pm_deg"]) < (best[0], -best[1]):
                 best = (score, m["pm_deg"], settings, rms, m)

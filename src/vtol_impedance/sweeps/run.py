@@ -107,13 +107,14 @@ def point_margins(spec: Any, controllers: list[str], at: str | None = None) -> d
     from ..scenarios.spec import checked
 
     extra: dict[str, dict[str, Any]] = {c: {} for c in controllers}
+    t_op = None
     if at is not None:
         built = checked(spec, list(controllers))[0]
         t_op = engaged_time(built) if at == "engaged" else built.window[0]
         comply = operating_point_of(built, t_op)["comply"]
         extra = {c: {"margin_at_s": float(t_op), "margin_scope": margin_scope(spec, c, comply)} for c in controllers}
     try:
-        reports = scenario_margins(spec, controllers, at=at if at == "engaged" else None)
+        reports = scenario_margins(spec, controllers, at=t_op)
     except TrimError:
         nan = float("nan")
         return {c: {k: nan for k in MARGINS} | {"margin_stable": 0.0, "margin_ok": 0.0} | extra[c] for c in controllers}
