@@ -82,3 +82,6 @@ def test_the_command_prints_the_table_and_writes_a_scenario_that_flies_it(tmp_pa
     assert main(["design", "--min-phase", "95", "--quiet"]) == 2
     assert "min_phase_deg" in capsys.readouterr().err
     assert main(["design", "--out", str(tmp_path), "--quiet"]) == 2
+    for empty in ("", " , "):  # an empty list is not the default list
+        assert main(["design", "--cases", empty, "--quiet"]) == 2
+        assert "--cases" in capsys.readouterr().err

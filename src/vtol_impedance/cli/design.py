@@ -16,7 +16,11 @@ def cmd_design(args: argparse.Namespace) -> int:
     from ..io import check_folder_path, write_text
     from ..scenarios.tracking import CASES, tracking_design
 
-    cases = [c.strip() for c in args.cases.split(",") if c.strip()] if args.cases else list(CASES)
+    cases = list(CASES) if args.cases is None else [c.strip() for c in args.cases.split(",") if c.strip()]
+    if not cases:
+        from ..errors import InputError
+
+        raise InputError(f"--cases {args.cases!r}: give one or more registered scenarios, comma-separated")
     if args.out:  # a file's folder that cannot be written is named before the search
         from pathlib import Path
 
