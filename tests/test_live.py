@@ -633,13 +633,14 @@ def test_control_on_arducopter_sets_guid_options_holds_within_10_cm_and_restores
     reads it back, flies GUIDED_NOGPS with the thrust as thrust, holds within 0.10 m of the hold point under a 1 N
     push (the issue's bound; PD alone would leave F / Kp), hands back to LOITER confirmed by a heartbeat when the
     duration ends, and restores the value read (0) on the way out."""
-    # 18 s: the hold is judged from 2.5 s after the push (13.5 s) to the end, 4.5 s of 50 Hz samples; the hand-back
-    # at the end of the duration is the same whenever it comes (it flew 29 s before, judged over 15.5 s)
-    res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", None, 18.0, autopilot="ardupilot")
+    # 21 s: the hold is judged from 2.5 s after the push to the end, at least 2 s of 50 Hz samples even when the
+    # handshake is slow (a loaded CI machine once left 2.5 s after 18 s); the hand-back at the end of the duration is
+    # the same whenever it comes (it flew 29 s before, judged over 15.5 s)
+    res, d, force, t_on, c, err = _control_run(tmp_path, "pdc", None, 21.0, autopilot="ardupilot")
     ctl = res.summary["control"]
     engaged = d["state"] == "engaged"
     sel = engaged & (d["t_s"] > t_on + 2.5)
-    assert sel.sum() > 40 and d["t_s"][sel][-1] > t_on + 5.0, "control must be active through the push"
+    assert sel.sum() > 100 and d["t_s"][sel][-1] > t_on + 4.5, "control must be active through the push"
     err_m = np.hypot(d["x_W_m"][sel] - d["x_ref_W_m"][sel], d["z_W_m"][sel] - d["z_ref_W_m"][sel])
     assert err_m.max() < 0.10 and force / c.Kp > 0.05
     g = ctl["guid_options"]
