@@ -1,6 +1,7 @@
 """The benchmark command runs and reports; it asserts no timing (speed is measured, not tested)."""
 
 import json
+from pathlib import Path
 
 from vtol_impedance.bench import table
 from vtol_impedance.cli import main
@@ -84,3 +85,37 @@ def test_live_accuracy_statistics_are_the_mean_and_the_p95_of_the_error(tmp_path
                           (["--live", "--live-seconds", "1"], "--live-seconds")):  # fmt: skip
         assert main(["bench", "--quiet", "--out", str(tmp_path / "b.json"), *args]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_the_realistic_limit_says_why_it_was_skipped(tmp_path, monkeypatch):
+    """Without the C plant, without a compiler, or with a file that does not build: a reason in the report,
+    never a traceback after minutes of measuring. With both there (the project's machine), a small batch is
+    measured against it and the ratio is the quotient of the two speeds."""
+    import shutil
+
+    import vtol_impedance.bench as bench
+
+    assert bench._realistic_limit(tmp_path, 40, 0.1, 1, log=lambda m: None).startswith("skipped: no ")
+    (tmp_path / "plant_soa.c").write_text("this is not C\n")
+    if shutil.which("gcc") or shutil.which("cc"):
+        why = bench._realistic_limit(tmp_path, 40, 0.1, 1, log=lambda m: None)
+        assert why.startswith("skipped: ") and "did not build" in why
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    assert "no C compiler" in bench._realistic_limit(tmp_path, 40, 0.1, 1, log=lambda m: None)
+    monkeypatch.undo()
+    text = bench.table(_minimal_report())
+    assert "realistic-plant limit" in text and "skipped: --quick" in text
+    c_plant = Path(__file__).resolve().parents[1] / bench.REALISTIC_DIR
+    if (c_plant / "plant_soa.c").is_file() and (shutil.which("gcc") or shutil.which("cc")):
+        r = bench._realistic_limit(c_plant, 64, 0.2, 1, log=lambda m: None)
+        assert isinstance(r, dict), r
+        assert r["limit_veh_s_per_s"] > 0 and r["project_veh_s_per_s"] > 0
+        assert r["ratio"] == r["project_veh_s_per_s"] / r["limit_veh_s_per_s"]
+        assert "batch 64 x 0.2 s, 2 threads / C plant alone" in bench.table({**_minimal_report(), "realistic_limit": r})
+
+
+def _minimal_report():
+    return {"single_compiled": {"real_time_factor": 1.0}, "single_numpy": {"real_time_factor": 1.0},
+            "latency": {"step_arrays_median_us": 1.0, "step_arrays_p99_us": 2.0, "step_median_us": 3.0},
+            "compile_first_s": None, "batched": [], "rotorpy": "not installed",
+            "realistic_limit": "skipped: --quick (give --realistic DIR to measure it)"}  # fmt: skip

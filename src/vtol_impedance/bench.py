@@ -295,6 +295,73 @@ def _versus(path: Path, n: int, T: float, rounds: int, log=print, ys: Any = None
     }  # fmt: skip
 
 
+#: Where ``bench`` looks for the realistic-plant limit when not told (from the current directory): the
+#: project's plant as hand-vectorised C, kept beside the project as a measuring stick (not shipped).
+REALISTIC_DIR = Path("../shared/yardstick/realistic")
+
+_LIMIT = """
+import ctypes, json, time
+import numpy as np
+from vtol_impedance.scenarios import get
+from vtol_impedance.scenarios.batch import population
+from vtol_impedance.sim.plant import compile_plants, pack_plant
+n, T, rounds = {n}, {T}, {rounds}
+L = ctypes.CDLL({lib!r})
+dp = ctypes.POINTER(ctypes.c_double)
+L.rk4_soa_nopend.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_double, dp, dp, dp, dp]
+plants, _, _ = population(get("case-a-payload"), n, seed=1)
+pp = pack_plant(compile_plants(list(plants)))
+# plant_soa.c's rows (its P_* enum); its one linear drag coefficient takes lin_drag_B[0] (no quadratic drag)
+col = lambda a: np.asarray(a, float).reshape(n, -1)
+P = np.ascontiguousarray(np.concatenate([col(pp["inv_mass"]), col(pp["I_com"]), col(pp["I_com_inv"]), col(pp["c_B"]),
+    col(pp["r_contact_B"]), col(pp["inv_tau_up"]), col(pp["inv_tau_down"]), col(pp["lin_drag_B"][:, 0]),
+    col(pp["ground"]), col(pp["k_ground"]), col(pp["c_ground"]), col(pp["b_ground"]), col(pp["pend_m"]),
+    col(pp["pend_L"]), col(pp["E"][:, :, :4]), col(pp["f_min"][:, :4]), col(pp["f_max"][:, :4])], 1).T)
+assert P.shape[0] == 58, P.shape
+S0 = np.zeros((23, n)); S0[2] = -1.0; S0[6] = 1.0; S0[19:23] = 9.81 * pp["mass"] / 4  # hover at 1 m
+FC, D = np.ascontiguousarray(S0[19:23].copy()), np.zeros((6, n))
+ptr = lambda a: a.ctypes.data_as(dp)
+best = float("inf")
+for _ in range(rounds):
+    S = S0.copy(); t = time.perf_counter()
+    for _ in range(int(round(T / 0.01))):
+        L.rk4_soa_nopend(n, 10, 1e-3, ptr(S), ptr(FC), ptr(D), ptr(P))
+    best = min(best, time.perf_counter() - t)
+print(json.dumps({{"veh_s_per_s": n * T / best, "finite": bool(np.isfinite(S).all())}}))
+"""
+
+
+def _realistic_limit(folder: Path, n: int, T: float, rounds: int, log=print) -> dict[str, Any] | str:
+    """The whole closed loop of a batch of ``n`` case-A vehicles (two threads) against the plant alone as
+    hand-vectorised C (``plant_soa.c`` of ``folder``, built here with OpenMP on two threads), in alternating
+    rounds, best of each; or why it was skipped (no folder, no C compiler, a failed build)."""
+    import shutil
+
+    src = Path(folder) / "plant_soa.c"
+    if not src.is_file():
+        return f"skipped: no {src} (give its folder with --realistic)"
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None:
+        return "skipped: no C compiler (gcc) on this machine"
+    with tempfile.TemporaryDirectory() as tmp:
+        lib = str(Path(tmp) / "libplant_simd_omp.so")
+        cmd = [cc, "-O3", "-march=native", "-fno-math-errno", "-fPIC", "-shared", "-fopenmp", "-o", lib, str(src)]
+        built = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if built.returncode != 0:
+            return f"skipped: {src} did not build ({built.stderr.strip()[-300:]})"
+        two = {"OMP_NUM_THREADS": "2", "NUMBA_NUM_THREADS": "2"}
+        limit = ours = 0.0
+        for r in range(rounds):
+            log(f"realistic limit round {r + 1}/{rounds}: plant_soa.c, then the batch ...")
+            c = _child(_LIMIT.format(n=n, T=T, rounds=2, lib=lib), two)
+            if not c["finite"]:
+                return "skipped: the C plant diverged (its rows no longer match this project's plant records)"
+            limit = max(limit, c["veh_s_per_s"])
+            ours = max(ours, _child(_BATCH.format(n=n, duration=T), two)["veh_s_per_s"])
+    return {"n": n, "T": T, "threads": 2, "limit_veh_s_per_s": limit, "project_veh_s_per_s": ours,
+            "ratio": ours / limit, "source": str(src)}  # fmt: skip
+
+
 def _writable_report(out: Path) -> Path:
     """``out`` as a path where the JSON report can be written, or :class:`InputError` saying why not."""
     from .errors import InputError
@@ -316,13 +383,19 @@ def _writable_report(out: Path) -> Path:
 
 
 def run(
-    out: Path, quick: bool = False, log=print, compile_times: bool = True, yardstick: Path | None = None
+    out: Path,
+    quick: bool = False,
+    log=print,
+    compile_times: bool = True,
+    yardstick: Path | None = None,
+    realistic: Path | None = None,
 ) -> dict[str, Any]:
     """Measure everything, print a table, write JSON to ``out``; returns the numbers.
 
     ``compile_times=False`` skips the two cold/cached compile measurements (the cold one takes up to a minute);
     ``yardstick``: the path of the shared yardstick's ``numba_loop.py``, timed against this project in the same
-    run (:func:`_versus`).
+    run (:func:`_versus`); ``realistic``: the folder of the realistic-plant limit (``plant_soa.c``; default
+    :data:`REALISTIC_DIR`), against which a 4,000-vehicle batch is measured (:func:`_realistic_limit`).
     """
     # what can be refused is refused before minutes of measuring: the report's file and the yardstick
     out = _writable_report(out)
@@ -364,6 +437,14 @@ def run(
     log("sweep in this process and on a 2-worker LocalCluster ...")
     res["sweep_in_process"] = _sweep(None, quick)
     res["sweep_local_cluster_2"] = _sweep(2, quick)
+    if quick and realistic is None:
+        res["realistic_limit"] = "skipped: --quick (give --realistic DIR to measure it)"
+    else:
+        log("the batch against the realistic-plant limit (hand-vectorised C) ...")
+        res["realistic_limit"] = _realistic_limit(
+            REALISTIC_DIR if realistic is None else realistic, 400 if quick else 4000, 1.0 if quick else 10.0,
+            1 if quick else 2, log,
+        )  # fmt: skip
     log("RotorPy single-vehicle hover (if installed) ...")
     res["rotorpy"] = _rotorpy(2.0 if quick else 10.0)
     if yardstick is not None:
@@ -447,6 +528,13 @@ def table(res: dict[str, Any]) -> str:
             ours = lat["step_arrays_median_us"] - lat["step_arrays_call_median_us"]
             theirs = vs["ctrl_step_from_python_us"]["yardstick_median"] - ys_call
             lines.append(f"vs yardstick: the same, less each one's call     {ours:8.2f} / {theirs:.2f} us")
+    rl = res.get("realistic_limit")
+    if isinstance(rl, dict):
+        what = f"batch {rl['n']} x {rl['T']:g} s, 2 threads / C plant alone"
+        speeds = f"{rl['project_veh_s_per_s']:8.0f} / {rl['limit_veh_s_per_s']:.0f} veh-s/s"
+        lines.append(f"{what:<49}{speeds}  ratio {rl['ratio']:.2f}")
+    elif rl:
+        lines.append(f"realistic-plant limit                            {rl}")
     rp = res["rotorpy"]
     if isinstance(rp, dict):
         lines.append(f"RotorPy single vehicle, hover, 100 Hz steps       {rp['real_time_factor']:10.2f} x real time")

@@ -17,8 +17,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     if args.live:
-        if args.quick or args.yardstick is not None:
-            raise InputError("--quick and --yardstick apply to the speed benchmark, not with --live")
+        if args.quick or args.yardstick is not None or args.realistic is not None:
+            raise InputError("--quick, --yardstick and --realistic apply to the speed benchmark, not with --live")
         out = Path(args.out if args.out is not None else f"{DEFAULT_OUT}/bench-live.json")
         seconds = 20.0 if args.live_seconds is None else args.live_seconds
         print(live_table(live_accuracy(out, seconds=seconds, log=log)))  # the table on stdout, as below
@@ -26,7 +26,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.live_seconds is not None:
         raise InputError("--live-seconds applies with --live only")
     out = Path(args.out if args.out is not None else f"{DEFAULT_OUT}/bench.json")
-    res = run(out, quick=args.quick, log=log, compile_times=not args.quick, yardstick=args.yardstick)
+    res = run(out, quick=args.quick, log=log, compile_times=not args.quick, yardstick=args.yardstick,
+              realistic=args.realistic)  # fmt: skip
     print(table(res))  # the table always, on stdout; --quiet silences the progress only
     return 0
 
@@ -46,6 +47,11 @@ def register(sub: Any) -> None:
         "--yardstick", type=Path, default=None, metavar="NUMBA_LOOP_PY",
         help="also time the shared yardstick (its numba_loop.py) against this project, alternating rounds: "
         "one vehicle, a 10,000-vehicle batch, the controller step, and their ratios",
+    )  # fmt: skip
+    sp.add_argument(
+        "--realistic", type=Path, default=None, metavar="DIR",
+        help="the folder of the realistic-plant limit (plant_soa.c, built with gcc if present; default "
+        "../shared/yardstick/realistic): a 4,000-vehicle batch on two threads is timed against it, as a ratio",
     )  # fmt: skip
     sp.add_argument(
         "--live", action="store_true",

@@ -24,12 +24,15 @@ from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, 
 from .algebra import _Q9, _solve9
 from .controller import controller_step
 from .jit import kernel
+from .lanes import W, get_state, new_buffer, put_command, put_disturbance, put_plant, put_state, state_view, step_lanes
 from .layouts import OUTPUT
 from .plant import (
     _origin,
     _R_of,
+    clip_command,
     disturbance_at,
     euler_of,
+    lane_of,
     lowest_contact_depth,
     lumped_wrench,
     rk4_step,
@@ -212,7 +215,6 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
          series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
     x, pp_b, p_b, s_b, h_b, des = X[b], pp[b], p[b], S[b], EH[b], d[0]
-    nr = pp_b.n_rotors
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
     y = np.empty(12)
@@ -224,7 +226,6 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     t_l = np.empty(3)
     tau_prev = np.empty(3)
     rc = np.empty(18)
-    up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0  # directions without lag
     has_dists = dists.shape[0] > 0
     for i in range(6):
         dist[i] = 0.0
@@ -248,13 +249,7 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
         _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, refs[k], logs[b], dec,
                       acc[b], win, o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
         f_cmd = o.f_rotor
-
-        # hold the command over the period
-        if up_now or down_now:  # a rotor follows its command at once in a direction without lag
-            for i in range(nr):
-                g = min(max(f_cmd[i], pp_b.f_min[i]), pp_b.f_max[i])
-                if (up_now and g > x.f_rotor[i]) or (down_now and g < x.f_rotor[i]):
-                    x.f_rotor[i] = g
+        _instant_rotors(pp_b, x, f_cmd)  # then hold the command over the period
         for js in range(n_sub):
             if has_dists:
                 disturbance_at(pp_b, x, t + js * dt, dists, series, dist)
@@ -272,6 +267,115 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
             X[b] = x_park[b]
             break
     hhead[b], hcount[b] = head, count
+
+
+@kernel(parallel=True)
+def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
+                    series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
+    """:func:`run_block` with the plants in SIMD lanes (:mod:`.lanes`): one ``prange`` iteration per block of
+    :data:`~.lanes.W` vehicles. Per control tick each vehicle of a block has its sensors, controller, metrics
+    and log as in :func:`run_block` (the same :func:`_control_tick`), then the block's plants take their
+    ``n_sub`` RK4 steps together. Same arguments, same results to the last bit (``tests/test_lanes.py``)."""
+    B = X.shape[0]
+    for blk in prange((B + W - 1) // W):
+        _fly_lanes(blk * W, min(W, B - blk * W), k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu,
+                   sigma, gens, S, EH, p, d, pp, dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec,
+                   acc, win)  # fmt: skip
+
+
+@kernel()
+def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp,
+               dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
+    """Vehicles ``b0 .. b0 + n - 1`` of :func:`run_block_lanes` from tick ``k0`` to ``k1``; lanes past ``n``
+    repeat the block's first vehicle and are never read back."""
+    buf = new_buffer()
+    o_ = _scratch()  # kept: the record below points into it
+    o = o_[0]
+    y, noise, env, dist = np.empty(12), np.empty(12), np.empty(6), np.empty(6)
+    f_l, t_l, tau_prev, rc = np.empty(3), np.empty(3), np.empty(3), np.empty(18)
+    nr = 0
+    for i in range(W):
+        b = b0 + (i if i < n else 0)
+        put_plant(buf, i, pp[b], lane_of(pp[b]))
+        put_state(buf, i, X[b])
+        nr = max(nr, pp[b].n_rotors)
+    for i in range(6):
+        dist[i] = 0.0
+    for i in range(W):
+        put_disturbance(buf, i, dist)
+    has_dists = dists.shape[0] > 0
+    H = hist.shape[1]
+    keep = np.empty(n_sub, dtype=np.bool_)  # as _fly
+    for js in range(n_sub):
+        ahead = n_sub - 1 - js
+        keep[js] = (k_mocap - ahead) % n_sub == 0 or (k_imu - ahead) % n_sub == 0
+    live = 0
+    for i in range(n):
+        live += 1 if alive[b0 + i] else 0
+    for k in range(k0, k1):
+        if live == 0:
+            break
+        t = k * Ts
+        for i in range(n):
+            b = b0 + i
+            if not alive[b]:
+                continue
+            x, pp_b = X[b], pp[b]
+            a_o, w_dot = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+            if _truth_needed(k, t, dec, win):
+                if has_dists:
+                    disturbance_at(pp_b, x, t, dists, series, dist)
+                a_o, w_dot, e = truth_at(pp_b, x, dist)
+                for j in range(6):
+                    env[j] = e[j]
+            head, count = hhead[b], hcount[b]
+            xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
+            _control_tick(k, t, pp_b, p[b], d[0], S[b], EH[b], xm, xi, x, a_o, w_dot, env, sigma, gens[np.int64(b)],
+                          refs[k], logs[b], dec, acc[b], win, o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
+            _instant_rotors(pp_b, x, o.f_rotor)
+            put_state(buf, i, x)
+            put_command(buf, i, o.f_rotor, pp_b.n_rotors)
+        for js in range(n_sub):
+            if has_dists:
+                for i in range(n):
+                    b = b0 + i
+                    if alive[b]:
+                        disturbance_at(pp[b], state_view(buf, i), t + js * dt, dists, series, dist)
+                        put_disturbance(buf, i, dist)
+            if nr == 4:  # a literal count lets the compiler unroll the quadrotor's rotors
+                step_lanes(buf, 4, dt)
+            else:
+                step_lanes(buf, nr, dt)
+            for i in range(n):
+                b = b0 + i
+                if alive[b]:
+                    head = hhead[b] + 1 if hhead[b] + 1 < H else 0
+                    hhead[b], hcount[b] = head, min(hcount[b] + 1, H)
+                    if keep[js]:
+                        get_state(buf, i, hist[b, head])
+        for i in range(n):
+            b = b0 + i
+            if not alive[b]:
+                continue
+            get_state(buf, i, X[b])
+            code = _failure(pp[b], X[b])
+            if code != 0:
+                alive[b] = False
+                fail_code[b] = code
+                fail_time[b] = t + Ts
+                X[b] = x_park[b]
+                live -= 1
+
+
+@kernel(inline="always")
+def _instant_rotors(pp_b, x, f_cmd):
+    """A rotor follows its command at once in a direction without lag (``tau_up`` or ``tau_down`` zero)."""
+    up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0
+    if up_now or down_now:
+        for i in range(pp_b.n_rotors):
+            g = clip_command(f_cmd[i], pp_b.f_min[i], pp_b.f_max[i])
+            if (up_now and g > x.f_rotor[i]) or (down_now and g < x.f_rotor[i]):
+                x.f_rotor[i] = g
 
 
 @kernel()

@@ -13,6 +13,7 @@ records with their sampled series ``series (D, n, 6)``.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 from ..conventions import G
 from .algebra import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
@@ -21,6 +22,16 @@ from .layouts import KIND, PUSH
 
 _CONSTANT, _STEP, _RAMP, _SINUSOID = KIND["constant"], KIND["step"], KIND["ramp"], KIND["sinusoid"]
 _SERIES, _WALL = KIND["series"], KIND["wall"]
+
+#: What the body's dynamics read of a plant, as plain numbers (inertias as row-major 9-tuples): built from a
+#: :data:`~.layouts.PLANT` record by :func:`lane_of`, or from one lane of a batch in lanes
+#: (:mod:`.lanes`), so that both engines run the same :func:`body_derivative`. The rotors' geometry and limits
+#: are not here: the rotor stages read them where they are.
+PlantLane = namedtuple(
+    "PlantLane",
+    ("inv_mass", "I_com", "I_com_inv", "c_B", "r_contact_B", "inv_tau_up", "inv_tau_down", "lin_drag_B",
+     "quad_drag_B", "ground", "k_ground", "c_ground", "b_ground", "pend_m", "pend_L"),
+)  # fmt: skip
 
 
 @kernel(inline="always")
@@ -44,6 +55,27 @@ def _R_of(q):
 def euler_of(R):
     """ZYX Euler angles ``(phi, theta, psi)`` of a row-major rotation 9-tuple."""
     return math.atan2(R[7], R[8]), -math.asin(min(max(R[6], -1.0), 1.0)), math.atan2(R[3], R[0])
+
+
+@kernel(inline="always")
+def _m9(M):
+    """A 3x3 array as a row-major 9-tuple."""
+    return (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
+
+
+@kernel(inline="always")
+def _v3(v):
+    return (v[0], v[1], v[2])
+
+
+@kernel(inline="always")
+def lane_of(pp):
+    """The :data:`PlantLane` of a :data:`~.layouts.PLANT` record."""
+    return PlantLane(
+        pp.inv_mass, _m9(pp.I_com), _m9(pp.I_com_inv), _v3(pp.c_B), _v3(pp.r_contact_B), pp.inv_tau_up,
+        pp.inv_tau_down, _v3(pp.lin_drag_B), _v3(pp.quad_drag_B), pp.ground, pp.k_ground, pp.c_ground, pp.b_ground,
+        pp.pend_m, pp.pend_L,
+    )  # fmt: skip
 
 
 @kernel(inline="always")
@@ -172,15 +204,31 @@ def _rotor_sums(pp, f, n):
 
 
 @kernel(inline="always")
-def _lag(pp, g, f):
-    """``f_dot`` of one rotor: first-order lag towards its clipped command ``g``, faster up than down."""
-    return (g - f) * (pp.inv_tau_up if g > f else pp.inv_tau_down)
+def _lag(up, down, g, f):
+    """``f_dot`` of one rotor: first-order lag towards its clipped command ``g``, at the rate ``up`` (1/s) when
+    rising and ``down`` when falling."""
+    return (g - f) * (up if g > f else down)
 
 
 @kernel(inline="always")
-def _clipped(pp, f_cmd, i):
-    """Rotor ``i``'s command within its limits."""
-    return min(max(f_cmd[i], pp.f_min[i]), pp.f_max[i])
+def clip_command(f_cmd, f_min, f_max):
+    """A rotor's command within its limits."""
+    return min(max(f_cmd, f_min), f_max)
+
+
+@kernel(inline="always")
+def rotor_rk4(up, down, g, f1, dt):
+    """One rotor's RK4 step towards its clipped command ``g`` (rates ``up``, ``down`` of :func:`_lag`): the new
+    force and the force at the second, third and fourth stages (the first is ``f1``)."""
+    h2 = 0.5 * dt
+    k1 = _lag(up, down, g, f1)
+    f2 = f1 + h2 * k1
+    k2 = _lag(up, down, g, f2)
+    f3 = f1 + h2 * k2
+    k3 = _lag(up, down, g, f3)
+    f4 = f1 + dt * k3
+    k4 = _lag(up, down, g, f4)
+    return f1 + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4), f2, f3, f4
 
 
 @kernel(inline="always")
@@ -289,9 +337,9 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     B1 = R[1] * F0 + R[4] * F1 + R[7] * F2
     B2 = R[2] * F0 + R[5] * F1 + R[8] * F2
     I, Ii = pp.I_com, pp.I_com_inv
-    h0 = I[0, 0] * w0 + I[0, 1] * w1 + I[0, 2] * w2
-    h1 = I[1, 0] * w0 + I[1, 1] * w1 + I[1, 2] * w2
-    h2 = I[2, 0] * w0 + I[2, 1] * w1 + I[2, 2] * w2
+    h0 = I[0] * w0 + I[1] * w1 + I[2] * w2
+    h1 = I[3] * w0 + I[4] * w1 + I[5] * w2
+    h2 = I[6] * w0 + I[7] * w1 + I[8] * w2
     m0 = tm0 + te0 - (c[1] * B2 - c[2] * B1) - (w1 * h2 - w2 * h1)  # eq. (2b)
     m1 = tm1 + te1 - (c[2] * B0 - c[0] * B2) - (w2 * h0 - w0 * h2)
     m2 = tm2 + te2 - (c[0] * B1 - c[1] * B0) - (w0 * h1 - w1 * h0)
@@ -300,9 +348,9 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
         (F0 + lk0) * im, (F1 + lk1) * im, G + (F2 + lk2) * im,  # eqs. (3a), (5a)
         0.5 * (-qx * w0 - qy * w1 - qz * w2), 0.5 * (qw * w0 + qy * w2 - qz * w1),
         0.5 * (qw * w1 - qx * w2 + qz * w0), 0.5 * (qw * w2 + qx * w1 - qy * w0),
-        Ii[0, 0] * m0 + Ii[0, 1] * m1 + Ii[0, 2] * m2,
-        Ii[1, 0] * m0 + Ii[1, 1] * m1 + Ii[1, 2] * m2,
-        Ii[2, 0] * m0 + Ii[2, 1] * m1 + Ii[2, 2] * m2,
+        Ii[0] * m0 + Ii[1] * m1 + Ii[2] * m2,
+        Ii[3] * m0 + Ii[4] * m1 + Ii[5] * m2,
+        Ii[6] * m0 + Ii[7] * m1 + Ii[8] * m2,
         s[16], s[17], s[18], rdd0, rdd1, rdd2,
     )  # fmt: skip
     return x_dot, (fe0, fe1, fe2, te0, te1, te2)
@@ -317,7 +365,7 @@ def truth_at(pp, x, dist):
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, 4)
     else:
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, pp.n_rotors)
-    s_dot, env = body_derivative(pp, _body_of(x), u, tm0, tm1, tm2, dist)
+    s_dot, env = body_derivative(lane_of(pp), _body_of(x), u, tm0, tm1, tm2, dist)
     w_dot = (s_dot[10], s_dot[11], s_dot[12])
     return origin_acceleration(pp, x, (s_dot[3], s_dot[4], s_dot[5]), w_dot, _R_of(x.q_WB)), w_dot, env
 
@@ -366,19 +414,11 @@ def _rotor_stages(pp, f, f_cmd, dt, n):
     The rotor lag does not depend on the body's state, so its four stages are computed first, exactly as
     the joint RK4 would, and only their sums enter the body's stages."""
     E = pp.E
-    h2 = 0.5 * dt
     u1 = x1 = y1 = z1 = u2 = x2 = y2 = z2 = u3 = x3 = y3 = z3 = u4 = x4 = y4 = z4 = 0.0
     for i in range(n):
-        g = _clipped(pp, f_cmd, i)
         f1 = f[i]
-        k1 = _lag(pp, g, f1)
-        f2 = f1 + h2 * k1
-        k2 = _lag(pp, g, f2)
-        f3 = f1 + h2 * k2
-        k3 = _lag(pp, g, f3)
-        f4 = f1 + dt * k3
-        k4 = _lag(pp, g, f4)
-        f[i] = f1 + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        g = clip_command(f_cmd[i], pp.f_min[i], pp.f_max[i])
+        f[i], f2, f3, f4 = rotor_rk4(pp.inv_tau_up, pp.inv_tau_down, g, f1, dt)
         e0, e1, e2, e3 = E[0, i], E[1, i], E[2, i], E[3, i]
         u1 += e0 * f1
         x1 += e1 * f1
@@ -399,37 +439,41 @@ def _rotor_stages(pp, f, f_cmd, dt, n):
     return (u1, x1, y1, z1), (u2, x2, y2, z2), (u3, x3, y3, z3), (u4, x4, y4, z4)
 
 
+@kernel(inline="always")
+def body_rk4(pl, s, a, b, c, d, dist, dt):
+    """One RK4 step of the body's 19 states ``s`` (the tuple of :func:`_body_of`) of the plant ``pl``
+    (:data:`PlantLane`), with the rotors' ``E f`` at the four stages ``a``, ``b``, ``c``, ``d``
+    (:func:`_rotor_stages`) and the disturbances ``dist`` held: the new states, with the quaternion
+    renormalised (RK4 keeps its norm to the method's order only) and the pendulum put back on its sphere,
+    as :func:`vtol_impedance.sim.plant.rk4_step`. Pure: one vehicle's step or one lane's, alike."""
+    h2 = 0.5 * dt
+    k1, _ = body_derivative(pl, s, a[0], a[1], a[2], a[3], dist)
+    k2, _ = body_derivative(pl, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist)
+    k3, _ = body_derivative(pl, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist)
+    k4, _ = body_derivative(pl, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist)
+    n = _rk4_sum(s, dt / 6.0, k1, k2, k3, k4)
+    inq = 1.0 / math.sqrt(n[6] * n[6] + n[7] * n[7] + n[8] * n[8] + n[9] * n[9])
+    r0, r1, r2, v0, v1, v2 = n[13], n[14], n[15], n[16], n[17], n[18]
+    if pl.pend_m > 0.0:  # back on the sphere, as sim.plant.project_pendulum
+        L = max(math.sqrt(r0**2 + r1**2 + r2**2), 1e-9)
+        n0, n1, n2 = r0 / L, r1 / L, r2 / L
+        vr = v0 * n0 + v1 * n1 + v2 * n2
+        r0, r1, r2 = pl.pend_L * n0, pl.pend_L * n1, pl.pend_L * n2
+        v0, v1, v2 = v0 - vr * n0, v1 - vr * n1, v2 - vr * n2
+    return (n[0], n[1], n[2], n[3], n[4], n[5], n[6] * inq, n[7] * inq, n[8] * inq, n[9] * inq, n[10], n[11], n[12],
+            r0, r1, r2, v0, v1, v2)  # fmt: skip
+
+
 @kernel()
 def rk4_step(pp, x, f_cmd, dist, dt):
-    """One RK4 step of ``x`` in place with the rotor command and the disturbances ``dist`` held over the step.
-
-    The body's 19 states stay in registers through the four stages (tuples, no memory written between
-    them). The quaternion is renormalised after the step (RK4 keeps its norm to the method's order only)
-    and the pendulum put back on its sphere, as :func:`vtol_impedance.sim.plant.rk4_step`."""
+    """One RK4 step of ``x`` in place with the rotor command and the disturbances ``dist`` held over the step:
+    the rotors (:func:`_rotor_stages`), then the body (:func:`body_rk4`), whose 19 states stay in registers
+    through the four stages (tuples, no memory written between them)."""
     if pp.n_rotors == 4:  # a literal count lets the compiler unroll the quadrotor's rotors
         a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, 4)
     else:
         a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, pp.n_rotors)
-    s = _body_of(x)
-    h2 = 0.5 * dt
-    k1, _ = body_derivative(pp, s, a[0], a[1], a[2], a[3], dist)
-    k2, _ = body_derivative(pp, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist)
-    k3, _ = body_derivative(pp, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist)
-    k4, _ = body_derivative(pp, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist)
-    _set_body(x, _rk4_sum(s, dt / 6.0, k1, k2, k3, k4))
-    q = x.q_WB
-    inq = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    for i in range(4):
-        q[i] *= inq
-    if pp.pend_m > 0.0:  # back on the sphere, as sim.plant.project_pendulum
-        r, v = x.r_pend_W, x.v_pend_W
-        L = max(math.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2), 1e-9)
-        n0, n1, n2 = r[0] / L, r[1] / L, r[2] / L
-        vr = v[0] * n0 + v[1] * n1 + v[2] * n2
-        r[0], r[1], r[2] = pp.pend_L * n0, pp.pend_L * n1, pp.pend_L * n2
-        v[0] -= vr * n0
-        v[1] -= vr * n1
-        v[2] -= vr * n2
+    _set_body(x, body_rk4(lane_of(pp), _body_of(x), a, b, c, d, dist, dt))
 
 
 @kernel(inline="always")

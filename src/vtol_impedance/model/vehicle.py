@@ -335,7 +335,7 @@ class VehicleParams:
         """The aerodynamic terms that are not 0 (a record without them reads as before they existed)."""
         terms = {"rotor_drag": list(self.rotor_drag), "inflow_damping": self.inflow_damping,  # type: ignore[arg-type]
                  "body_drag": list(self.body_drag)}  # type: ignore[arg-type]  # fmt: skip
-        return {k: v for k, v in terms.items() if np.any(v)}
+        return {k: v for k, v in terms.items() if any(np.ravel(v).tolist())}  # one conversion: thousands in a batch
 
 
 def _geometry(pos: np.ndarray, spins: np.ndarray, f_min: np.ndarray, f_max: np.ndarray, c: float) -> RotorGeometry:

@@ -606,8 +606,15 @@ def _engine_result(e: _Engine) -> tuple[np.ndarray, list[dict[str, Any]], list[d
     return e.logs, _metrics_from_acc(e.acc, failures), failures
 
 
+#: Smallest batch flown with its plants in SIMD lanes (:func:`vtol_impedance.compiled.engine.run_block_lanes`);
+#: smaller ones fly a vehicle per thread (:func:`~vtol_impedance.compiled.engine.run_block`), whose lanes would
+#: mostly be idle. Both give the same numbers to the last bit; see the performance guide for the measurement.
+LANES_MIN_BATCH = 32
+
+
 def _run_compiled(s: _Setup, progress: ProgressFn | None):
-    from ..compiled.engine import run_block
+    from ..compiled.engine import run_block, run_block_lanes
+    from ..compiled.lanes import W
     from .disturbances import pack_disturbances
     from .plant import pack_state
 
@@ -622,10 +629,12 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
     hcount = np.ones(B, dtype=np.int64)
     hhead = np.zeros(B, dtype=np.int64)
     block = int(np.clip(BLOCK_BYTES // (B * 12 * 8), 50, 5000))  # ticks between progress reports
-    with _threads_at_most(B):
+    lanes = B >= LANES_MIN_BATCH
+    fly = run_block_lanes if lanes else run_block
+    with _threads_at_most(-(-B // W) if lanes else B):
         for k0 in range(0, s.N, block):
             k1 = min(k0 + block, s.N)
-            run_block(k0, k1, s.Ts, s.dt, s.n_sub, X, hist, hcount, hhead, suite.k_mocap, suite.k_imu, suite.sigma,
+            fly(k0, k1, s.Ts, s.dt, s.n_sub, X, hist, hcount, hhead, suite.k_mocap, suite.k_imu, suite.sigma,
                       e.gens, e.S, e.EH, e.p, e.d, e.pp, dists, series, s.refs, e.alive, e.fail_time, e.fail_code,
                       x_park, e.logs, s.dec, e.acc, e.win)  # fmt: skip
             if progress is not None:

@@ -1,0 +1,233 @@
+"""The plant of a block of vehicles in SIMD lanes: structure-of-arrays, one lane per vehicle.
+
+:func:`vtol_impedance.compiled.engine.run_block_lanes` flies a batch a block of :data:`W` vehicles at a time.
+Between two control ticks each block takes ``n_sub`` RK4 steps of its plants (the bulk of a batch's work),
+and those run here over a buffer ``buf`` of :data:`ROWS` rows of :data:`W` doubles: one row per named
+quantity (a plant parameter, a state, a rotor's command, a stage's thrust), one column per vehicle. The
+loops over the lanes are innermost and free of calls, memory-dependent branches and transcendental functions,
+so LLVM turns them into packed vector instructions (``tests/test_lanes.py`` reads the machine code for them).
+:data:`W` is a compile-time constant: the rows of one buffer then sit at constant distances, which is what
+lets the vectoriser prove that no lane's store reaches another lane's load without run-time checks.
+
+The arithmetic is that of :mod:`.plant`, not a copy of it: every lane calls :func:`~.plant.rotor_rk4` and
+:func:`~.plant.body_rk4` with a :data:`~.plant.PlantLane` read from the rows, as one vehicle's
+:func:`~.plant.rk4_step` does with its record.
+
+Rows (each :data:`W` wide): the :data:`~.plant.PlantLane` (:data:`N_LANE` rows), the body's 19 states,
+then per rotor (:data:`~vtol_impedance.model.vehicle.MAX_ROTORS` rows each) its force, command, lower and upper
+limit, the true effectiveness ``E`` (four rows per rotor), the held disturbance ``[f_W, tau_B]`` (6) and
+the four stages' ``E f`` (16). A vehicle with fewer rotors has zero rows for the others (zero force,
+limits and effect), which add exact zeros to the sums.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from ..model.vehicle import MAX_ROTORS
+from .jit import kernel
+from .plant import PlantLane, body_rk4, clip_command, rotor_rk4
+
+#: Vehicles per block. 16 doubles are two AVX-512 or four AVX2 registers per row; a block's buffer
+#: (:data:`ROWS` x 16 x 8 bytes, 22.5 kB) stays in a core's L1 cache through its plant steps.
+W = 16
+
+_R = MAX_ROTORS
+N_LANE = 39  # rows of a PlantLane: 1 + 9 + 9 + 3 + 3 + 1 + 1 + 3 + 3 + 6
+_PL = 0
+_S = _PL + N_LANE  # body states, as plant._body_of
+_F = _S + 19  # rotor forces
+_FC = _F + _R  # rotor commands
+_FMIN = _FC + _R
+_FMAX = _FMIN + _R
+_E = _FMAX + _R  # E[c, r] at row _E + 4 r + c
+_D = _E + 4 * _R  # [f_W, tau_B]
+_U = _D + 6  # E f at stage j: rows _U + 4 j .. + 3
+ROWS = _U + 16
+
+#: The states the disturbances read, as a record's fields (:func:`state_view`).
+StateView = namedtuple("StateView", ("p_com_W", "v_com_W", "q_WB", "omega_B"))
+
+
+@kernel()
+def new_buffer():
+    """A zeroed block buffer (``ROWS * W`` doubles)."""
+    return np.zeros(ROWS * W)
+
+
+@kernel(inline="always")
+def put_plant(buf, i, pp, pl):
+    """Lane ``i`` takes the plant of the record ``pp`` whose :data:`~.plant.PlantLane` is ``pl``."""
+    k = _PL * W + i
+    buf[k] = pl.inv_mass
+    for j in range(9):
+        buf[k + (1 + j) * W] = pl.I_com[j]
+        buf[k + (10 + j) * W] = pl.I_com_inv[j]
+    for j in range(3):
+        buf[k + (19 + j) * W] = pl.c_B[j]
+        buf[k + (22 + j) * W] = pl.r_contact_B[j]
+        buf[k + (27 + j) * W] = pl.lin_drag_B[j]
+        buf[k + (30 + j) * W] = pl.quad_drag_B[j]
+    buf[k + 25 * W] = pl.inv_tau_up
+    buf[k + 26 * W] = pl.inv_tau_down
+    buf[k + 33 * W] = pl.ground
+    buf[k + 34 * W] = pl.k_ground
+    buf[k + 35 * W] = pl.c_ground
+    buf[k + 36 * W] = pl.b_ground
+    buf[k + 37 * W] = pl.pend_m
+    buf[k + 38 * W] = pl.pend_L
+    for r in range(_R):
+        buf[(_FMIN + r) * W + i] = pp.f_min[r]
+        buf[(_FMAX + r) * W + i] = pp.f_max[r]
+        for c in range(4):
+            buf[(_E + 4 * r + c) * W + i] = pp.E[c, r]
+
+
+@kernel(inline="always")
+def _plant_at(buf, i):
+    """The :data:`~.plant.PlantLane` of lane ``i`` (the order of :func:`put_plant`)."""
+    k = _PL * W + i
+
+    def at(j):
+        return buf[k + j * W]
+
+    return PlantLane(
+        at(0),
+        (at(1), at(2), at(3), at(4), at(5), at(6), at(7), at(8), at(9)),
+        (at(10), at(11), at(12), at(13), at(14), at(15), at(16), at(17), at(18)),
+        (at(19), at(20), at(21)),
+        (at(22), at(23), at(24)),
+        at(25),
+        at(26),
+        (at(27), at(28), at(29)),
+        (at(30), at(31), at(32)),
+        at(33), at(34), at(35), at(36), at(37), at(38),
+    )  # fmt: skip
+
+
+@kernel(inline="always")
+def _body_at(buf, i):
+    k = _S * W + i
+
+    def at(j):
+        return buf[k + j * W]
+
+    return (at(0), at(1), at(2), at(3), at(4), at(5), at(6), at(7), at(8), at(9), at(10), at(11), at(12), at(13),
+            at(14), at(15), at(16), at(17), at(18))  # fmt: skip
+
+
+@kernel(inline="always")
+def _put_body(buf, i, s):
+    k = _S * W + i
+    buf[k] = s[0]
+    buf[k + W] = s[1]
+    buf[k + 2 * W] = s[2]
+    buf[k + 3 * W] = s[3]
+    buf[k + 4 * W] = s[4]
+    buf[k + 5 * W] = s[5]
+    buf[k + 6 * W] = s[6]
+    buf[k + 7 * W] = s[7]
+    buf[k + 8 * W] = s[8]
+    buf[k + 9 * W] = s[9]
+    buf[k + 10 * W] = s[10]
+    buf[k + 11 * W] = s[11]
+    buf[k + 12 * W] = s[12]
+    buf[k + 13 * W] = s[13]
+    buf[k + 14 * W] = s[14]
+    buf[k + 15 * W] = s[15]
+    buf[k + 16 * W] = s[16]
+    buf[k + 17 * W] = s[17]
+    buf[k + 18 * W] = s[18]
+
+
+@kernel(inline="always")
+def put_state(buf, i, x):
+    """Lane ``i`` takes the state record ``x`` (:data:`~.layouts.STATE`)."""
+    k = _S * W + i
+    for j in range(3):
+        buf[k + j * W] = x.p_com_W[j]
+        buf[k + (3 + j) * W] = x.v_com_W[j]
+        buf[k + (10 + j) * W] = x.omega_B[j]
+        buf[k + (13 + j) * W] = x.r_pend_W[j]
+        buf[k + (16 + j) * W] = x.v_pend_W[j]
+    for j in range(4):
+        buf[k + (6 + j) * W] = x.q_WB[j]
+    for r in range(_R):
+        buf[(_F + r) * W + i] = x.f_rotor[r]
+
+
+@kernel(inline="always")
+def get_state(buf, i, x):
+    """The state record ``x`` takes lane ``i``'s state (the inverse of :func:`put_state`)."""
+    k = _S * W + i
+    for j in range(3):
+        x.p_com_W[j] = buf[k + j * W]
+        x.v_com_W[j] = buf[k + (3 + j) * W]
+        x.omega_B[j] = buf[k + (10 + j) * W]
+        x.r_pend_W[j] = buf[k + (13 + j) * W]
+        x.v_pend_W[j] = buf[k + (16 + j) * W]
+    for j in range(4):
+        x.q_WB[j] = buf[k + (6 + j) * W]
+    for r in range(_R):
+        x.f_rotor[r] = buf[(_F + r) * W + i]
+
+
+@kernel(inline="always")
+def state_view(buf, i):
+    """Lane ``i``'s position, velocity, attitude and rate with a state record's field names, for the
+    disturbances (:func:`~.plant.disturbance_at`)."""
+    s = _body_at(buf, i)
+    return StateView((s[0], s[1], s[2]), (s[3], s[4], s[5]), (s[6], s[7], s[8], s[9]), (s[10], s[11], s[12]))
+
+
+@kernel(inline="always")
+def put_command(buf, i, f_cmd, n):
+    """Lane ``i``'s rotor commands (the first ``n``)."""
+    for r in range(n):
+        buf[(_FC + r) * W + i] = f_cmd[r]
+
+
+@kernel(inline="always")
+def put_disturbance(buf, i, dist):
+    """Lane ``i``'s disturbance ``[f_W, tau_B]`` held over the next step."""
+    for j in range(6):
+        buf[(_D + j) * W + i] = dist[j]
+
+
+@kernel(inline="always")
+def step_lanes(buf, n_rotors, dt):
+    """One RK4 step of every lane of ``buf`` with its command and disturbance held (as
+    :func:`~.plant.rk4_step` of each): the rotors one at a time across the lanes, their stages' ``E f``
+    summed in rotor order, then the body."""
+    for j in range(16):
+        for i in range(W):
+            buf[(_U + j) * W + i] = 0.0
+    for r in range(n_rotors):
+        for i in range(W):  # vectorised: one lane per vehicle
+            up, down = buf[(_PL + 25) * W + i], buf[(_PL + 26) * W + i]
+            g = clip_command(buf[(_FC + r) * W + i], buf[(_FMIN + r) * W + i], buf[(_FMAX + r) * W + i])
+            f1 = buf[(_F + r) * W + i]
+            f, f2, f3, f4 = rotor_rk4(up, down, g, f1, dt)
+            buf[(_F + r) * W + i] = f
+            for c in range(4):
+                e = buf[(_E + 4 * r + c) * W + i]
+                buf[(_U + c) * W + i] += e * f1
+                buf[(_U + 4 + c) * W + i] += e * f2
+                buf[(_U + 8 + c) * W + i] += e * f3
+                buf[(_U + 12 + c) * W + i] += e * f4
+    for i in range(W):  # vectorised: one lane per vehicle
+        u, dd = _U * W + i, _D * W + i
+        s = body_rk4(
+            _plant_at(buf, i), _body_at(buf, i), _four(buf, u), _four(buf, u + 4 * W), _four(buf, u + 8 * W),
+            _four(buf, u + 12 * W), (buf[dd], buf[dd + W], buf[dd + 2 * W], buf[dd + 3 * W], buf[dd + 4 * W],
+            buf[dd + 5 * W]), dt,
+        )  # fmt: skip
+        _put_body(buf, i, s)
+
+
+@kernel(inline="always")
+def _four(buf, k):
+    """Rows ``k``, ``k + W``, ``k + 2 W``, ``k + 3 W`` of one lane (a stage's thrust and moments)."""
+    return buf[k], buf[k + W], buf[k + 2 * W], buf[k + 3 * W]
