@@ -606,9 +606,10 @@ def _engine_result(e: _Engine) -> tuple[np.ndarray, list[dict[str, Any]], list[d
     return e.logs, _metrics_from_acc(e.acc, failures), failures
 
 
-#: Smallest batch flown with its plants in SIMD lanes (:func:`vtol_impedance.compiled.engine.run_block_lanes`);
-#: smaller ones fly a vehicle per thread (:func:`~vtol_impedance.compiled.engine.run_block`), whose lanes would
-#: mostly be idle. Both give the same numbers to the last bit; see the performance guide for the measurement.
+#: Smallest batch flown with its plants in SIMD lanes (:func:`vtol_impedance.compiled.engine.run_block_lanes`):
+#: two blocks of 16, one per thread of a two-core machine. Smaller batches fly a vehicle per thread
+#: (:func:`~vtol_impedance.compiled.engine.run_block`): a block's lanes would mostly be idle. The crossover between
+#: 2 and 32 vehicles is not measured finely yet. Both engines give the same numbers to the last bit.
 LANES_MIN_BATCH = 32
 
 
