@@ -49,7 +49,10 @@ spec = get("case-a-payload")
 b = build(spec)
 n, duration = {n}, {duration}
 plants, ctrls, seeds = population(spec, n, seed=1)
-run_closed_loop(plants[:2], ctrls[:2], b.trajectory, 0.05, b.disturbances, b.sensors, seed=seeds[:2], log="metrics")
+# compile (or load) both engines before timing: 40 vehicles fly in lanes, fewer one per thread
+for m in (2, 40):
+    run_closed_loop(plants[:m], ctrls[:m], b.trajectory, 0.05, b.disturbances, b.sensors, seed=seeds[:m],
+                    log="metrics")
 wall = float("inf")
 for _ in range(3 if n * duration < 2000 else 1):  # short runs: best of three
     t = time.perf_counter()

@@ -271,9 +271,10 @@ def _aero_W(pp, R, v0, v1, v2):
 @kernel(inline="always")
 def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     """``x_dot`` of the true plant's body and pendulum (the tuple of :func:`_body_of`) for the plant ``pp`` (a
-    :data:`PlantLane`), as :func:`vtol_impedance.sim.plant.plant_derivative`, with the rotors' thrust ``u`` and body moments ``tm``
-    (eq. (4), the true ``E``); and the external wrench ``[f_ext_W (at the body origin), tau_ext_B]``, as
-    :func:`vtol_impedance.sim.plant.environment_wrench` (disturbances, rotor drag, ground at two points).
+    :data:`PlantLane`), as :func:`vtol_impedance.sim.plant.plant_derivative`, with the rotors' thrust ``u`` and
+    body moments ``tm`` (eq. (4), the true ``E``); and the external wrench ``[f_ext_W (at the body origin),
+    tau_ext_B]``, as :func:`vtol_impedance.sim.plant.environment_wrench` (disturbances, rotor drag, ground at two
+    points).
 
     ``dist = [f_W, tau_B]`` are the explicit disturbances, evaluated by the caller (once per plant step,
     :func:`disturbance_at`). Newton-Euler about the CoM: ``m a = m g - u R e3 + f_env``,

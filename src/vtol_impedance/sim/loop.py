@@ -328,10 +328,11 @@ def run_closed_loop(
     controllers, plants, disturbances, sensors, labels, seeds, duration, plant_rate = _checked_inputs(
         plant, controllers, trajectory, duration, disturbances, sensors, plant_rate, seed, labels, window, backend
     )
-    setup, lift = _prepare(
-        controllers, plants, trajectory, duration, disturbances, sensors, plant_rate, seeds, start_W, backend,
-        _parse_log(log), window, limits,
-    )  # fmt: skip
+    with _collector_paused():  # thousands of vehicles' small objects (generators, records) in a batch
+        setup, lift = _prepare(
+            controllers, plants, trajectory, duration, disturbances, sensors, plant_rate, seeds, start_W, backend,
+            _parse_log(log), window, limits,
+        )  # fmt: skip
     rows, metrics, failures = _fly(setup, backend, plants, progress)
     cfg = dict(config or {})
     cfg.update({"seed": seeds[0] if len(set(seeds)) == 1 else seeds, "backend": backend, "log": log,
@@ -595,9 +596,11 @@ def _engine(s: _Setup) -> _Engine:
     p, d = pack_controller(s.CA)
     S, EH = ctrl_initial_state(p, d)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
+    with _collector_paused():  # numba types each generator: a collection among them doubled the time
+        gens = noise_generators(s.noise.gens)
     return _Engine(
         p, d, pack_plant(s.PA), S, EH, empty_log(B, n_log), np.zeros(B, dtype=ACCUMULATORS), np.array(s.window),
-        noise_generators(s.noise.gens), np.ones(B, dtype=np.bool_), np.zeros(B, dtype=np.int64), np.zeros(B),
+        gens, np.ones(B, dtype=np.bool_), np.zeros(B, dtype=np.int64), np.zeros(B),
     )  # fmt: skip
 
 
