@@ -610,10 +610,11 @@ def _engine_result(e: _Engine) -> tuple[np.ndarray, list[dict[str, Any]], list[d
 
 
 #: Smallest batch flown with its plants in SIMD lanes (:func:`vtol_impedance.compiled.engine.run_block_lanes`):
-#: two blocks of 16, one per thread of a two-core machine. Smaller batches fly a vehicle per thread
-#: (:func:`~vtol_impedance.compiled.engine.run_block`): a block's lanes would mostly be idle. The crossover between
-#: 2 and 32 vehicles is not measured finely yet. Both engines give the same numbers to the last bit.
-LANES_MIN_BATCH = 32
+#: one full block. Smaller batches fly a vehicle per thread (:func:`~vtol_impedance.compiled.engine.run_block`).
+#: Measured on two cores (case A, 20 s, best of three, lanes / vehicle per thread): 2 vehicles 0.33, 4 and 8
+#: vehicles 0.65, 16 vehicles 1.37 (one block on one thread against two threads), 24 1.83, 64 2.06. Both engines
+#: give the same numbers to the last bit.
+LANES_MIN_BATCH = 16
 
 
 def _run_compiled(s: _Setup, progress: ProgressFn | None):
