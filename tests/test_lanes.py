@@ -1,6 +1,6 @@
 """The batch engine with its plants in SIMD lanes (``compiled.lanes``, ``compiled.engine.run_block_lanes``): it
 flies every shipped scenario as the vehicle-per-thread engine does (to the last bit) and as the NumPy definition
-does (1e-9), with mixed geometries, failures and padding lanes in one block, and its plant loop is vector code."""
+does (1e-9), for quadrotors and hexarotors, with failures and padding lanes, and its plant loop is vector code."""
 
 from __future__ import annotations
 
