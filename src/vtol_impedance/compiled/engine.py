@@ -24,7 +24,18 @@ from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, 
 from .algebra import _Q9, _solve9
 from .controller import controller_step
 from .jit import kernel
-from .lanes import W, get_state, new_buffer, put_command, put_disturbance, put_plant, put_state, state_view, step_lanes
+from .lanes import (
+    W,
+    get_state,
+    new_buffer,
+    put_command,
+    put_disturbance,
+    put_plant,
+    put_rotors,
+    put_state,
+    state_view,
+    step_lanes,
+)
 from .layouts import OUTPUT
 from .plant import (
     _origin,
@@ -335,7 +346,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
             _control_tick(k, t, pp_b, p[b], d[0], S[b], EH[b], xm, xi, x, a_o, w_dot, env, sigma, gens[np.int64(b)],
                           refs[k], logs[b], dec, acc[b], win, o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
             _instant_rotors(pp_b, x, o.f_rotor)
-            put_state(buf, i, x)
+            put_rotors(buf, i, x)  # the only states the tick changes: the lane holds the rest since last period
             put_command(buf, i, o.f_rotor, pp_b.n_rotors)
         for js in range(n_sub):
             if has_dists:

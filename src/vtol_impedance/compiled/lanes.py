@@ -154,6 +154,12 @@ def put_state(buf, i, x):
         buf[k + (16 + j) * W] = x.v_pend_W[j]
     for j in range(4):
         buf[k + (6 + j) * W] = x.q_WB[j]
+    put_rotors(buf, i, x)
+
+
+@kernel(inline="always")
+def put_rotors(buf, i, x):
+    """Lane ``i``'s rotor forces from the state record ``x``."""
     for r in range(_R):
         buf[(_F + r) * W + i] = x.f_rotor[r]
 
