@@ -172,6 +172,8 @@ for i, (extra, msg) in enumerate(
 ):
     cli("cli", f"estimate-{i}-{extra[0]}", msg, *EST, *extra)
 cli("cli", "estimate-no-log", "log", "estimate", "--quiet", "--out", "{tmp}/o")
+cli("cli", "estimate-torque-scale-unused", "torque scale", "estimate", "--example", "csv", "--vehicle", "pelican",
+    "--torque-scale", "0,0,0", "--no-plots", "--quiet", "--out", "{tmp}/o")  # the moment comes from the rotors
 cli("cli", "estimate-unknown-example", "nope", "estimate", "--example", "nope", "--quiet", "--out", "{tmp}/o")
 cli("cli", "estimate-missing-file", "does not exist", "estimate", "{tmp}/missing.csv", "--quiet", "--out", "{tmp}/o")
 cli("cli", "estimate-folder", "not a file", "estimate", "{tmp}", "--quiet", "--out", "{tmp}/o")
@@ -406,6 +408,8 @@ api("EstimatorParams-wn-negative", "wn", lambda d: estimator.EstimatorParams(wn=
 api("EstimatorParams-zeta-zero", "zeta", lambda d: estimator.EstimatorParams(zeta=0.0))
 api("EstimatorParams-order-zero", "order", lambda d: estimator.EstimatorParams(order=0))
 api("EstimatorParams-order-float", "order", lambda d: estimator.EstimatorParams(order=2.5))
+api("EstimatorParams-order-bool", "order", lambda d: estimator.EstimatorParams(order=True, prototype="binomial"))
+api("EstimatorParams-order-bool-zeta", "order", lambda d: estimator.EstimatorParams(order=True))
 api("simulate-unknown-scenario", "case-z", lambda d: scenarios.simulate("case-z"))
 api("simulate-unknown-controller", "lqr", lambda d: scenarios.simulate("case-a-payload", variants=["lqr"]))
 api("equivalent_rotor_tau-negative", "tau", lambda d: robust.equivalent_rotor_tau(-0.01, 0.02))

@@ -216,12 +216,19 @@ def test_online_estimator_backends_agree_with_delays_and_rotor_lag(rng):
         {"thrust_prev": -5.0},  # rotors push, never pull
         {"thrust_prev": np.array([11.0, 11.0])},  # was a TypeError
         {"omega_B": None},
+        {"v_W": np.zeros((1, 3))},  # a batch of one: the compiled kernel's typing error, NumPy's broadcast error
+        {"v_W": np.zeros((2, 3))},
+        {"eta": np.zeros((1, 3))},
+        {"omega_B": np.zeros((1, 3))},
+        {"tau_B_prev": np.zeros((1, 3))},
+        {"omega_B": None, "eta_dot": np.zeros((1, 3))},
     ],
 )
-def test_online_estimator_refuses_bad_samples(kw):
+@pytest.mark.parametrize("backend", ["compiled", "numpy"])
+def test_online_estimator_refuses_bad_samples(kw, backend):
     from vtol_impedance import Estimator
 
-    est = Estimator(1.0, [0.01, 0.01, 0.02], 0.01)
+    est = Estimator(1.0, [0.01, 0.01, 0.02], 0.01, backend=backend)
     args = {"v_W": np.zeros(3), "eta": np.zeros(3), "thrust_prev": 9.8, "omega_B": np.zeros(3)} | kw
     with pytest.raises(ValueError):  # InputError, or SingularityError at theta = 90 deg
         est.step(args.pop("v_W"), args.pop("eta"), args.pop("thrust_prev"), **args)

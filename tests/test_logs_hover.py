@@ -375,3 +375,34 @@ def test_aliases_are_unambiguous_between_roles():
         for n in names:
             assert n.lower() not in seen, (n, role, seen.get(n.lower()))
             seen[n.lower()] = role
+
+
+def test_rotor_speeds_matched_to_fitted_commands_carry_the_fits_notes_and_uncertainty(tmp_path, capsys):
+    """The shipped CSV sample without its hover_thrust column: the thrust comes from the rotor speeds,
+    matched to the commands, whose hover thrust is then fitted on hover windows (and so absorbs the
+    payload's steady weight). That is said, with the fit's windows and the vertical force's uncertainty
+    column, as when the thrust is taken from the commands themselves."""
+    from importlib import resources
+
+    src = resources.files("vtol_impedance.logs") / "samples" / "flight.csv"
+    lines = src.read_text().splitlines()
+    head = lines[0].split(",")
+    k = head.index("hover_thrust")
+    (tmp_path / "nohover.csv").write_text(
+        "\n".join(",".join(c for i, c in enumerate(row.split(",")) if i != k) for row in lines) + "\n"
+    )
+    rc = main(["estimate", str(tmp_path / "nohover.csv"), "--vehicle", "pelican", "--out", str(tmp_path / "o"),
+               "--no-plots"])  # fmt: skip
+    err, out = capsys.readouterr()[::-1]
+    assert rc == 0 and "rotor speeds" in err
+    assert "the commands' calibration: hover window" in err and "vertical force uncertainty" in out
+    assert "fz_W_N_hover_sd" in (tmp_path / "o" / "wrench.csv").read_text().splitlines()[0].split(",")
+    # the same column present but empty is said to be unused, not dropped in silence
+    (tmp_path / "nan.csv").write_text(
+        "\n".join(row if j == 0 else ",".join("nan" if i == k else c for i, c in enumerate(row.split(",")))
+                  for j, row in enumerate(lines)) + "\n"
+    )  # fmt: skip
+    rc = main(["estimate", str(tmp_path / "nan.csv"), "--vehicle", "pelican", "--out", str(tmp_path / "n"),
+               "--no-plots"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 0 and "hover_thrust column holds no value" in err

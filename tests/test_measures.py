@@ -14,12 +14,19 @@ from vtol_impedance.sim import Result
 DT = 0.01
 
 
-def _result(t: np.ndarray, labels: list[str], scenario: dict, window: list[float], **signals: np.ndarray) -> Result:
-    """A result with zero traces except ``signals`` (``(B, N, 3)`` each)."""
+def _result(t: np.ndarray, labels: list[str], scenario: dict, window: list[float], flown: list | None = None,
+            **signals: np.ndarray) -> Result:  # fmt: skip
+    """A result with zero traces except ``signals`` (``(B, N, 3)`` each); ``flown``: the disturbances as
+    flown (``config["disturbances"]``, every field filled in), if given."""
     B, N = len(labels), len(t)
-    data = {k: np.zeros((B, N, 3)) for k in ("p_W", "v_W", "p_ref_W", "v_ref_W", "f_ext_W", "f_hat_W", "f_lumped_W")}
+    data = {k: np.zeros((B, N, 3)) for k in ("p_W", "v_W", "p_ref_W", "v_ref_W", "f_ext_W", "f_hat_W", "f_lumped_W",
+                                             "eta", "omega_B", "tau_lumped_eta")}  # fmt: skip
+    data["psi_ref"] = np.zeros((B, N))
     data.update(signals)
-    return Result(t, labels, data, {"scenario": scenario, "window": window}, [None] * B)
+    config = {"scenario": scenario, "window": window}
+    if flown is not None:
+        config["disturbances"] = flown
+    return Result(t, labels, data, config, [None] * B)
 
 
 def test_a_push_gives_back_the_impedance_that_answered_it():
@@ -45,6 +52,27 @@ def test_a_push_gives_back_the_impedance_that_answered_it():
     assert float(row[1]) == pytest.approx(100 * np.abs(e[during]).max(), abs=0.01)
     assert float(row[2]) == pytest.approx(100 * np.abs(e[after]).mean(), abs=0.01)
     assert [float(v) for v in row[3:]] == pytest.approx([M, D, K], rel=0.03)
+
+
+def test_the_measures_read_the_disturbances_as_flown_with_their_defaults():
+    """A scenario file may leave out a push's ``t_on`` (5 s by default): the push is measured where it was
+    flown (from ``config["disturbances"]``), not refused for a missing key; a twist that falls after a
+    shortened flight leaves the twist table out instead of failing on an empty selection."""
+    from vtol_impedance.analysis.measures import twist_measures
+    from vtol_impedance.sim.disturbances import Push
+
+    t = np.arange(0.0, 10.0, DT)
+    p = np.zeros((1, len(t), 3))
+    p[0, :, 0] = np.where((t >= 5.0) & (t <= 6.0), 0.03, 0.0)  # 3 cm along the push while it acts
+    raw = [{"kind": "push", "force_W": [2.0, 0.0, 0.0]}]
+    flown = [Push(force_W=(2.0, 0.0, 0.0)).to_dict()]
+    assert flown[0]["t_on"] == 5.0
+    _, (row,) = push_measures(_result(t, ["PD+C"], {"disturbances": raw}, [0.0, 10.0], flown, p_W=p))
+    assert float(row[1]) == pytest.approx(3.0)
+    twist = [Push(force_W=(0.0, 0.0, 0.0), torque_B=(0.0, 0.0, 0.5), t_on=4.0).to_dict()]
+    short = np.arange(0.0, 2.0, DT)
+    assert twist_measures(_result(short, ["comply"], {"disturbances": twist}, [0.0, 2.0], twist)) is None
+    assert twist_measures(_result(t, ["PD+C"], {"disturbances": twist}, [0.0, 10.0], twist)) is not None
 
 
 def test_a_wall_held_with_a_known_force():

@@ -88,6 +88,11 @@ def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _vector3(name: str, value: object, limit: float) -> np.ndarray:
+    """One finite, plausible 3-vector (a batch of them, ``(1, 3)``, is refused: one sample is one vehicle's)."""
+    return _plausible(name, _vec_input(name, value, ()), limit)
+
+
 def _plausible(name: str, value: np.ndarray, limit: float) -> np.ndarray:
     """Refuse a finite value beyond any vehicle's (it would overflow the arithmetic and poison the state)."""
     if np.any(np.abs(value) > limit):
@@ -467,19 +472,19 @@ class Estimator:
     ) -> EstimatorOutput:
         """One sample: measured world velocity (m/s, NED), ZYX Euler angles (rad) and exactly one of their
         rates ``eta_dot`` or the gyro's ``omega_B`` (rad/s, body FRD)."""
-        v_W = _plausible("v_W", as_finite("v_W", v_W, (3,)), 1e4)
-        eta = _plausible("eta", as_finite("eta", eta, (3,)), 1e3)
+        v_W = _vector3("v_W", v_W, 1e4)
+        eta = _vector3("eta", eta, 1e3)
         _check_attitude(eta)
         if (eta_dot is None) == (omega_B is None):
             raise InputError("Estimator.step needs exactly one of eta_dot (Euler rates) or omega_B (gyro body rates)")
         if eta_dot is not None:
-            eta_dot = _plausible("eta_dot", as_finite("eta_dot", eta_dot, (3,)), 1e4)
+            eta_dot = _vector3("eta_dot", eta_dot, 1e4)
         else:
-            omega_B = _plausible("omega_B", as_finite("omega_B", omega_B, (3,)), 1e4)
+            omega_B = _vector3("omega_B", omega_B, 1e4)
             eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B)
         u = scalar("thrust_prev (N)", thrust_prev, lo=0.0, hi=1e6)  # rotors push, never pull
         no_moment = tau_B_prev is None
-        tau = np.zeros(3) if no_moment else _plausible("tau_B_prev", as_finite("tau_B_prev", tau_B_prev, (3,)), 1e6)
+        tau = np.zeros(3) if no_moment else _vector3("tau_B_prev", tau_B_prev, 1e6)
         if self.backend == "compiled":
             o = self._out
             self._k.sample_one(

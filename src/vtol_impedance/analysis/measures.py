@@ -26,7 +26,12 @@ from .metrics import window_mask
 
 
 def _dist(result: Result, kind: str) -> list[dict[str, Any]]:
-    return [d for d in result.config.get("scenario", {}).get("disturbances", []) if d.get("kind") == kind]
+    """The flown disturbances of ``kind``, every field present (the defaults a scenario file may leave out
+    filled in: ``config["disturbances"]``); an older result without them: the scenario's own tables."""
+    flown = result.config.get("disturbances")
+    if flown is None:
+        flown = result.config.get("scenario", {}).get("disturbances", [])
+    return [d for d in flown if d.get("kind") == kind]
 
 
 def _fit(t: np.ndarray, e: np.ndarray, ed: np.ndarray, f: np.ndarray, sel: np.ndarray) -> np.ndarray:
@@ -131,6 +136,8 @@ def twist_measures(result: Result) -> tuple[list[str], list[list[str]]] | None:
         return None
     t0 = float(twists[0]["t_on"])
     t = result.t
+    if not np.any(t >= t0):  # the twist falls after the flight (a shortened run): nothing to measure
+        return None
     head = ["controller", "yaw yield [rad]", "yaw left at the end [rad]", "M_o [kg m^2]", "D_o [N m s/rad]",
             "K_o [N m/rad]"]  # fmt: skip
     rows = []

@@ -128,7 +128,7 @@ class EstimatorParams:
             object.__setattr__(self, name, scalar(f"estimator {name}", getattr(self, name), lo=0.0, hi=MAX_DELAY_S))
         object.__setattr__(self, "wn", _six("estimator wn", self.wn))
         object.__setattr__(self, "zeta", _six("estimator zeta", self.zeta))
-        if not isinstance(self.order, int | np.integer) or self.order < 1:
+        if isinstance(self.order, bool | np.bool_) or not isinstance(self.order, int | np.integer) or self.order < 1:
             raise InputError(f"estimator order must be an integer >= 1, got {self.order!r}")
         if self.prototype not in _PROTOTYPES:
             raise InputError(f"estimator prototype must be one of {_PROTOTYPES}, got {self.prototype!r}")

@@ -50,7 +50,7 @@ from ..conventions import G
 from ..errors import InputError
 from ..model.kinematics import quat_from_euler, quat_to_rotation
 from .frames import ANGLE_UNITS, BODIES, QUAT_DIRECTIONS, QUAT_ORDERS, TIME_UNITS, WORLDS, Conventions
-from .timeseries import RawLog, Signal, clean, typical_period
+from .timeseries import DROPOUT_PERIODS, RawLog, Signal, clean, typical_period
 
 MODES = ("check", "auto", "unchecked")
 EVAL_RATE_HZ = 50.0
@@ -208,6 +208,31 @@ def _windows(sigs: list[Signal], lo: float, hi: float, rate: float) -> list[np.n
     return [s0 + np.arange(int(chunk * rate)) / rate for s0 in np.sort(starts[best])]
 
 
+def _split_at_dropouts(grids: list[np.ndarray], sigs: list[Signal], rate: float) -> list[np.ndarray]:
+    """The grids cut where a signal drops out (a step over :data:`~.timeseries.DROPOUT_PERIODS` of its
+    typical period, as the resampler counts a dropout): interpolating across one invents a motion that
+    contradicts the other signals, and a correct log with a gap in an agile stretch would read as a
+    wrong column. Pieces shorter than a second are left out."""
+    cuts = []
+    for s in sigs:
+        if len(s.t) > 1:
+            d = np.diff(s.t)
+            k = np.flatnonzero(d > DROPOUT_PERIODS * typical_period(s.t))
+            cuts.extend(zip(s.t[k], s.t[k + 1], strict=True))
+    if not cuts:
+        return grids
+    out = []
+    for g in grids:
+        bad = np.zeros(len(g), dtype=bool)
+        for a, b in cuts:
+            bad |= (g > a) & (g < b)
+        edges = np.flatnonzero(np.diff(np.concatenate([[1], bad.astype(np.int8), [1]])))  # starts, ends of good runs
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a >= max(rate, 3):
+                out.append(g[a:b])
+    return out
+
+
 def evidence(raw: RawLog) -> Evidence:
     """Score one reading of a log (world NED / body FRD, SI) against physics (module docstring)."""
     from ..errors import instance
@@ -241,7 +266,13 @@ def evidence(raw: RawLog) -> Evidence:
     flip = np.cumprod(np.where(np.sum(q_att[1:] * q_att[:-1], -1) < 0, -1.0, 1.0))
     q_att[1:] *= flip[:, None]
     dt = 1.0 / rate
-    for grid in _windows(sigs, lo, hi, rate):
+    grids = _split_at_dropouts(_windows(sigs, lo, hi, rate), sigs, rate)
+    if not grids:
+        nan = float("nan")
+        return Evidence(
+            nan, np.full(3, nan), 0.0, 1.0, 0.0, 1.0, np.full(2, nan), np.zeros(2), rates, time_ok, span, jump
+        )
+    for grid in grids:
         q = np.stack([np.interp(grid, att.t, q_att[:, j]) for j in range(4)], -1)
         q /= np.linalg.norm(q, axis=-1, keepdims=True)
         R = quat_to_rotation(q)

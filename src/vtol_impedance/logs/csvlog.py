@@ -343,6 +343,8 @@ def table_to_raw(
             elif len(h.t) == 1:
                 raw_kw["hover_thrust"] = float(h.values[0, 0])
                 raw_kw["hover_source"] = "the hover_thrust column (one value)"
+            else:
+                notes.append("the hover_thrust column holds no value (every cell empty or NaN): not used")
     torque = None
     if {"tx", "ty", "tz"} <= set(c):
         torque = _signal("torque", f"tx, ty, tz [N m] ({conv.body.upper()})", t, [c["tx"], c["ty"], c["tz"]], True)

@@ -610,8 +610,15 @@ def commands_in_si(
         rotors.check_speed_unit(w, air, unit, raw.rotor_speed.source)
         cmd_N = None
         if thrust_coefficient is None and hover_segment is None and flight.thrust is not None:
+            cmd_info: dict[str, Any] = {}
+            cmd_notes: list[str] = []
             try:  # the commands' own calibration (newtons, or the hover map), to transfer to the rotors
-                cmd_N, _ = _thrust_from_commands(flight, mass, hover_thrust, None, {}, [])
+                cmd_N, _ = _thrust_from_commands(flight, mass, hover_thrust, None, cmd_info, cmd_notes)
+                # what that calibration rests on (a hover thrust fitted on hover windows absorbs a steady vertical
+                # force) and its uncertainty carry over to the rotors matched to it
+                notes.extend(f"the commands' calibration: {n}" if not n.startswith("WARNING") else n for n in cmd_notes)
+                if "hover_thrust" in cmd_info:
+                    info["hover_thrust"] = cmd_info["hover_thrust"]
             except InputError as exc:
                 cmd_N = None
                 notes.append(
@@ -681,6 +688,12 @@ def commands_in_si(
     if warn:
         notes.append(f"WARNING: {warn}")
     if tau_rotors is not None:
+        if torque_scale is not None:  # not ignored in silence
+            raise InputError(
+                "a torque scale converts torque commands; this estimate takes the moment from the rotor speeds "
+                "through the rotor geometry (leave the scale out, or take the thrust and torque from the commands: "
+                "--thrust-from commands)"
+            )
         info["torque"] = "rotor speeds x k_T through the rotor geometry"
         return thrust, tau_rotors, info, notes
     tau = _torque_from_commands(flight, raw, info, notes, torque_scale, weight)
