@@ -210,14 +210,15 @@ def _windows(sigs: list[Signal], lo: float, hi: float, rate: float) -> list[np.n
 
 def _split_at_dropouts(grids: list[np.ndarray], sigs: list[Signal], rate: float) -> list[np.ndarray]:
     """The grids cut where a signal drops out (a step over :data:`~.timeseries.DROPOUT_PERIODS` of its
-    typical period, as the resampler counts a dropout): interpolating across one invents a motion that
-    contradicts the other signals, and a correct log with a gap in an agile stretch would read as a
-    wrong column. Pieces shorter than a second are left out."""
+    typical period, as the resampler counts a dropout, and longer than the checks' own averaging,
+    :data:`SMOOTH_S`): interpolating across one invents a motion that contradicts the other signals, and a
+    correct log with a gap in an agile stretch would read as a wrong column. Pieces shorter than a second
+    are left out."""
     cuts = []
     for s in sigs:
         if len(s.t) > 1:
             d = np.diff(s.t)
-            k = np.flatnonzero(d > DROPOUT_PERIODS * typical_period(s.t))
+            k = np.flatnonzero(d > max(DROPOUT_PERIODS * typical_period(s.t), SMOOTH_S))
             cuts.extend(zip(s.t[k], s.t[k + 1], strict=True))
     if not cuts:
         return grids
