@@ -135,6 +135,7 @@ for i, (extra, msg) in enumerate(
         (("--mass", "0"), "mass"),
         (("--mass", "nan"), "mass"),
         (("--mass", "inf"), "mass"),
+        (("--mass", "1e-9"), "mass"),  # a unit slip: the fits would be confident nonsense
         (("--inertia", "1,2"), "--inertia"),
         (("--inertia", "a,b,c"), "--inertia"),
         (("--inertia", "-0.01,0.01,0.02"), "inertia"),
@@ -412,6 +413,8 @@ api("EstimatorParams-order-bool", "order", lambda d: estimator.EstimatorParams(o
 api("EstimatorParams-order-bool-zeta", "order", lambda d: estimator.EstimatorParams(order=True))
 api("simulate-unknown-scenario", "case-z", lambda d: scenarios.simulate("case-z"))
 api("simulate-unknown-controller", "lqr", lambda d: scenarios.simulate("case-a-payload", variants=["lqr"]))
+api("simulate-log-underscore", "decimate:5_0", lambda d: scenarios.simulate("case-a-payload", log="decimate:5_0"))
+api("simulate-log-space", "decimate: 5", lambda d: scenarios.simulate("case-a-payload", log="decimate: 5"))
 api("equivalent_rotor_tau-negative", "tau", lambda d: robust.equivalent_rotor_tau(-0.01, 0.02))
 api("margins-a-string", "loop", lambda d: robust.margins("loop"))
 api("designed_controller-Kp-two", "Kp", lambda d: robust.designed_controller(_quad(), "pdc", [16.0, 16.0], 12.0))

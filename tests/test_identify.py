@@ -102,6 +102,8 @@ def test_bad_inputs(tmp_path):
         identify_file(samples.path("csv"), mass=samples.MASS_KG, tau_bounds=(0.1, 0.05))
     with pytest.raises(InputError, match="tau_bounds"):
         identify_file(samples.path("csv"), mass=samples.MASS_KG, tau_bounds=0.1)
+    with pytest.raises(InputError, match="mass"):  # 1e-9 kg gave a rotor lag with a zero-width interval
+        identify_file(samples.path("csv"), mass=1e-9)
     t0 = samples.CLOCK_OFFSET_S["csv"]
     with pytest.raises(InputError, match="airborne samples"):  # 1.5 s of flight: too short to fit
         identify_file(samples.path("csv"), mass=samples.MASS_KG, t_start=t0 + 5.0, t_end=t0 + 6.5)

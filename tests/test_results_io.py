@@ -126,3 +126,69 @@ def test_a_reference_below_the_ground_is_refused_before_the_flight():
         run_closed_loop(PlantParams(load_preset(), ground=True), ctrl, traj, 2.0, start_W=np.array([0, 0, -1.0]))
     r = run_closed_loop(PlantParams(load_preset(), ground=False), ctrl, traj, 1.5, start_W=np.array([0, 0, -1.0]))
     assert r.failures == [None]
+
+
+@pytest.mark.parametrize(
+    "window, message",
+    [((0.4, 0.1), "t0 <= t1"), ((5.0, 6.0), "fewer than two samples"), ((0.1, 0.4, 99.0), "window must be"),
+     ("0.1,0.4", "window must be")],
+)  # fmt: skip
+def test_a_window_given_for_the_metrics_is_checked_not_widened(short_result, window, message):
+    """A caller's window reversed, outside the run or of three numbers is refused by name: the metrics of
+    the whole run under another window's name would be a wrong number. A proper one narrows the metrics
+    to its samples (their count is checked against the log)."""
+    from vtol_impedance.analysis import compute_metrics
+
+    with pytest.raises(InputError, match=message):
+        compute_metrics(short_result, window)
+    inside = compute_metrics(short_result, (0.1, 0.4))
+    whole = compute_metrics(short_result, (0.0, 0.5))
+    e = np.linalg.norm(short_result.e_p[0], axis=-1)
+    sel = (short_result.t >= 0.1) & (short_result.t <= 0.4)
+    assert inside[0]["rms_ep_cm"] == pytest.approx(100 * np.sqrt(np.mean(e[sel] ** 2)))
+    assert whole[0]["rms_ep_cm"] == pytest.approx(100 * np.sqrt(np.mean(e**2)))
+
+
+def test_foreign_headers_and_unkeepable_values_are_refused_by_name(short_result, tmp_path):
+    """Every way a file can be a result's look-alike gives an InputError (never a TypeError, KeyError or
+    AttributeError), and a save that cannot be kept writes nothing; a NumPy scalar in the config is kept."""
+    import json
+
+    from vtol_impedance.analysis import compute_metrics
+
+    p = short_result.save(tmp_path / "r.npz")
+    np.save(tmp_path / "a.npy", np.zeros(3))
+    with pytest.raises(InputError, match="not a readable"):
+        Result.load(tmp_path / "a.npy")
+    with pytest.raises(InputError, match="path"):
+        Result.load(5)
+    good = json.loads(str(np.load(p)["header"]))
+    for name, header in [("list", [1, 2]), ("nolabels", {k: v for k, v in good.items() if k != "labels"}),
+                         ("labels5", good | {"labels": 5}), ("badfail", good | {"failures": [{"time": 1.0}, None]}),
+                         ("badmetrics", good | {"metrics": 3})]:  # fmt: skip
+        with np.load(p) as z:
+            arrays = {k: z[k] for k in z.files if k != "header"}
+        np.savez(tmp_path / f"{name}.npz", header=np.array(json.dumps(header)), **arrays)
+        with pytest.raises(InputError):
+            Result.load(tmp_path / f"{name}.npz")
+    lacking = Result(short_result.t, short_result.labels, {k: v for k, v in short_result.data.items() if k != "p_ref_W"},
+                     short_result.config, short_result.failures)  # fmt: skip
+    with pytest.raises(InputError, match="p_ref_W"):
+        compute_metrics(lacking)
+    kept = Result(short_result.t, short_result.labels, short_result.data, {"note": np.float32(1.5)},
+                  short_result.failures)  # fmt: skip
+    assert Result.load(kept.save(tmp_path / "f32.npz")).config["note"] == 1.5
+    odd = Result(short_result.t, short_result.labels, short_result.data, {"note": object()}, short_result.failures)
+    with pytest.raises(InputError, match="object"):
+        odd.save(tmp_path / "odd.npz")
+    assert not (tmp_path / "odd.npz").exists()
+    with pytest.raises(InputError, match="folder"):
+        short_result.save(tmp_path)
+
+
+def test_a_numpy_integer_decimation_is_taken_as_the_whole_number():
+    """``log=np.int64(5)`` (a count computed with NumPy) is ``log=5``, not refused."""
+    spec = set_value(get("case-b-fan"), "duration", 0.2)
+    a = simulate(spec, ["pd"], log=np.int64(5))
+    b = simulate(spec, ["pd"], log=5)
+    assert a.t.tolist() == b.t.tolist() and len(a.t) == 4

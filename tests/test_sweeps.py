@@ -302,6 +302,23 @@ def test_tune_cli_writes_a_scenario_that_runs(tmp_path, capsys):
     assert "control.Kp" in capsys.readouterr().err
 
 
+def test_a_combination_no_scenario_takes_is_a_failed_trial_not_a_stop(tmp_path, capsys):
+    """Every corner of the box is valid, but a 20 Hz loop with an attitude filter faster than about 63 rad/s
+    is not (wn Ts >= pi): such trials fail with the reason recorded, and the search goes on to a best that
+    flies (it stopped with exit 2 after flying the first trials, writing nothing)."""
+    spec = tmp_path / "combo.toml"
+    spec.write_text(
+        'name = "c"\nbase = "case-a-payload"\ncontroller = "pdc"\ntrials = 8\nseed = 3\npopulation = 1\n'
+        "[set]\nduration = 1.0\n"
+        '[search]\n"control.rate" = [20, 500]\n"control.attitude_filter_wn" = {min = 10.0, max = 100.0}\n'
+    )
+    out = tmp_path / "tune"
+    assert main(["tune", str(spec), "--out", str(out), "--quiet"]) == 0
+    trials = (out / "trials.csv").read_text()
+    assert "invalid: " in trials and "attitude_filter_wn" in trials
+    assert (out / "best.toml").exists()
+
+
 def test_tuning_population_is_the_same_for_every_trial():
     t = tuning_from_dict({"name": "t", "base": "case-a-payload", "population": 3, "seed": 5,
                           "search": {"control.Kp": {"min": 8.0, "max": 30.0}},

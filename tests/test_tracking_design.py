@@ -74,6 +74,7 @@ def test_the_command_prints_the_table_and_writes_a_scenario_that_flies_it(tmp_pa
     assert main(["design", "--cases", "gust", "--out", str(out), "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "printed gains" in text and "designed" in text and "--set control.reference_timing=true" in text
+    assert "fly it: vtol-impedance compare gust --set vehicle=pelican " in text  # the case and vehicle designed for
     from vtol_impedance.scenarios import load_toml
 
     spec = load_toml(out)

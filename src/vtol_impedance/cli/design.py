@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from typing import Any
 
@@ -47,7 +48,8 @@ def cmd_design(args: argparse.Namespace) -> int:
     for note in d.notes:
         print(f"note: {note}")
     flags = " ".join(f"--set {k}={json.dumps(v).replace(' ', '')}" for k, v in d.settings.items())
-    print(f"fly it: vtol-impedance compare gust {flags}")
+    vehicle = shlex.quote(f"vehicle={args.vehicle}")  # the gains are this vehicle's, for the first case designed for
+    print(f"fly it: vtol-impedance compare {cases[0]} --set {vehicle} {flags}")
     if args.out:
         lines = ["# written by vtol-impedance design: the tuning for a trajectory objective; use it as a scenario",
                  f"# file's settings (vtol-impedance run FILE) with a base scenario: base = \"{cases[0]}\"",

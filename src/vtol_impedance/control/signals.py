@@ -112,8 +112,10 @@ class Reference(_ReferenceFields):
     ``comply`` (0..1 per world axis ``[x, y, z]``, or per world axis and Euler angle ``[x, y, z, roll,
     pitch, yaw]``; with three the attitude rejects) chooses the interaction behaviour of a controller
     built with ``variant="comply"``: 0 rejects the external force or moment (PD+C, stiff), 1 yields to
-    it with the set impedance (``M_d, D_d, K_d``; ``M_o, D_o, K_o``), values in between blend the two (a
-    switch ramps through them, so the commands never jump). Other variants ignore it.
+    it with the set impedance (``M_d, D_d, K_d``; ``M_o, D_o, K_o``), values in between blend the two. The
+    controller takes the fractions as given, tick by tick: a caller that switches should ramp through the
+    values in between, as the scenarios' trajectories do (``blend_s``), since a step from 0 to 1 steps the
+    commands. Other variants ignore it.
 
     Everything but ``p_W`` defaults to zero, so ``Reference(np.array([0, 0, -1.0]))`` holds a point 1 m up
     with the nose north. Built with real numbers of these shapes, or refused with an

@@ -222,6 +222,9 @@ def _vehicle(
 
 #: Heaviest vehicle a mass is accepted for, kg (the largest multirotors carry a few hundred).
 MAX_MASS_KG = 1e4
+#: Lightest, kg: a fifth of the smallest flying multirotors (nano quadrotors weigh 20-30 g). Below it a
+#: mass is a unit slip (grams read as tonnes), and the fits it scales degenerate into confident nonsense.
+MIN_MASS_KG = 0.005
 
 
 def estimate_file(
@@ -252,7 +255,7 @@ def estimate_file(
     path_like("path", path)
     rate_hz = scalar("resampling rate (rate_hz, Hz)", rate_hz, lo=1.0, hi=10000.0)
     if mass is not None:
-        mass = scalar("mass (kg)", mass, lo=0.0, hi=MAX_MASS_KG, lo_open=True)
+        mass = scalar("mass (kg)", mass, lo=MIN_MASS_KG, hi=MAX_MASS_KG)
     airframe_option(airframe)
     # values checked before the file is read: a NaN window or a 1e30 kg vehicle is a typing error
     if t_start is not None:
@@ -262,7 +265,7 @@ def estimate_file(
     if t_start is not None and t_end is not None and not t_end > t_start:
         raise InputError(f"the window must end after it starts, got start {t_start:g} s and end {t_end:g} s")
     if mass is not None:
-        mass = scalar("mass (kg)", mass, lo=0.0, hi=MAX_MASS_KG, lo_open=True)
+        mass = scalar("mass (kg)", mass, lo=MIN_MASS_KG, hi=MAX_MASS_KG)
     if estimate_options.get("hover_thrust") is not None:
         scalar("hover thrust", estimate_options["hover_thrust"], lo=0.0, hi=1.0, lo_open=True)
     raw, rep = read_any(path, **(read_options or {}))

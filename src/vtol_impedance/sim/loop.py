@@ -241,13 +241,11 @@ def _parse_log(log: str | int) -> int:
         return 1
     if log == "metrics":
         return 0
-    if isinstance(log, int) and not isinstance(log, bool) and log >= 1:
-        return log
+    if isinstance(log, int | np.integer) and not isinstance(log, bool | np.bool_) and log >= 1:
+        return int(log)
     if isinstance(log, str) and log.startswith("decimate:"):
-        try:
-            k = int(log.split(":", 1)[1])
-        except ValueError:
-            k = 0
+        digits = log.split(":", 1)[1]
+        k = int(digits) if digits.isascii() and digits.isdigit() else 0  # not int(): it reads "5_0" and " 5"
         if k >= 1:
             return k
     raise InputError(f"log must be 'full', 'metrics', 'decimate:K' or a whole number K >= 1, got {log!r}")
@@ -351,7 +349,8 @@ def run_closed_loop(
     data = rows_to_data(rows, setup.PA.spins.shape[-1]) if setup.dec else {}
     for i, m in enumerate(metrics):
         m["controller"] = labels[i]
-    return Result(t_log, labels, data, cfg, failures, metrics if setup.dec == 0 else None)
+    # a decimated run keeps the metrics taken at every tick: every K-th sample would give other numbers
+    return Result(t_log, labels, data, cfg, failures, metrics if setup.dec != 1 else None)
 
 
 def _checked_inputs(
@@ -728,11 +727,12 @@ def _run_numpy(s: _Setup, progress: ProgressFn | None, plant: Any = None):
             progress((k + 1) / s.N)
 
     failures = _failures(fail_code, fail_time)
-    if s.dec == 0:
-        data = rows_to_data(logs, PA.spins.shape[-1])
-        res = Result(np.arange(s.N) * s.Ts, [""] * B, data, {"window": list(s.window[:2])}, failures)
-        return logs[:, :0], compute_metrics(res), failures
-    return logs[:, :: s.dec], [], failures
+    if s.dec == 1:
+        return logs, [], failures
+    # metrics-only or decimated: the window metrics at the full control rate, as the compiled engine's
+    data = rows_to_data(logs, PA.spins.shape[-1])
+    res = Result(np.arange(s.N) * s.Ts, [""] * B, data, {"window": list(s.window[:2])}, failures)
+    return logs[:, :: s.dec] if s.dec else logs[:, :0], compute_metrics(res), failures
 
 
 def _reference(r: np.ndarray, aligned: bool = False) -> Reference:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, as_finite, instance
+from ..errors import InputError, as_finite, instance, path_like
 from ..io import write_with
 from ..records import SIGNALS, rows_to_data, signal_shape
 
@@ -73,7 +73,8 @@ class Result:
     ``labels`` name each vehicle (for example the controller variant); ``failures[b]`` is ``None`` or a
     dict with the ``time`` and ``reason`` at which vehicle ``b`` was stopped; ``config`` is the exact
     configuration (scenario, controllers, plant, sensors, seed) that produced the run. A run logged with
-    ``log="metrics"`` has no traces (``data`` is empty) and carries ``metrics`` instead.
+    ``log="metrics"`` has no traces (``data`` is empty) and carries ``metrics`` instead; one logged with
+    ``log="decimate:K"`` carries both (the metrics taken at every control tick).
     """
 
     t: np.ndarray
@@ -120,36 +121,71 @@ class Result:
             "signals": {k: {"unit": SIGNALS[k][1], "meaning": SIGNALS[k][2]} for k in self.data if k in SIGNALS},
         }
         arrays = {f"data__{k}": v for k, v in self.data.items()}
+        text = json.dumps(header, default=_plain)  # before the file is opened: a value JSON cannot hold writes nothing
+        target = path_like("path", path)
+        if target.is_dir():
+            raise InputError(f"{target} is a folder; give the result file's path (for example {target / 'result.npz'})")
 
         def writer(fh) -> None:
-            np.savez_compressed(fh, t=self.t, header=np.array(json.dumps(header)), **arrays)
+            np.savez_compressed(fh, t=self.t, header=np.array(text), **arrays)
 
-        return write_with(path, writer)
+        return write_with(target, writer)
 
     @classmethod
     def load(cls, path: str | Path) -> Result:
         """Read a file written by :meth:`save`; a corrupt or foreign file raises :class:`InputError`."""
-        path = Path(path)
+        path = path_like("path", path)
         try:
-            with np.load(path, allow_pickle=False) as z:
+            z = np.load(path, allow_pickle=False)
+            if not isinstance(z, np.lib.npyio.NpzFile):  # a .npy array: not a result
+                raise ValueError("a single array, not a result archive")
+            with z:
                 header = json.loads(str(z["header"]))
                 t = z["t"]
                 data = {k[6:]: z[k] for k in z.files if k.startswith("data__")}
         except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, EOFError) as exc:
             raise InputError(f"{path} is not a readable vtol-impedance result file: {exc}") from exc
+        if not isinstance(header, dict):
+            raise InputError(f"{path} is not a vtol-impedance result file: its header is not a table")
         if header.get("schema") != SCHEMA_VERSION:
             raise InputError(f"{path} has result schema {header.get('schema')}, expected {SCHEMA_VERSION}")
-        B = len(header["labels"])
+        labels, config, failures, metrics = (header.get(k) for k in ("labels", "config", "failures", "metrics"))
+        if not (isinstance(labels, list) and isinstance(config, dict) and isinstance(failures, list)):
+            raise InputError(f"{path}: the header's labels, config or failures are missing or of the wrong kind")
+        for f in failures:
+            if f is not None and not (isinstance(f, dict) and {"time", "reason"} <= set(f)):
+                raise InputError(f"{path}: a failure must be null or have a time and a reason, got {f!r:.80}")
+        if metrics is not None and not (isinstance(metrics, list) and all(isinstance(m, dict) for m in metrics)):
+            raise InputError(f"{path}: the metrics must be a list of tables, got {metrics!r:.80}")
+        B = len(labels)
         for k, v in data.items():
             if v.shape[:2] != (B, len(t)):
                 raise InputError(f"{path}: signal {k} has shape {v.shape}, expected ({B}, {len(t)}, ...)")
-        return cls(t, header["labels"], data, header["config"], header["failures"], header.get("metrics"))
+        return cls(t, labels, data, config, failures, metrics)
+
+
+def _plain(value: Any) -> Any:
+    """A NumPy scalar or array in a result's header as plain JSON; anything else is refused by name."""
+    if isinstance(value, np.generic | np.ndarray):
+        return value.tolist()
+    raise InputError(f"the result's header holds a {type(value).__name__} ({value!r:.60}), which a file cannot keep")
 
 
 def _check(result: Result, window: Any) -> None:
+    """A window given by the caller must be ``(t0, t1)`` with ``t0 <= t1`` and hold two samples of the run
+    (the fallback to the whole run is for the stored window of a run cut short, not for a caller's)."""
     instance("result", result, Result)
-    if window is not None and (isinstance(window, str) or as_finite("window", window).shape[-1:] not in ((2,), (3,))):
+    if window is None:
+        return
+    w = None if isinstance(window, str) else as_finite("window", window)
+    if w is None or w.shape != (2,):
         raise InputError(f"window must be (t0, t1) in seconds, got {window!r}")
+    if w[1] < w[0]:
+        raise InputError(f"window must be (t0, t1) with t0 <= t1, got {window!r}")
+    if np.count_nonzero((result.t >= w[0]) & (result.t <= w[1])) < 2 and len(result.t) > 1:
+        raise InputError(
+            f"window {window!r} holds fewer than two samples of the run ({result.t[0]:g} to {result.t[-1]:g} s)"
+        )
 
 
 def window_mask(result: Result, window: tuple[float, float] | None = None) -> np.ndarray:
@@ -166,18 +202,30 @@ def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
 
 
+_METRIC_SIGNALS = ("p_W", "p_ref_W", "v_W", "v_ref_W", "f_hat_W", "f_lumped_W", "tau_hat_eta", "tau_lumped_eta",
+                   "saturated")  # fmt: skip
+
+
 def compute_metrics(result: Result, window: tuple[float, float] | None = None) -> list[dict[str, Any]]:
     """One row per vehicle: position/velocity error statistics, estimation error, saturation.
 
     ``ss_ep_cm`` is the mean ``|e_p|`` over the last :data:`STEADY_TAIL_S` seconds of the window;
     the estimation error compares the estimate with the lumped wrench the nominal model misses
-    (``f_lumped_W``, ``tau_lumped_eta``). A run logged with ``log="metrics"`` already carries them.
+    (``f_lumped_W``, ``tau_lumped_eta``). A run logged with ``log="metrics"`` or ``"decimate:K"`` already
+    carries them, taken at every control tick over its own window: those are returned (without ``window``),
+    not a recount on every K-th sample, which gives other numbers. Another ``window`` on a decimated run is
+    measured on the samples it kept.
     """
     _check(result, window)
+    if result.metrics is not None and window is None:
+        return [dict(m) for m in result.metrics]
     if not result.data:
         if result.metrics is None:
             raise InputError("the result has neither traces nor metrics")
         return [dict(m) for m in result.metrics]
+    missing = [k for k in _METRIC_SIGNALS if k not in result.data]
+    if missing:
+        raise InputError(f"the result's traces lack {', '.join(missing)}: the metrics need them")
     m = window_mask(result, window)
     t = result.t[m]
     tail = t >= (t[-1] - STEADY_TAIL_S)

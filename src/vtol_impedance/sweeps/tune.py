@@ -278,10 +278,14 @@ def tune(
                 for _, r, _ in ex.map_chunks(sweep, list(range(sweep.n_chunks)), backend, retries=0):
                     for k, v in r.items():
                         rows.setdefault(k, []).extend(v)
-            except DesignError as exc:  # gains no bandwidth keeps stable on some plant: a failed trial, not a stop
+            except (DesignError, InputError) as exc:
+                # gains no bandwidth keeps stable on some plant, or values valid alone that no scenario takes
+                # together (a filter too fast for a control rate, inside the box whose corners were checked):
+                # a failed trial, not a stop after the work has begun
                 cost = float(t.failure_penalty)
+                why = str(exc).split(": ", 1)[-1] if isinstance(exc, DesignError) else f"invalid: {exc}"
                 records.append({**params, "cost": cost, "metric_mean": float("nan"), "failed": sweep.n_flights,
-                                "no_design": str(exc).split(": ", 1)[-1][:200]})  # fmt: skip
+                                "no_design": why[:200]})  # fmt: skip
                 return cost
             cost, parts = trial_cost(t, rows)
             records.append({**params, "cost": cost, **parts, "no_design": ""})
