@@ -283,16 +283,22 @@ def test_optimizer_finds_the_known_optimum_of_a_toy_cost():
     assert again == best  # seeded: the same search
 
 
-def test_tune_cli_writes_a_scenario_that_runs(tmp_path, capsys):
+def _tuned(tmp_path, head: str, rest: str):
+    """The tuning folder of ``tune`` on a case-A tuning of PD+C (``head``: its trials, seed and population;
+    ``rest``: its tables), after checking that the command succeeded."""
     spec = tmp_path / "tune.toml"
-    spec.write_text(
-        'name = "t"\nbase = "case-a-payload"\ncontroller = "pdc"\ntrials = 3\nseed = 1\npopulation = 2\n'
-        "[set]\ntrajectory.hover_duration = 2.0\n"
-        '[search]\n"control.Kp" = {min = 8.0, max = 30.0, log = true}\n'
-        '[spread]\n"payload.mass" = {min = 0.05, max = 0.2}\n'
-    )
+    spec.write_text(f'name = "t"\nbase = "case-a-payload"\ncontroller = "pdc"\n{head}\n{rest}')
     out = tmp_path / "tune"
     assert main(["tune", str(spec), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_tune_cli_writes_a_scenario_that_runs(tmp_path, capsys):
+    out = _tuned(
+        tmp_path, "trials = 3\nseed = 1\npopulation = 2",
+        '[set]\ntrajectory.hover_duration = 2.0\n[search]\n"control.Kp" = {min = 8.0, max = 30.0, log = true}\n'
+        '[spread]\n"payload.mass" = {min = 0.05, max = 0.2}\n',
+    )  # fmt: skip
     best = (out / "best.toml").read_text()
     assert "control.Kp" in best and (out / "trials.csv").read_text().count("\n") == 4
     assert main(["run", str(out / "best.toml"), "--out", str(tmp_path / "run"), "--quiet", "--no-plots"]) == 0
@@ -306,14 +312,11 @@ def test_a_combination_no_scenario_takes_is_a_failed_trial_not_a_stop(tmp_path, 
     """Every corner of the box is valid, but a 20 Hz loop with an attitude filter faster than about 63 rad/s
     is not (wn Ts >= pi): such trials fail with the reason recorded, and the search goes on to a best that
     flies (it stopped with exit 2 after flying the first trials, writing nothing)."""
-    spec = tmp_path / "combo.toml"
-    spec.write_text(
-        'name = "c"\nbase = "case-a-payload"\ncontroller = "pdc"\ntrials = 8\nseed = 3\npopulation = 1\n'
-        "[set]\nduration = 1.0\n"
-        '[search]\n"control.rate" = [20, 500]\n"control.attitude_filter_wn" = {min = 10.0, max = 100.0}\n'
-    )
-    out = tmp_path / "tune"
-    assert main(["tune", str(spec), "--out", str(out), "--quiet"]) == 0
+    out = _tuned(
+        tmp_path, "trials = 8\nseed = 3\npopulation = 1",
+        '[set]\nduration = 1.0\n[search]\n"control.rate" = [20, 500]\n'
+        '"control.attitude_filter_wn" = {min = 10.0, max = 100.0}\n',
+    )  # fmt: skip
     trials = (out / "trials.csv").read_text()
     assert "invalid: " in trials and "attitude_filter_wn" in trials
     assert (out / "best.toml").exists()
