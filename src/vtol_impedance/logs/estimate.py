@@ -358,9 +358,12 @@ def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
         if abs(w["hover"] - med) > tol:
             w["kept"] = False
             w["why"] = f"outlier: {100 * (w['hover'] / med - 1):+.1f} % from the median of the windows"
+    outliers = [w["hover"] for w in wins if w.get("why", "").startswith("outlier")]
     kept = [w for w in wins if w["kept"]]
     h = np.array([w["hover"] for w in kept])
     med = float(np.median(h))
+    if len(outliers) >= 2:  # two groups, not one gust: a payload picked up or dropped, a battery swapped
+        out["second_group"] = {"n": len(outliers), "of": len(outliers) + len(kept), "hover": float(np.median(outliers))}
     if len(h) >= 3:
         spread = 1.4826 * float(np.median(np.abs(h - med)))
     else:
@@ -466,6 +469,8 @@ def _hover_for(
             f"{auto['sd']:.2g} = {100 * auto['sd_rel']:.1f} %)"
         )
         summ.update(sd=auto["sd"], sd_rel=auto["sd_rel"])
+        if "second_group" in auto:
+            summ["second_group"] = auto["second_group"]
         if param is not None:
             summ["ignored"] = f"{raw.hover_source} = {float(raw.hover_thrust):.4g}: its firmware default"
     elif param is not None:
@@ -772,6 +777,16 @@ def _thrust_from_commands(
             f"WARNING: the hover windows' fits spread by {100 * summ['sd_rel']:.1f} % (one standard deviation): the "
             f"vertical force is uncertain by about {weight * summ['sd_rel']:.3g} N at hover (column "
             "fz_W_N_hover_sd). Give --hover-thrust, or --hover-segment on a hover you know was calm"
+        )
+    if "second_group" in summ:
+        g = summ["second_group"]
+        r = g["hover"] / summ["median"]
+        lo, hi = sorted((weight * abs(r - 1), weight * abs(1 / r - 1)))  # whichever group flew the bare vehicle
+        notes.append(
+            f"WARNING: {g['n']} of {g['of']} hover windows agree on another hover thrust, {g['hover']:.4f} "
+            f"({100 * (g['hover'] / summ['median'] - 1):+.1f} % from the {summ['median']:.4f} used): a payload "
+            f"picked up or dropped, or a battery changed, between them? The vertical force is then off by about "
+            f"{lo:.2g}-{hi:.2g} N on one side of the change. Give --hover-segment on a hover you trust (or --hover-thrust)"
         )
     if "ignored" in summ:
         notes.append(f"not used: {summ['ignored']} (never tuned?)")
