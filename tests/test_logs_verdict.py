@@ -299,3 +299,33 @@ def test_the_sample_with_its_velocity_played_backwards_names_the_velocity(tmp_pa
     assert {"horizontal force balance", "vertical force balance"} <= set(failed)
     assert all(t.value > 2 * t.limit for t in failed.values() if "balance" in t.name)
     assert "the velocity, which they share, is the likeliest" in str(exc.value) and "(limit 0.16" in str(exc.value)
+
+
+def test_euler_rates_logged_as_body_rates_are_refused_on_the_axis_that_shows_it():
+    """An attitude rolling and pitching by up to 29 and 23 degrees while yawing at 1 rev/s: the body rates
+    are ``Q(eta) eta_dot`` (eq. (1c)), computed here independently of the checks. Logged as such, every axis
+    agrees; the Euler-angle rates logged in their place differ on roll and pitch by the yaw rate times the
+    tilt, yet the whole score, dominated by the fast yaw, stays under the limit. The axis test refuses it,
+    naming the axis."""
+    from vtol_impedance.logs.checks import evidence
+    from vtol_impedance.logs.timeseries import RawLog, Signal
+    from vtol_impedance.logs.verdict import KIN_LIMIT, _kinematics
+    from vtol_impedance.model.kinematics import euler_rate_matrix_Q, wrap_angle
+
+    t = np.arange(0.0, 30.0, 0.01)
+    eta = np.stack([0.5 * np.sin(1.3 * t), 0.4 * np.sin(0.9 * t + 1.0), wrap_angle(2 * np.pi * t)], -1)
+    eta_dot = np.stack([0.65 * np.cos(1.3 * t), 0.36 * np.cos(0.9 * t + 1.0), np.full_like(t, 2 * np.pi)], -1)
+    omega_B = np.einsum("nij,nj->ni", euler_rate_matrix_Q(eta), eta_dot)
+    still = Signal("velocity", "v", t, np.zeros((len(t), 3)))
+    thrust = Signal("thrust", "u", t, np.full((len(t), 1), MASS * 9.81), hold=True)
+
+    def kin(rates):
+        raw = RawLog(still, Signal("attitude", "eta", t, eta), Signal("rates", "w", t, rates), thrust, None)
+        ev = evidence(raw)
+        return ev, _kinematics(ev)
+
+    ev, right = kin(omega_B)
+    assert right.status == "pass" and right.value < 0.05
+    ev, wrong = kin(eta_dot)
+    assert ev.kin < KIN_LIMIT  # the premise: the whole score alone lets it through
+    assert wrong.status == "fail" and "on body axis" in wrong.detail and wrong.value > KIN_LIMIT

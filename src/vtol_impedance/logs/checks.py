@@ -115,6 +115,10 @@ class Evidence:
     time_ok: bool
     span_s: float = 0.0  # first to last time stamp of the signals
     jump: tuple[float, float] = (0.0, 0.0)  # the longest step between two samples of a signal, and where, s
+    #: per body axis: the kinematic relative residual and the axis's RMS rate, rad/s (the whole score is
+    #: dominated by the axis that turns most: a fast yaw hides roll and pitch rates of another quantity)
+    kin_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    kin_axis_motion: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def score(self) -> float:
@@ -314,7 +318,10 @@ def evidence(raw: RawLog) -> Evidence:
         a_i, m_i = a_hp[:, sl].ravel(), m_hp[:, sl].ravel()
         floor = ACCEL_FLOOR * np.sqrt(len(a_i))
         dyn[i] = 1.0 - float(a_i @ m_i) / (np.linalg.norm(a_i) * np.linalg.norm(m_i) + floor**2 / 4 + 1e-300)
-    return Evidence(kin, kin_gain, kin_motion, rms(w_log), tilt, k, dyn, dyn_motion, rates, time_ok, span, jump)
+    r_log, r_att = np.sqrt(np.mean(w_log**2, 0)), np.sqrt(np.mean(w_att**2, 0))
+    kin_axis = np.sqrt(np.mean((w_log - w_att) ** 2, 0)) / (r_log + r_att + OMEGA_FLOOR)
+    return Evidence(kin, kin_gain, kin_motion, rms(w_log), tilt, k, dyn, dyn_motion, rates, time_ok, span, jump,
+                    kin_axis, np.maximum(r_log, r_att))  # fmt: skip
 
 
 def _strong_symptoms(ev: Evidence) -> bool:
