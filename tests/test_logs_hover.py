@@ -53,24 +53,24 @@ def _velocity(t, cruise):
 PUSH = (22.0, 25.5, 1.0)  # a vertical push (N, NED: down) from 22 to 25.5 s, in one hover window only
 
 
-def _f_ext(t, push=False, pickup=None):
+def _f_ext(t, push=False, pickup=None, wind=0.0):
     """A horizontal gusty force, N (world NED): no vertical component, unless ``push`` (:data:`PUSH`) or
     ``pickup = (t, N)``, a payload's weight from ``t`` on."""
     t = np.asarray(t, float)
     fz = PUSH[2] * ((t >= PUSH[0]) & (t < PUSH[1])) if push else 0.0 * t
     if pickup is not None:
         fz = fz + pickup[1] * (t >= pickup[0])
-    return np.stack([0.3 * np.sin(0.7 * t) + 0.1 * np.sin(2.3 * t), 0.2 * np.sin(0.45 * t), fz], -1)
+    return np.stack([wind + 0.3 * np.sin(0.7 * t) + 0.1 * np.sin(2.3 * t), 0.2 * np.sin(0.45 * t), fz], -1)
 
 
-def _flight(cruise=False, duration=30.0, h_true=H_TRUE, seed=1, push=False, pickup=None):
+def _flight(cruise=False, duration=30.0, h_true=H_TRUE, seed=1, push=False, pickup=None, wind=0.0):
     """``(t, v_W, eta, omega_B, u)`` of a flight by construction (module docstring), with noise."""
     t = np.arange(0.0, duration, 1.0 / RATE)
     d = 1e-5
 
     def thrust_vec(tt):
         a = (_velocity(tt + d, cruise) - _velocity(tt - d, cruise)) / (2 * d)
-        return MASS * G * np.array([0, 0, 1.0]) - MASS * a + _f_ext(tt, push, pickup)
+        return MASS * G * np.array([0, 0, 1.0]) - MASS * a + _f_ext(tt, push, pickup, wind)
 
     def eta_of(tt):
         F = thrust_vec(tt)
@@ -200,6 +200,23 @@ def test_hover_windows_in_two_groups_are_warned_about_not_outvoted(tmp_path):
     single = estimate_file(_px4_old(tmp_path / "push.ulg", _flight(push=True), {}), MASS)
     assert "second_group" not in single.info["hover_thrust"]
     assert not any("hover windows agree" in n for n in single.warnings + single.notes)
+
+
+def test_a_steady_wind_that_tilts_every_hover_still_gives_the_hover_thrust(tmp_path):
+    """A steady 3.5 N wind (30 % of the weight) tilts every hover by 17 degrees: no level window. PX4's
+    default MPC_THR_HOVER (0.5) would have made the thrust 0.72 x the weight; the hovers tilted up to 25
+    degrees give H_TRUE (their vertical balance holds at any tilt), with a warning that translational lift
+    in a real wind may bias it, and the wind is estimated."""
+    wind = 0.3 * MASS * G
+    path = _px4_old(tmp_path / "windy.ulg", _flight(wind=wind), {"MPC_THR_HOVER": 0.5})
+    est = estimate_file(path, MASS)
+    h = est.info["hover_thrust"]
+    assert h.get("windy") and abs(h["median"] - H_TRUE) < 0.01 * H_TRUE
+    assert any("no level hover" in w for w in est.warnings)
+    air = (est.t - est.t[0] > 5.0) & (est.t - est.t[0] < 29.5)
+    assert est.f_W[air, 0].mean() == pytest.approx(wind, abs=0.1) and abs(est.f_W[air, 2].mean()) < 0.1
+    calm = estimate_file(_px4_old(tmp_path / "calm.ulg", _flight(), {"MPC_THR_HOVER": 0.5}), MASS)
+    assert not calm.info["hover_thrust"].get("windy") and not any("no level hover" in w for w in calm.warnings)
 
 
 @pytest.mark.parametrize(

@@ -240,6 +240,11 @@ def fit_hover_thrust(flight: FlightLog, mass: float, segment: Any) -> tuple[floa
 HOVER_MAX_SPEED = 1.0  # m/s: drag at 1 m/s is about 1 % of a small vehicle's weight
 HOVER_MAX_ACCEL = 0.5  # m/s^2
 HOVER_MAX_TILT_DEG = 10.0
+#: A log with no level hover window (a steady wind tilts every hover: 30 % of the weight tilts it 17 deg)
+#: looks again for windows tilted up to this much: the vertical balance holds at any tilt. Fitted there,
+#: with a warning: in a wind a rotor's thrust per command grows (translational lift), so the hover thrust
+#: may read a few per cent low, and the vertical force by that share of the weight.
+HOVER_WINDY_TILT_DEG = 25.0
 HOVER_MIN_S = 2.0
 HOVER_PIECE_S = 5.0
 #: A window's hover thrust is an outlier (named, not used) when it is further from the median of the
@@ -252,7 +257,9 @@ HOVER_SPREAD_WARN = 0.03
 HOVER_PARAMETER_SHARE = 0.05
 
 
-def hover_windows(flight: FlightLog, thrust: np.ndarray | None = None) -> list[tuple[float, float]]:
+def hover_windows(
+    flight: FlightLog, thrust: np.ndarray | None = None, max_tilt_deg: float = HOVER_MAX_TILT_DEG
+) -> list[tuple[float, float]]:
     """Spans ``(t0, t1)`` (s, the log's clock) where the vehicle hovers (the criteria of :data:`HOVER_MIN_S`).
 
     Parameters
@@ -281,7 +288,7 @@ def hover_windows(flight: FlightLog, thrust: np.ndarray | None = None) -> list[t
         (u > 0.5 * np.percentile(u, 90))
         & (np.linalg.norm(flight.v_W, axis=-1) < HOVER_MAX_SPEED)
         & (np.linalg.norm(a_avg, axis=-1) < HOVER_MAX_ACCEL)
-        & (tilt < HOVER_MAX_TILT_DEG)
+        & (tilt < max_tilt_deg)
     )
     ok &= ~flight.restart  # a run never spans a restart
     edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
@@ -296,7 +303,7 @@ def hover_windows(flight: FlightLog, thrust: np.ndarray | None = None) -> list[t
     return out
 
 
-def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
+def fit_hover_windows(flight: FlightLog, mass: float, max_tilt_deg: float = HOVER_MAX_TILT_DEG) -> dict[str, Any]:
     """The normalised hover thrust fitted on every automatic hover window (:func:`hover_windows`).
 
     Each window is fitted by the vertical balance of :func:`fit_hover_thrust`; a window whose fit leaves
@@ -327,7 +334,7 @@ def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
     weight = mass * G
     wins = []
     a_z_all = np.gradient(flight.v_W[:, 2], flight.t)
-    for t0, t1 in hover_windows(flight):
+    for t0, t1 in hover_windows(flight, max_tilt_deg=max_tilt_deg):
         sel = np.arange(np.searchsorted(flight.t, t0), np.searchsorted(flight.t, t1, side="right"))
         k, _, res_avg = _balance_fit(flight, mass, sel, flight.thrust, a_z_all)
         w: dict[str, Any] = {"t0_s": t0, "t1_s": t1, "hover": None, "rms_N": res_avg, "kept": False}
@@ -371,6 +378,17 @@ def fit_hover_windows(flight: FlightLog, mass: float) -> dict[str, Any]:
     sd = max(spread, float(np.median([w["se"] for w in kept])))
     out.update(hover=med, sd=sd, sd_rel=sd / med)
     return out
+
+
+def _fit_level_or_windy(flight: FlightLog, mass: float) -> dict[str, Any]:
+    """:func:`fit_hover_windows` on level hovers, else on hovers tilted up to :data:`HOVER_WINDY_TILT_DEG`
+    (then ``windy``: a steady wind held every hover)."""
+    auto = fit_hover_windows(flight, mass)
+    if auto["hover"] is None:
+        windy = fit_hover_windows(flight, mass, HOVER_WINDY_TILT_DEG)
+        if windy["hover"] is not None:
+            return windy | {"windy": True}
+    return auto
 
 
 def weight_ratio(flight: FlightLog, thrust_N: np.ndarray, mass: float) -> float:
@@ -456,12 +474,12 @@ def _hover_for(
         arr = np.full(len(flight.t), float(raw.hover_thrust))
         src = raw.hover_source
         if not on_ground:
-            auto = fit_hover_windows(flight, mass)
+            auto = _fit_level_or_windy(flight, mass)
             if auto["hover"] is not None:
                 summ["windows_fit"] = {"hover": auto["hover"], "sd": auto["sd"]}
             else:
                 src += ", not checked on a hover (the log has no hover window)"
-    elif not on_ground and (auto := fit_hover_windows(flight, mass))["hover"] is not None:
+    elif not on_ground and (auto := _fit_level_or_windy(flight, mass))["hover"] is not None:
         kept = [w for w in auto["windows"] if w["kept"]]
         arr = np.full(len(flight.t), auto["hover"])
         src = (
@@ -469,6 +487,9 @@ def _hover_for(
             f"{auto['sd']:.2g} = {100 * auto['sd_rel']:.1f} %)"
         )
         summ.update(sd=auto["sd"], sd_rel=auto["sd_rel"])
+        if auto.get("windy"):
+            src += f"; no level hover: windows tilted up to {HOVER_WINDY_TILT_DEG:g} deg, a steady wind held"
+            summ["windy"] = True
         if "second_group" in auto:
             summ["second_group"] = auto["second_group"]
         if param is not None:
@@ -777,6 +798,13 @@ def _thrust_from_commands(
             f"WARNING: the hover windows' fits spread by {100 * summ['sd_rel']:.1f} % (one standard deviation): the "
             f"vertical force is uncertain by about {weight * summ['sd_rel']:.3g} N at hover (column "
             "fz_W_N_hover_sd). Give --hover-thrust, or --hover-segment on a hover you know was calm"
+        )
+    if summ.get("windy"):
+        notes.append(
+            "WARNING: the log has no level hover: the hover thrust was fitted on hovers tilted by a steady wind, "
+            "where a rotor's thrust per command grows (translational lift): it may read a few per cent low, and "
+            "the vertical force by that share of the weight. Give --hover-thrust or --hover-segment on a calm "
+            "hover if the log has one"
         )
     if "second_group" in summ:
         g = summ["second_group"]
