@@ -24,13 +24,18 @@ def _rel_diff(a, b):
 
 #: Case C is left out: its first 5 s (ground, take-off; the circle starts at 10 s) are case A's flight bit for
 #: bit. The circle is flown by both backends in test_log_modes_agree.
-@pytest.mark.parametrize("name", [c for c in PAPER_CASES if c != "case-c-circle"] + ["operator-push", "yaw-step"])
+#: twist-v1: comply on the Euler angles (the attitude's blend), which no other case here exercises.
+@pytest.mark.parametrize("name", [c for c in PAPER_CASES if c != "case-c-circle"] + ["operator-push", "yaw-step",
+                                                                                      "twist-v1"])
 def test_compiled_matches_numpy_over_5s_of_closed_loop(name):
     spec = set_value(get(name), "duration", 5.0)
-    if name == "operator-push":  # move the push into the window
-        spec = apply_overrides(spec, ["disturbances.0.t_on=2.0"])
-    rn = simulate(spec, backend="numpy")
-    rc = simulate(spec, backend="compiled")
+    if name == "operator-push":  # move the push into the window, with comply on x and y from the start
+        spec = apply_overrides(spec, ["disturbances.0.t_on=2.0", "interaction.switches=[]",
+                                      "interaction.comply=[1.0,1.0,0.0]"])  # fmt: skip
+    # the interaction cases fly "comply" too (the position's blend, the attitude's)
+    variants = ("pd", "pdc", "comply") if name in ("operator-push", "twist-v1") else ("pd", "pid", "pdc")
+    rn = simulate(spec, variants, backend="numpy")
+    rc = simulate(spec, variants, backend="compiled")
     assert rn.failures == rc.failures
     for k in rn.data:
         assert _rel_diff(rn[k], rc[k]) <= 1e-9, k

@@ -198,9 +198,10 @@ def test_online_estimator_backends_agree_with_delays_and_rotor_lag(rng):
     for _ in range(200):
         v, eta, w = rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.1, rng.normal(size=3)
         tau = rng.normal(size=3) * 0.01
+        u = 11.0 + rng.normal()  # a varying thrust: each channel's own delay into the histories shows
         np.testing.assert_allclose(
-            np.concatenate(a.step(v, eta, 11.0, tau, omega_B=w)),
-            np.concatenate(b.step(v, eta, 11.0, tau, omega_B=w)),
+            np.concatenate(a.step(v, eta, u, tau, omega_B=w)),
+            np.concatenate(b.step(v, eta, u, tau, omega_B=w)),
             atol=1e-12,
         )
 

@@ -238,3 +238,26 @@ def test_a_dropout_in_an_agile_stretch_is_not_read_as_a_wrong_column(tmp_path, c
                "--out", str(tmp_path / "b"), "--no-plots"])  # fmt: skip
     err = capsys.readouterr().err
     assert rc == 2 and "body rates" in err
+
+
+def test_the_checks_cut_at_dropouts_longer_than_their_averaging_only():
+    """The physics checks' evaluation grid (50 Hz over 10 s) against a 250 Hz signal: a 0.2 s hole (over
+    three periods, under the checks' 0.5 s averaging) leaves it whole; a 0.8 s hole cuts it in two, each
+    piece clear of the hole; a steady 1 Hz signal (steps of one period) cuts nothing."""
+    from vtol_impedance.logs.checks import _split_at_dropouts
+    from vtol_impedance.logs.timeseries import Signal
+
+    grid = np.arange(500) / 50.0
+    t = np.arange(0.0, 10.0, 1 / 250)
+
+    def sig(hole):
+        keep = ~((t > 5.0) & (t < 5.0 + hole))
+        return Signal("s", "s", t[keep], np.zeros((int(keep.sum()), 3)))
+
+    (whole,) = _split_at_dropouts([grid], [sig(0.2)], 50.0)
+    assert len(whole) == len(grid)
+    a, b = _split_at_dropouts([grid], [sig(0.8)], 50.0)
+    assert a[-1] <= 5.0 and b[0] >= 5.8 and len(a) + len(b) >= len(grid) - 41
+    slow = Signal("s", "s", np.arange(0.0, 11.0), np.zeros((11, 3)))
+    (same,) = _split_at_dropouts([grid], [slow], 50.0)
+    assert len(same) == len(grid)

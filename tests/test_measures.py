@@ -144,3 +144,9 @@ def test_the_table_metrics_in_their_displayed_units():
     r.data["p_W"] = p
     (row,) = compute_metrics(r)
     assert row["ss_ep_cm"] == pytest.approx(60.0, abs=0.5)
+    # a sine of 4 cm (whole periods): RMS 4 / sqrt(2) cm, not its mean magnitude 8 / pi cm
+    p[0] = 0.0
+    p[0, :, 0] = 0.04 * np.sin(2 * np.pi * 0.5 * t)
+    r.data["p_W"] = p
+    (row,) = compute_metrics(r)
+    assert row["rms_ep_cm"] == pytest.approx(4.0 / np.sqrt(2.0), rel=1e-3)

@@ -397,3 +397,33 @@ def test_a_latency_between_plant_steps_is_recorded_as_flown():
     with pytest.warns(LatencyWarning, match="sensors.imu_delay = 0.0126 s flies as 0.013 s"):
         r = simulate(set_value(spec, "sensors.imu_delay", 0.0126), ["pd"])
     assert r.config["sensor_delays_flown_s"] == {"imu_delay": pytest.approx(0.013, abs=1e-15)}
+
+
+@pytest.mark.parametrize("backend", ["numpy", "compiled"])
+def test_a_drop_onto_the_ground_only_loses_energy(backend):
+    """Rotors off, level, dropped from rest with its contact points 0.2 m up: the ground is a spring with a
+    damper that only pushes, so the vehicle's mechanical energy (kinetic plus potential, NED: -m g z) can
+    only fall through the contact, and it settles. Sampled every 10 ms over 3 s: no rebound climbs back to
+    the start, the energy never rises above the drop's (beyond the spring's stored share, bounded by the
+    final compression), and the vehicle ends at rest (a damper of the wrong sign pumps energy in)."""
+    from vtol_impedance.sim.plant import lowest_contact_depth
+
+    P = compile_plants(PlantParams(VEH, ground=True))
+    x = initial_state(P, np.zeros(3), hover_rotors=False)
+    x[P_COM][2] -= 0.2 + float(lowest_contact_depth(P, x))  # contact points 0.2 m above the ground
+    m = float(P.mass)
+
+    def energy(s):
+        return 0.5 * m * float(s[V_COM] @ s[V_COM]) - m * G * float(s[P_COM][2])
+
+    z0, e0 = float(x[P_COM][2]), energy(x)
+    zs, es = [], []
+    for _ in range(300):
+        x = _fly_open_loop(backend, P, x, np.zeros(4), 10, 1e-3)
+        zs.append(float(x[P_COM][2]))
+        es.append(energy(x))
+    zs, es = np.array(zs), np.array(es)
+    first = int(np.argmax(zs > z0 + 0.19))  # touching down
+    assert first > 0 and np.min(zs[first:]) > z0 + 0.1  # no rebound higher than half the drop
+    assert np.max(es) <= e0 + 1e-6 * m * G
+    assert abs(float(x[V_COM][2])) < 1e-3 and es[-1] < e0 - 0.9 * m * G * 0.2  # settled: the drop's energy gone
