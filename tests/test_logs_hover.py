@@ -444,3 +444,29 @@ def test_rotor_speeds_matched_to_fitted_commands_carry_the_fits_notes_and_uncert
                "--no-plots"])  # fmt: skip
     err = capsys.readouterr().err
     assert rc == 0 and "hover_thrust column holds no value" in err
+
+
+def test_a_segment_fit_reads_the_vertical_acceleration_with_its_sign():
+    """A level vehicle accelerating upward at 0.8 m/s^2 (NED: a_z = -0.8) for 6 s needs the thrust
+    m (g + 0.8); its command is that thrust times the hover thrust over m g. The segment's balance
+    ``k u = m (g - a_z)`` gives the hover thrust back exactly; the other sign would give it 15 % low."""
+    from vtol_impedance.logs import resample
+    from vtol_impedance.logs.estimate import fit_hover_thrust
+    from vtol_impedance.logs.timeseries import RawLog, Signal
+
+    t = np.arange(0.0, 8.0, 0.01)
+    a_up = 0.8
+    vz = -a_up * t
+    n = len(t)
+    wobble = 0.002 * np.sin(7.0 * t)  # a live command, not one the logger froze
+    u = (MASS * (G + a_up) * H_TRUE / (MASS * G)) * (1.0 + wobble)
+    raw = RawLog(
+        Signal("velocity", "v", t, np.stack([np.zeros(n), np.zeros(n), vz], -1)),
+        Signal("attitude", "eta", t, np.zeros((n, 3))),
+        Signal("body rates", "w", t, np.zeros((n, 3))),
+        Signal("thrust", "u", t, u[:, None], hold=True),
+        None,
+        thrust_unit="normalized",
+    )
+    h, _ = fit_hover_thrust(resample(raw, 100.0), MASS, (1.0, 7.0))
+    assert h == pytest.approx(H_TRUE, rel=2e-3)
