@@ -261,3 +261,24 @@ def test_the_checks_cut_at_dropouts_longer_than_their_averaging_only():
     slow = Signal("s", "s", np.arange(0.0, 11.0), np.zeros((11, 3)))
     (same,) = _split_at_dropouts([grid], [slow], 50.0)
     assert len(same) == len(grid)
+
+
+def test_a_log_with_no_second_between_dropouts_says_so_rather_than_that_it_is_still():
+    """A 20 Hz link that drops 1.2 s after every 0.5 s: no stretch of a second for the physics checks. The
+    kinematic test is left out for that reason, not for an attitude that "hardly moves" (it turns at
+    1 rad/s)."""
+    from vtol_impedance.logs.checks import evidence
+    from vtol_impedance.logs.timeseries import RawLog, Signal
+    from vtol_impedance.logs.verdict import _kinematics
+
+    t = np.arange(0.0, 30.0, 0.05)
+    t = t[(t % 1.7) < 0.5]  # 0.5 s of samples, then 1.2 s of nothing
+    n = len(t)
+    eta = np.stack([0.3 * np.sin(t), 0.2 * np.cos(t), 0.5 * t], -1)
+    raw = RawLog(Signal("velocity", "v", t, np.zeros((n, 3))), Signal("attitude", "eta", t, eta),
+                 Signal("rates", "w", t, np.ones((n, 3))), Signal("thrust", "u", t, np.full((n, 1), 12.0), hold=True),
+                 None)  # fmt: skip
+    ev = evidence(raw)
+    assert ev.no_stretch
+    test = _kinematics(ev)
+    assert test.status == "left out" and "no stretch" in test.detail

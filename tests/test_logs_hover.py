@@ -53,24 +53,26 @@ def _velocity(t, cruise):
 PUSH = (22.0, 25.5, 1.0)  # a vertical push (N, NED: down) from 22 to 25.5 s, in one hover window only
 
 
-def _f_ext(t, push=False, pickup=None, wind=0.0):
+def _f_ext(t, push=False, pickup=None, wind=0.0, up_push=False):
     """A horizontal gusty force, N (world NED): no vertical component, unless ``push`` (:data:`PUSH`) or
     ``pickup = (t, N)``, a payload's weight from ``t`` on."""
     t = np.asarray(t, float)
     fz = PUSH[2] * ((t >= PUSH[0]) & (t < PUSH[1])) if push else 0.0 * t
     if pickup is not None:
         fz = fz + pickup[1] * (t >= pickup[0])
+    if up_push:  # the mirror of PUSH, upward, in an earlier hover window
+        fz = fz - PUSH[2] * ((t >= 7.5) & (t < 11.0))
     return np.stack([wind + 0.3 * np.sin(0.7 * t) + 0.1 * np.sin(2.3 * t), 0.2 * np.sin(0.45 * t), fz], -1)
 
 
-def _flight(cruise=False, duration=30.0, h_true=H_TRUE, seed=1, push=False, pickup=None, wind=0.0):
+def _flight(cruise=False, duration=30.0, h_true=H_TRUE, seed=1, push=False, pickup=None, wind=0.0, up_push=False):
     """``(t, v_W, eta, omega_B, u)`` of a flight by construction (module docstring), with noise."""
     t = np.arange(0.0, duration, 1.0 / RATE)
     d = 1e-5
 
     def thrust_vec(tt):
         a = (_velocity(tt + d, cruise) - _velocity(tt - d, cruise)) / (2 * d)
-        return MASS * G * np.array([0, 0, 1.0]) - MASS * a + _f_ext(tt, push, pickup, wind)
+        return MASS * G * np.array([0, 0, 1.0]) - MASS * a + _f_ext(tt, push, pickup, wind, up_push)
 
     def eta_of(tt):
         F = thrust_vec(tt)
@@ -200,6 +202,12 @@ def test_hover_windows_in_two_groups_are_warned_about_not_outvoted(tmp_path):
     single = estimate_file(_px4_old(tmp_path / "push.ulg", _flight(push=True), {}), MASS)
     assert "second_group" not in single.info["hover_thrust"]
     assert not any("hover windows agree" in n for n in single.warnings + single.notes)
+    # a push down in one window and up in another: two outliers, on either side, do not agree
+    # (two pushes in five windows with vertical motion: the verdict would refuse it, the windows are the point)
+    both = estimate_file(_px4_old(tmp_path / "both.ulg", _flight(push=True, up_push=True), {}), MASS, force=True)
+    odd = [w for w in both.info["hover_thrust"]["windows"] if "outlier" in w.get("why", "")]
+    assert len(odd) == 2 and (odd[0]["hover"] - H_TRUE) * (odd[1]["hover"] - H_TRUE) < 0
+    assert "second_group" not in both.info["hover_thrust"]
 
 
 def test_a_steady_wind_that_tilts_every_hover_still_gives_the_hover_thrust(tmp_path):

@@ -165,7 +165,8 @@ def test_foreign_headers_and_unkeepable_values_are_refused_by_name(short_result,
     good = json.loads(str(np.load(p)["header"]))
     for name, header in [("list", [1, 2]), ("nolabels", {k: v for k, v in good.items() if k != "labels"}),
                          ("labels5", good | {"labels": 5}), ("badfail", good | {"failures": [{"time": 1.0}, None]}),
-                         ("badmetrics", good | {"metrics": 3})]:  # fmt: skip
+                         ("badmetrics", good | {"metrics": 3}), ("shortfail", good | {"failures": [None]}),
+                         ("longmetrics", good | {"metrics": [{}, {}, {}]})]:  # fmt: skip
         with np.load(p) as z:
             arrays = {k: z[k] for k in z.files if k != "header"}
         np.savez(tmp_path / f"{name}.npz", header=np.array(json.dumps(header)), **arrays)
@@ -184,6 +185,10 @@ def test_foreign_headers_and_unkeepable_values_are_refused_by_name(short_result,
     assert not (tmp_path / "odd.npz").exists()
     with pytest.raises(InputError, match="folder"):
         short_result.save(tmp_path)
+    metrics_only = Result(short_result.t[:0], short_result.labels, {}, {"window": [0.0, 0.5]},
+                          short_result.failures, compute_metrics(short_result))  # fmt: skip
+    with pytest.raises(InputError, match="no traces"):  # its metrics are its own window's, not (0, 0.3)'s
+        compute_metrics(metrics_only, (0.0, 0.3))
 
 
 def test_a_numpy_integer_decimation_is_taken_as_the_whole_number():

@@ -320,6 +320,12 @@ def test_a_combination_no_scenario_takes_is_a_failed_trial_not_a_stop(tmp_path, 
     trials = (out / "trials.csv").read_text()
     assert "invalid: " in trials and "attitude_filter_wn" in trials
     assert (out / "best.toml").exists()
+    # on Dask the same error comes back named in a ChunkError: the input's own errors fail the trial, the
+    # machine's (a worker out of memory) still stop the tuning
+    from vtol_impedance.sweeps.tune import _input_error
+
+    assert _input_error("InputError: attitude_filter_wn * Ts") and _input_error("DesignError: no bandwidth")
+    assert not _input_error("MemoryError: ") and not _input_error("KilledWorker: chunk 3")
 
 
 def test_tuning_population_is_the_same_for_every_trial():

@@ -73,10 +73,10 @@ class ControllerWarning(UserWarning):
     """Something the controller did that a user should know of (once per cause and :class:`Controller`)."""
 
 
-def _vec_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
+def _vec_input(name: str, value: object, bs: tuple[int, ...], who: str = "this controller") -> np.ndarray:
     arr = as_finite(name, value, (3,))
     if arr.shape[:-1] != bs:
-        raise InputError(f"{name} has shape {arr.shape}; this controller expects {bs + (3,)}")
+        raise InputError(f"{name} has shape {arr.shape}; {who} expects {bs + (3,)}")
     return arr
 
 
@@ -90,7 +90,7 @@ def _scalar_input(name: str, value: object, bs: tuple[int, ...]) -> np.ndarray:
 
 def _vector3(name: str, value: object, limit: float) -> np.ndarray:
     """One finite, plausible 3-vector (a batch of them, ``(1, 3)``, is refused: one sample is one vehicle's)."""
-    return _plausible(name, _vec_input(name, value, ()), limit)
+    return _plausible(name, _vec_input(name, value, (), "one sample of the estimator"), limit)
 
 
 def _plausible(name: str, value: np.ndarray, limit: float) -> np.ndarray:

@@ -119,6 +119,8 @@ class Evidence:
     #: dominated by the axis that turns most: a fast yaw hides roll and pitch rates of another quantity)
     kin_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
     kin_axis_motion: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: the dropouts left no stretch of a second to check (the scores are then not measured)
+    no_stretch: bool = False
 
     @property
     def score(self) -> float:
@@ -274,9 +276,8 @@ def evidence(raw: RawLog) -> Evidence:
     grids = _split_at_dropouts(_windows(sigs, lo, hi, rate), sigs, rate)
     if not grids:
         nan = float("nan")
-        return Evidence(
-            nan, np.full(3, nan), 0.0, 1.0, 0.0, 1.0, np.full(2, nan), np.zeros(2), rates, time_ok, span, jump
-        )
+        return Evidence(nan, np.full(3, nan), 0.0, 1.0, 0.0, 1.0, np.full(2, nan), np.zeros(2), rates, time_ok, span,
+                        jump, no_stretch=True)  # fmt: skip
     for grid in grids:
         q = np.stack([np.interp(grid, att.t, q_att[:, j]) for j in range(4)], -1)
         q /= np.linalg.norm(q, axis=-1, keepdims=True)

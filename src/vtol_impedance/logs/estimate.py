@@ -268,6 +268,8 @@ def hover_windows(
         The resampled log.
     thrust : numpy.ndarray, optional
         ``(N,)`` collective thrust in any unit (default: the log's command) for the airborne test.
+    max_tilt_deg : float
+        The largest tilt of a hover, degrees (:data:`HOVER_WINDY_TILT_DEG` where no level one exists).
 
     Returns
     -------
@@ -317,6 +319,8 @@ def fit_hover_windows(flight: FlightLog, mass: float, max_tilt_deg: float = HOVE
         The resampled log, with a normalised thrust command.
     mass : float
         Nominal mass, kg.
+    max_tilt_deg : float
+        The largest tilt of a hover window, degrees (:func:`hover_windows`).
 
     Returns
     -------
@@ -325,7 +329,9 @@ def fit_hover_windows(flight: FlightLog, mass: float, max_tilt_deg: float = HOVE
         not kept); ``hover``: the median of the kept windows (``None`` when none is kept); ``sd``: its
         uncertainty, one standard deviation (normalised): the robust spread of the kept windows (1.4826 MAD;
         the standard deviation of two), at least the median of their own standard errors
-        (``rms of 0.25 s averages / m g * hover / sqrt(length / 0.25 s)``); ``sd_rel``: ``sd / hover``.
+        (``rms of 0.25 s averages / m g * hover / sqrt(length / 0.25 s)``); ``sd_rel``: ``sd / hover``;
+        ``second_group`` (when two outliers or more on one side agree within the outlier tolerance): their
+        count ``n``, the windows fitted ``of`` and their median ``hover``.
     """
     from ..errors import instance
 
@@ -367,10 +373,13 @@ def fit_hover_windows(flight: FlightLog, mass: float, max_tilt_deg: float = HOVE
             w["why"] = f"outlier: {100 * (w['hover'] / med - 1):+.1f} % from the median of the windows"
     outliers = [w["hover"] for w in wins if w.get("why", "").startswith("outlier")]
     kept = [w for w in wins if w["kept"]]
+    # two outliers or more on one side that agree among themselves (within the outlier tolerance) are a
+    # second group, not gusts: a payload picked up or dropped, a battery swapped
+    side = max(([o for o in outliers if o > med], [o for o in outliers if o < med]), key=len)
+    if len(side) >= 2 and max(side) - min(side) <= tol:
+        out["second_group"] = {"n": len(side), "of": len(outliers) + len(kept), "hover": float(np.median(side))}
     h = np.array([w["hover"] for w in kept])
     med = float(np.median(h))
-    if len(outliers) >= 2:  # two groups, not one gust: a payload picked up or dropped, a battery swapped
-        out["second_group"] = {"n": len(outliers), "of": len(outliers) + len(kept), "hover": float(np.median(outliers))}
     if len(h) >= 3:
         spread = 1.4826 * float(np.median(np.abs(h - med)))
     else:
@@ -476,7 +485,7 @@ def _hover_for(
         if not on_ground:
             auto = _fit_level_or_windy(flight, mass)
             if auto["hover"] is not None:
-                summ["windows_fit"] = {"hover": auto["hover"], "sd": auto["sd"]}
+                summ["windows_fit"] = {"hover": auto["hover"], "sd": auto["sd"], "windy": bool(auto.get("windy"))}
             else:
                 src += ", not checked on a hover (the log has no hover window)"
     elif not on_ground and (auto := _fit_level_or_windy(flight, mass))["hover"] is not None:
@@ -507,7 +516,8 @@ def _hover_for(
             if on_ground
             else "the log has no hover window to fit it on (airborne, slower than "
             f"{HOVER_MAX_SPEED:g} m/s, calmer than {HOVER_MAX_ACCEL:g} m/s^2, tilted less than "
-            f"{HOVER_MAX_TILT_DEG:g} deg for {HOVER_MIN_S:g} s)" + _windows_refused(auto)
+            f"{HOVER_MAX_TILT_DEG:g} deg, or {HOVER_WINDY_TILT_DEG:g} deg when no level one exists, for {HOVER_MIN_S:g} s)"
+            + _windows_refused(auto)
         )
         raise InputError(
             f"normalised thrust needs a hover thrust to become newtons and {why}: give it (--hover-thrust), "
@@ -821,8 +831,12 @@ def _thrust_from_commands(
     wf = summ.get("windows_fit")
     if wf is not None:
         d = summ["median"] / wf["hover"] - 1
+        tilted = (
+            f" (on hovers tilted up to {HOVER_WINDY_TILT_DEG:g} deg by a steady wind: translational lift may make it "
+            "a few per cent low)" if wf.get("windy") else ""
+        )
         line = (
-            f"the hover windows fit a hover thrust of {wf['hover']:.4g} (spread {wf['sd']:.2g}); the parameter "
+            f"the hover windows fit a hover thrust of {wf['hover']:.4g}{tilted} (spread {wf['sd']:.2g}); the parameter "
             f"used is {100 * d:+.1f} % from it"
         )
         if abs(d) > HOVER_PARAMETER_SHARE:

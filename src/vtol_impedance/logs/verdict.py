@@ -175,6 +175,9 @@ def _rms(x: np.ndarray) -> float:
 
 def _kinematics(ev: Evidence) -> PhysicsTest:
     """The convention check's kinematic score (:func:`~vtol_impedance.logs.checks.evidence`) as a test."""
+    if ev.no_stretch:
+        return PhysicsTest("kinematics", ev.kin, KIN_LIMIT, "left out", "",
+                           "the dropouts leave no stretch of a second to compare the body rates with the attitude on")  # fmt: skip
     if not ev.kin_motion > KIN_MOTION:
         return PhysicsTest("kinematics", ev.kin, KIN_LIMIT, "left out", "",
                            f"the attitude hardly moves ({ev.kin_motion:.3g} rad/s)")  # fmt: skip

@@ -157,6 +157,8 @@ class Result:
                 raise InputError(f"{path}: a failure must be null or have a time and a reason, got {f!r:.80}")
         if metrics is not None and not (isinstance(metrics, list) and all(isinstance(m, dict) for m in metrics)):
             raise InputError(f"{path}: the metrics must be a list of tables, got {metrics!r:.80}")
+        if (failures and len(failures) != len(labels)) or (metrics is not None and len(metrics) != len(labels)):
+            raise InputError(f"{path}: the header's failures or metrics do not have one entry per vehicle label")
         B = len(labels)
         for k, v in data.items():
             if v.shape[:2] != (B, len(t)):
@@ -177,6 +179,11 @@ def _check(result: Result, window: Any) -> None:
     instance("result", result, Result)
     if window is None:
         return
+    if not result.data:
+        raise InputError(
+            f"window {window!r}: this result has no traces (log=\"metrics\"), only the metrics of its own window "
+            f"{result.config.get('window')}; fly it with log=\"full\" or \"decimate:K\" to measure another"
+        )
     w = None if isinstance(window, str) else as_finite("window", window)
     if w is None or w.shape != (2,):
         raise InputError(f"window must be (t0, t1) in seconds, got {window!r}")

@@ -207,6 +207,17 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None, check_corn
     return t
 
 
+def _input_error(message: str) -> bool:
+    """Whether a chunk's failure (``"TypeName: message"``, as :class:`~.cluster.ChunkError` lists it) was the
+    input's own error (:class:`~vtol_impedance.errors.InputError` or a subclass), not the machine's."""
+    names, todo = set(), [InputError]
+    while todo:
+        c = todo.pop()
+        names.add(c.__name__)
+        todo.extend(c.__subclasses__())
+    return message.split(":", 1)[0] in names
+
+
 def bound_notes(t: Tuning, best: dict[str, Any]) -> list[str]:
     """A note for each best value within 1 % of its search range's end (log scale for log ranges): the
     optimum may lie beyond it."""
@@ -278,10 +289,13 @@ def tune(
                 for _, r, _ in ex.map_chunks(sweep, list(range(sweep.n_chunks)), backend, retries=0):
                     for k, v in r.items():
                         rows.setdefault(k, []).extend(v)
-            except (DesignError, InputError) as exc:
+            except (InputError, cluster.ChunkError) as exc:  # a DesignError among the first
                 # gains no bandwidth keeps stable on some plant, or values valid alone that no scenario takes
                 # together (a filter too fast for a control rate, inside the box whose corners were checked):
-                # a failed trial, not a stop after the work has begun
+                # a failed trial, not a stop after the work has begun. On Dask the input's error comes back
+                # named in a ChunkError; any other failure there still stops the tuning.
+                if isinstance(exc, cluster.ChunkError) and not all(_input_error(f[2]) for f in exc.failures):
+                    raise
                 cost = float(t.failure_penalty)
                 why = str(exc).split(": ", 1)[-1] if isinstance(exc, DesignError) else f"invalid: {exc}"
                 records.append({**params, "cost": cost, "metric_mean": float("nan"), "failed": sweep.n_flights,
