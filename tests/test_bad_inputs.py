@@ -453,6 +453,8 @@ for i, (extra, msg) in enumerate(
         (("--rotor-tau", "-0.02"), "tau"),
         (("--max-gap", "0"), "gap"),
         (("--connect-timeout", "-1"), "timeout"),
+        (("--connect-timeout", "0"), "--connect-timeout"),  # the flag as typed, not the field behind it
+        (("--out", "/etc/passwd/x"), "/etc/passwd"),  # before the link: it named a missing heartbeat instead
         (("--system", "300"), "--system"),
         (("--system", "-1"), "--system"),
         (("--comply", "1,1,0"), "--control"),
@@ -480,6 +482,7 @@ for i, (extra, msg) in enumerate(
         (("--latency", "5", "--duration", "2"), "latency"),
         (("--loss", "1.5"), "loss"),
         (("--speed", "0"), "speed"),
+        (("--duration", "1e9"), "--duration"),  # its disturbances drawn up front: 745 GiB, a MemoryError
     ]
 ):
     cli("live", f"sim-autopilot-{i}", msg, *SIMAP, *extra)

@@ -315,8 +315,10 @@ def test_a_3375_point_margin_grid_is_refused_before_any_work(tmp_path, capsys, m
     assert not (tmp_path / "out").exists()
 
 
-def test_sweep_estimate_by_hand():
+def test_sweep_estimate_by_hand(monkeypatch):
     from vtol_impedance.sweeps import from_dict
+
+    monkeypatch.setattr("os.cpu_count", lambda: 4)
 
     d = {"name": "s", "base": "case-a-payload", "controllers": ["pd", "pdc"], "seeds": 3, "set": {"duration": 100.0},
          "axes": {"payload.mass": [0.0, 0.1]}}  # fmt: skip
@@ -325,14 +327,17 @@ def test_sweep_estimate_by_hand():
     hand = 12 * 100.0 / 1000.0 + 2 * 0.01 + 4 * 0.2 + 6.0
     assert budget.sweep_seconds(s) == pytest.approx(hand)
     assert budget.sweep_seconds(s, workers=2) == pytest.approx(hand / 2)
+    assert budget.sweep_seconds(s, workers=1000) == pytest.approx(hand / 4)  # the local cluster's cap: the cores
     assert budget.sweep_seconds(s, backend="numpy") == pytest.approx(hand - 1.2 + 1200.0 / 0.4)
     d["axes"]["control.Kp,control.Dp"] = [[8.0, 10.0], [16.0, 12.0], [8.0, 10.0]]  # 2 distinct designs
     s = from_dict({**d, "margins": False}, check_points=False)
     assert budget.sweep_seconds(s) == pytest.approx(36 * 100.0 / 1000.0 + 6 * 0.01 + 2 * 6.0)
 
 
-def test_tuning_estimate_by_hand():
+def test_tuning_estimate_by_hand(monkeypatch):
     from vtol_impedance.sweeps.tune import tuning_from_dict
+
+    monkeypatch.setattr("os.cpu_count", lambda: 4)
 
     t = tuning_from_dict({
         "name": "t", "base": "case-a-payload", "controller": "pdc", "trials": 10, "population": 4,
@@ -343,6 +348,7 @@ def test_tuning_estimate_by_hand():
     # three corners of the search box designed before the first trial
     assert budget.tuning_seconds(t, 10) == pytest.approx(3 * 6.0 + 10 * (0.2 + 4 * 0.2 + 6.0))
     assert budget.tuning_seconds(t, 10, workers=2) == pytest.approx(3 * 6.0 + 5 * (0.2 + 4 * 0.2 + 6.0))
+    assert budget.tuning_seconds(t, 10, workers=64) == pytest.approx(3 * 6.0 + 2.5 * (0.2 + 4 * 0.2 + 6.0))
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])

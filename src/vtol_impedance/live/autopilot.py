@@ -194,6 +194,11 @@ class Impairments:
         object.__setattr__(self, "seed", int(scalar("seed", self.seed, lo=0, hi=2**63 - 1, integer=True)))
 
 
+#: The longest simulated flight of the simulated autopilot, in plant steps (its random disturbances are
+#: drawn for the whole flight at the start).
+MAX_SERIES_STEPS = 1e7
+
+
 @dataclass(frozen=True)
 class SimSettings:
     """The simulated autopilot: ``connect`` (its end of the link), ``autopilot`` (``px4`` or ``ardupilot``),
@@ -227,6 +232,14 @@ class SimSettings:
         if self.duration is not None:
             object.__setattr__(self, "duration", scalar("duration", self.duration, lo=0.0, lo_open=True))
         object.__setattr__(self, "plant_rate", scalar("plant rate", self.plant_rate, lo=10.0, hi=10000.0))
+        if self.duration is not None and self.duration * self.plant_rate > MAX_SERIES_STEPS:
+            # the random disturbances are drawn for the whole flight up front (about 46 bytes a step, measured:
+            # 1e5 s at 100 Hz took 457 MB): a day at 100 Hz fits, 1e9 s asked for 745 GiB
+            raise InputError(
+                f"--duration {self.duration:g} s at the plant's {self.plant_rate:g} Hz is {self.duration * self.plant_rate:.3g} "
+                f"steps, above {MAX_SERIES_STEPS:.0e} (about a day at 100 Hz): give a shorter --duration, or none (until "
+                "Ctrl-C)"
+            )
         object.__setattr__(self, "control_rate", scalar("control rate", self.control_rate, lo=10.0, hi=1000.0))
         wall_s = None if self.duration is None else self.duration / self.speed
         if wall_s is not None and self.impairments.latency_s >= wall_s:

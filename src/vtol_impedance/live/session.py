@@ -31,7 +31,7 @@ from typing import IO, Any
 import numpy as np
 
 from ..errors import InputError, instance, scalar
-from ..io import RunFolder
+from ..io import RunFolder, check_folder_path
 from ..logs.ardupilot import CURVE_PARAMS, MotorCurve, motor_channels
 from ..model.vehicle import check_inertia, load_preset
 from .control import ControlSettings, OffboardController, OuterLoop
@@ -133,8 +133,12 @@ class LiveSettings:
             profile(self.autopilot)
         if self.duration is not None:
             object.__setattr__(self, "duration", scalar("--duration", self.duration, lo=0.0, lo_open=True, hi=1e6))
+        flags = {"connect_timeout_s": "--connect-timeout", "stream_timeout_s": "--stream-timeout"}  # as typed
         for name in ("connect_timeout_s", "probe_s", "stream_timeout_s", "min_stream_hz"):
-            object.__setattr__(self, name, scalar(name, getattr(self, name), lo=0.0, lo_open=True, hi=3600.0))
+            object.__setattr__(self, name, scalar(flags.get(name, name), getattr(self, name), lo=0.0, lo_open=True,
+                                                  hi=3600.0))  # fmt: skip
+        if self.out is not None:  # before the link: a session must not wait for a vehicle to learn this
+            check_folder_path(self.out)
         if self.hover_thrust is not None and self.max_thrust is not None:
             raise InputError("give --hover-thrust or --max-thrust, not both")
         # the vehicle's numbers are checked here, before the link: after it they would end a live session

@@ -64,7 +64,8 @@ def _rate(backend: str) -> float:
 
 def sweep_seconds(sweep: Any, backend: str = "compiled", workers: int | None = None) -> float:
     """Estimated wall time of ``sweep``, s: its flights, margin checks and designs at the per-cell costs,
-    shared by ``workers`` processes (one when None)."""
+    shared by ``workers`` processes (one when None; no more than this machine's cores, as the local cluster
+    caps them: ``--workers 1000`` got past the bound before)."""
     n = len(sweep.points)
     sample = [sweep.point_spec(i) for i in sorted({0, n // 2, n - 1})]  # duration may be an axis
     per_flight = sum(flight_seconds(s) for s in sample) / len(sample)
@@ -74,11 +75,12 @@ def sweep_seconds(sweep: Any, backend: str = "compiled", workers: int | None = N
         total += n * len(sweep.controllers) * MARGIN_S
     by = _design_keys(sample[0], [a.key for a in sweep.axes])  # one design per distinct combination
     total += len({json.dumps([p[k] for k in by], default=str) for p in sweep.points}) * DESIGN_S
-    return total / max(1, workers or 1)
+    return total / _sharing(workers)
 
 
 def tuning_seconds(t: Any, trials: int, backend: str = "compiled", workers: int | None = None) -> float:
-    """Estimated wall time of a tuning of ``trials`` trials, s (each flies the population once)."""
+    """Estimated wall time of a tuning of ``trials`` trials, s (each flies the population once), shared as in
+    :func:`sweep_seconds`."""
     spec = t.base_spec()
     per_trial = t.population * flight_seconds(spec) / _rate(backend)
     if t.min_phase_margin_deg > 0.0:
@@ -87,7 +89,14 @@ def tuning_seconds(t: Any, trials: int, backend: str = "compiled", workers: int 
     if _design_keys(spec, [a.key for a in t.search]):
         per_trial += DESIGN_S
         checks = 3 * DESIGN_S  # the search box's corners, checked before the first trial
-    return checks + trials * per_trial / max(1, workers or 1)
+    return checks + trials * per_trial / _sharing(workers)
+
+
+def _sharing(workers: int | None) -> int:
+    """How many processes share the work: ``workers`` capped at this machine's cores (one when None)."""
+    import os
+
+    return max(1, min(workers or 1, os.cpu_count() or 1))
 
 
 def minutes(seconds: float) -> str:
