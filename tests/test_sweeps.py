@@ -138,6 +138,9 @@ def test_interrupted_sweep_resumes_to_the_identical_dataset(reference, tmp_path,
     assert not list(out.rglob("*.tmp*"))
     assert f"interrupted: 2 of {sweep.n_chunks} chunks are kept in {out}; resume with:" in capsys.readouterr().err
     assert json.loads((out / "sweep.json").read_text())["runs"][-1]["ended"] == "interrupted"
+    with pytest.raises(InputError, match="backend 'compiled'"):  # one dataset, one engine: not half NumPy
+        run_sweep(sweep, out, show_progress=False, backend="numpy")
+    assert len(list((out / "chunks").glob("*.parquet"))) == 2
     _, computed = run_sweep(sweep, out, show_progress=False)
     assert computed == sweep.n_chunks - 2
     _same(read_dataset(out), reference)

@@ -492,10 +492,16 @@ def run_sweep(
     folder = SweepFolder(sweep, out, restart, where)
     resume = resume or f"the same run_sweep into {folder.folder}"
     todo: list[int] = []
-    run: dict[str, Any] = {"started": _now(), "on": executor.where, "chunks_computed": 0, "worker_losses": 0,
-                           "ended": "error"}  # fmt: skip
+    run: dict[str, Any] = {"started": _now(), "on": executor.where, "backend": backend, "chunks_computed": 0,
+                           "worker_losses": 0, "ended": "error"}  # fmt: skip
     try:
         todo = folder.missing()
+        flown = {r["backend"] for r in folder.description["runs"] if r.get("chunks_computed") and "backend" in r}
+        if len(todo) < sweep.n_chunks and flown - {backend}:  # one dataset, one engine
+            raise InputError(
+                f"{folder.folder} holds chunks flown with backend {sorted(flown)[0]!r}; resuming with {backend!r} "
+                f"would mix the two in one dataset: resume with --backend {sorted(flown)[0]}, or --restart"
+            )
         for note in folder.repairs:
             print(f"note: {note}", file=sys.stderr)
         if show_progress:
