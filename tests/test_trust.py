@@ -256,13 +256,16 @@ def _running(pid: int) -> bool:
 
 
 def test_paper_workers_die_with_their_parent(tmp_path):
+    # the NumPy backend: its flights take seconds, so the pool is alive when looked for (with a warm numba
+    # cache the compiled flights took milliseconds, and the pool could come and go between two looks)
     p = subprocess.Popen(
-        _cli("paper", "--jobs", "2", "--out", str(tmp_path / "p"), "--quiet"), env=ENV, start_new_session=True
-    )
+        _cli("paper", "--jobs", "2", "--backend", "numpy", "--out", str(tmp_path / "p"), "--quiet"), env=ENV,
+        start_new_session=True,
+    )  # fmt: skip
     children: set[int] = set()
     deadline = time.time() + 120
-    while time.time() < deadline and not children:
-        time.sleep(0.3)
+    while time.time() < deadline and not children and p.poll() is None:
+        time.sleep(0.1)
         children = _children(p.pid)
     assert children, "the pool never started"
     p.send_signal(signal.SIGKILL)

@@ -133,7 +133,9 @@ class LiveSettings:
             profile(self.autopilot)
         if self.duration is not None:
             object.__setattr__(self, "duration", scalar("--duration", self.duration, lo=0.0, lo_open=True, hi=1e6))
-        flags = {"connect_timeout_s": "--connect-timeout", "stream_timeout_s": "--stream-timeout"}  # as typed
+        # the flag as typed on the command line, and the field as given in Python
+        flags = {"connect_timeout_s": "--connect-timeout (connect_timeout_s)",
+                 "stream_timeout_s": "--stream-timeout (stream_timeout_s)"}  # fmt: skip
         for name in ("connect_timeout_s", "probe_s", "stream_timeout_s", "min_stream_hz"):
             object.__setattr__(self, name, scalar(flags.get(name, name), getattr(self, name), lo=0.0, lo_open=True,
                                                   hi=3600.0))  # fmt: skip
