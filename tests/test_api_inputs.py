@@ -586,7 +586,10 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         lambda: dict(flight=flight(), mass=1.2, segment=(0.1, 1.5)),
         {"flight": Obj(logs.FlightLog), "mass": "pos", "segment": "mapping"},
     ),
-    "logs.fit_hover_windows": (lambda: dict(flight=flight(), mass=1.2), {"flight": Obj(logs.FlightLog), "mass": "pos"}),
+    "logs.fit_hover_windows": (
+        lambda: dict(flight=flight(), mass=1.2),
+        {"flight": Obj(logs.FlightLog), "mass": "pos", "max_tilt_deg": "pos"},
+    ),
     "logs.judge": (
         lambda: dict(flight=flight(), thrust_N=np.full(flight().t.shape, 11.77), mass=1.2),
         {"flight": Obj(logs.FlightLog), "thrust_N": Arr(flight().t.shape), "mass": "pos"},

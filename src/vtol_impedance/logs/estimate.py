@@ -276,6 +276,7 @@ def hover_windows(
     list of tuple of float
         The windows in time order; empty when the vehicle never hovers (or never leaves the ground).
     """
+    max_tilt_deg = scalar("max_tilt_deg", max_tilt_deg, lo=0.0, lo_open=True, hi=90.0)  # NaN: no window, silently
     u = flight.thrust if thrust is None else thrust
     if u is None or len(flight.t) < 3:
         return []
