@@ -138,6 +138,43 @@ def test_thrust_of_zeros_held_or_frozen():
     assert len(check_thrust_signal(_thrust(stuck), []).t) == 1000 - 299
 
 
+def test_a_noise_free_steady_state_is_not_a_frozen_logger():
+    """A simulator's log holds its thrust exactly while the vehicle hovers or flies straight: over such a
+    stretch the logged motion is as steady as the thrust, so it is kept; with an IMU's noise on the same
+    motion, or with the vehicle accelerating unevenly, the repeated thrust is a frozen logger (a dropout)."""
+    t = np.arange(1000) * 0.01
+    u = 11.8 + 0.3 * np.sin(t * 5.0)
+    u[300:520] = u[300]  # 2.2 s repeated
+    still = (t >= 3.0) & (t <= 5.19)
+
+    def motion(v_W, omega_B):
+        return (Signal("velocity_W", "v", t, v_W), Signal("omega_B", "w", t, omega_B))
+
+    v = np.column_stack([np.sin(t), np.cos(t), 0.1 * t])
+    w = np.column_stack([np.sin(2 * t), 0 * t, np.cos(t)])
+    v[still] = [0.5, -0.2, 0.0]  # hovering, or straight and level at constant speed
+    w[still] = 0.0
+    notes: list[str] = []
+    assert len(check_thrust_signal(_thrust(u), notes, motion(v, w)).t) == 1000
+    assert "steady state" in notes[0] and "froze" not in " ".join(notes)
+    ramp = v.copy()  # a constant acceleration at a constant attitude is as steady
+    ramp[still, 2] = 0.3 + 0.5 * (t[still] - 3.0)
+    assert len(check_thrust_signal(_thrust(u), [], motion(ramp, w)).t) == 1000
+    rng = np.random.default_rng(0)
+    bob = v.copy()
+    bob[still, 2] += 1e-2 * np.sin(40 * t[still])  # moving while the thrust stays put
+    for bad_v, bad_w in (
+        (v + 1e-3 * rng.standard_normal(v.shape), w),  # a real log's noise on the velocity
+        (v, w + 2e-3 * rng.standard_normal(w.shape)),  # or on the gyro
+        (bob, w),
+    ):
+        notes = []
+        assert len(check_thrust_signal(_thrust(u), notes, motion(bad_v, bad_w)).t) == 1000 - 219
+        assert "froze" in notes[0]
+    sparse = (Signal("velocity_W", "v", t[::150], v[::150]), Signal("omega_B", "w", t[::150], w[::150]))
+    assert len(check_thrust_signal(_thrust(u), [], sparse).t) == 1000 - 219  # under three samples: not shown still
+
+
 def test_thrust_columns_of_zeros_and_negated_thrust_from_a_file(fl, tmp_path):
     cols = csv_cols(fl, every=EVERY)
     with pytest.raises(InputError, match="zero throughout"):

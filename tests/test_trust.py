@@ -218,6 +218,33 @@ def test_concurrent_runs_into_one_folder_never_interleave(tmp_path):
     assert not out.exists()
 
 
+def test_a_live_recording_is_never_replaced(tmp_path, capsys):
+    """A folder that ``live`` wrote holds a flight that cannot be flown again: no command replaces it, and
+    the manifest names the command that wrote a folder (a run's is replaced by the next run, as above)."""
+    rec = tmp_path / "live-1"
+    with RunFolder(rec, command="live") as f:
+        f.path("flight.tlog").write_bytes(b"\xfd" * 64)
+        f.path("estimate.csv").write_text("t\n0\n")
+        f.commit({"live": True})
+    assert json.loads((rec / "manifest.json").read_text())["command"] == "live"
+    old = tmp_path / "live-0"  # written before manifests named their command: known by its recording
+    old.mkdir()
+    (old / "flight.tlog").write_bytes(b"\xfd")
+    (old / "manifest.json").write_text(json.dumps({"tool": "vtol-impedance", "files": {"flight.tlog": {}}}))
+    for folder in (rec, old):
+        for argv in (["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.2"],
+                     ["margins", "case-a-payload"], ["sweep", "robustness"]):  # fmt: skip
+            assert main([*argv, "--out", str(folder)]) == 2, argv
+            err = capsys.readouterr().err
+            assert "live flight's recording" in err and "Traceback" not in err
+            assert (folder / "flight.tlog").is_file()
+    with pytest.raises(InputError, match="recording"):
+        RunFolder(rec)
+    out = tmp_path / "run"
+    assert main(["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.2", "--out", str(out)]) == 0
+    assert json.loads((out / "manifest.json").read_text())["command"] == "run"
+
+
 def test_manifest_binds_the_files(tmp_path):
     out = tmp_path / "res"
     assert main(["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.3", "--out", str(out)]) == 0

@@ -218,7 +218,8 @@ def test_the_command_serves_until_stopped(tmp_path):
 
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     cmd = [sys.executable, "-m", "vtol_impedance", "tune-page", "--port", "0", "--workers", "1", "--no-browser"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
+                            start_new_session=True)  # fmt: skip
     try:
         line = proc.stdout.readline()
         assert line.startswith("tuning page at http://127.0.0.1:"), (line, proc.stderr.read() if proc.poll() else "")
@@ -228,13 +229,30 @@ def test_the_command_serves_until_stopped(tmp_path):
         assert fields["scenario"] == "case-a-payload-v1" and len(fields["fields"]) == len(fields["defaults"])
         with urllib.request.urlopen(url, timeout=30) as r:
             assert b"<title>vtol-impedance: tuning page</title>" in r.read()
-        proc.send_signal(signal.SIGTERM)
+        deadline = time.time() + 60  # the margins' worker process, warmed up by now or soon
+        while time.time() < deadline and not _children(proc.pid):
+            time.sleep(0.1)
+        assert _children(proc.pid), "the margins' worker never started"
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole group, workers included
         rc, err = proc.wait(timeout=60), proc.stderr.read()
         assert rc == 130 and "Traceback" not in err and err.endswith("interrupted; no results were written\n"), err
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def _children(pid: int) -> set[int]:
+    """The live worker processes ``pid`` spawned (Linux ``/proc``)."""
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z" and b"spawn_main" in (stat.parent / "cmdline").read_bytes():
+            out.add(int(stat.parent.name))  # a worker, not multiprocessing's resource tracker
+    return out
 
 
 # --------------------------------------------------------------------------- in the browser

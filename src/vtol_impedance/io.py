@@ -1,6 +1,6 @@
 """Atomic file writing (a crash never leaves a half-written file under the final name), run folders, the
 key of every on-disk cache (:func:`source_digest`) and paths named for what is wrong with them
-(:func:`explain_path`)."""
+(:func:`explain_path`), and worker processes that leave a Ctrl-C to their command (:func:`quiet_worker`)."""
 
 from __future__ import annotations
 
@@ -72,6 +72,101 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]
 
 
 # --------------------------------------------------------------------------- on-disk caches
+
+
+def quiet_worker(die_with_parent: bool = True) -> None:
+    """A worker process's initializer (the paper's flights, the tuning page's margins): ignore SIGINT,
+    which a Ctrl-C sends to the whole process group while the command alone answers it (stopping its
+    workers, without one traceback per worker); with ``die_with_parent``, be killed when the parent dies,
+    however it dies (Linux ``PR_SET_PDEATHSIG``). That signal follows the *thread* that started the worker:
+    a pool whose workers a passing thread may start (a web server's request) must not ask for it."""
+    import ctypes
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards one held back by spawning_quietly
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    if die_with_parent:
+        try:
+            ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
+        except (OSError, AttributeError):
+            pass
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path in the same folder; on success it is renamed onto ``path``."""
+    from .errors import path_like
+
+    path = path_like("path", path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, _default_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_path`); return the path."""
+    from .errors import instance, path_like
+
+    path = path_like("path", path)
+    instance("text", text, str)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]) -> Path:
+    """Call ``writer(file)`` on a binary temporary file, then move it into place."""
+    from .errors import function, path_like
+
+    path = path_like("path", path)
+    function("writer", writer)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        writer(fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return Path(path)
+
+
+# --------------------------------------------------------------------------- on-disk caches
+
+
+def quiet_worker() -> None:
+    """A worker process's initializer (the paper's flights, the tuning page's margins, a local Dask
+    cluster): ignore SIGINT, which a Ctrl-C sends to the whole process group while the command alone
+    answers it (stopping its workers, without one traceback per worker), and die with the parent however it
+    dies (Linux ``PR_SET_PDEATHSIG``; elsewhere the parent's shutdown stops them)."""
+    import ctypes
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards one held back by spawning_quietly
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    try:
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        pass
+
+
+@contextlib.contextmanager
+def spawning_quietly() -> Iterator[None]:
+    """Around a process pool's ``submit`` calls, which start its workers: SIGINT is held back in this
+    thread and so in the workers it starts, until their :func:`quiet_worker` ignores it (a Ctrl-C while a
+    worker imports Python would otherwise print that worker's traceback). Here a Ctrl-C waits until
+    the block ends, a few milliseconds."""
+    import signal
+
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def source_digest(sources: Iterable[str | os.PathLike[str]]) -> str:
@@ -305,7 +400,27 @@ def check_folder_path(final: str | os.PathLike[str]) -> Path:
     why = explain_path(final, "folder")
     if why:
         raise InputError(f"cannot use {final} as the output folder: {why}; choose another --out")
+    if is_recording(final):
+        raise InputError(
+            f"output folder {final} holds a live flight's recording (flight.tlog, written by `vtol-impedance "
+            f"live`), which no command can make again; choose another --out (or move it away yourself)"
+        )
     return final
+
+
+def is_recording(folder: Path) -> bool:
+    """Whether ``folder`` is a run folder that ``live`` wrote (its manifest says so, or, for folders written
+    before manifests named their command, lists a ``flight.tlog``): a flight's recording, never replaced."""
+    import json
+
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(manifest, dict):
+        return False
+    files = manifest.get("files")
+    return manifest.get("command") == "live" or (isinstance(files, dict) and "flight.tlog" in files)
 
 
 def check_output_folder(final: Path, swapped: bool = True) -> Path:
@@ -427,9 +542,10 @@ class RunFolder:
     same folder fail at once with a clear error; stale staging folders of killed runs are removed.
     """
 
-    def __init__(self, final: str | os.PathLike[str]) -> None:
+    def __init__(self, final: str | os.PathLike[str], command: str = "run") -> None:
         from .errors import path_like
 
+        self.command = command  # recorded in the manifest: a live recording is never replaced
         self.final = check_output_folder(path_like("final", final)).absolute()
         parent = self.final.parent
         self._lock = FolderLock(self.final)
@@ -467,6 +583,7 @@ class RunFolder:
         cfg_text = json.dumps(config, sort_keys=True, default=str)
         manifest = {
             "tool": "vtol-impedance",
+            "command": self.command,
             "version": __version__,
             "python": sys.version.split()[0],
             "versions": _versions(),

@@ -131,7 +131,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     )  # fmt: skip
     out = Path(args.out) if args.out else _estimate_folder(stem, log)
     flight = est.flight
-    with RunFolder(out) as folder:
+    with RunFolder(out, command="estimate") as folder:
         from ..analysis.report import write_html
         from ..logs.output import summary, write_estimate
 

@@ -21,23 +21,16 @@ def _run_case_job(args: tuple[Any, list[str], int | None, bool, str]) -> Any:
     return _run_case(*args)
 
 
-def _die_with_parent() -> None:
-    """In a worker process: be killed when the parent dies, however it dies (Linux ``PR_SET_PDEATHSIG``)."""
-    import ctypes
-    import signal
-
-    try:
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):
-        pass
-
-
 def _run_parallel(jobs_args: list[tuple[Any, ...]], jobs: int) -> list[Any]:
     from concurrent.futures import ProcessPoolExecutor
 
-    ex = ProcessPoolExecutor(max_workers=jobs, initializer=_die_with_parent)
+    from ..io import quiet_worker, spawning_quietly
+
+    ex = ProcessPoolExecutor(max_workers=jobs, initializer=quiet_worker)
     try:
-        results = list(ex.map(_run_case_job, jobs_args))
+        with spawning_quietly():
+            futures = [ex.submit(_run_case_job, a) for a in jobs_args]
+        results = [f.result() for f in futures]
     except BaseException:
         for proc in list(getattr(ex, "_processes", {}).values()):
             proc.terminate()

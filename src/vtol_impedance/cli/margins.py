@@ -23,7 +23,7 @@ def cmd_margins(args: argparse.Namespace) -> int:
     variants = check_variants([c.strip() for c in args.controllers.split(",") if c.strip()], unique=True)
     check(spec, variants)
     out = _run_folder(args, f"margins-{spec.name}", tag)
-    with RunFolder(out) as folder:
+    with RunFolder(out, command="margins") as folder:
         if not args.quiet:
             print(f"linearising {spec.name} for {', '.join(variants)} ...", file=sys.stderr)
         reports = scenario_margins(spec, variants)

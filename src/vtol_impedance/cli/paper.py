@@ -30,7 +30,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     backend = _backend(args)
     t0 = time.perf_counter()
     tag = () if args.tuning == "paper" else (f"tuning={args.tuning}",)
-    with RunFolder(_run_folder(args, "paper", tag)) as folder:
+    with RunFolder(_run_folder(args, "paper", tag), command="paper") as folder:
         margins = _preflight(specs, variants, args.quiet, args.verbose, paper_gains=args.tuning == "paper")
         _announce_compile(backend, args.quiet)
         if not args.quiet:

@@ -31,7 +31,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     check_budget(seconds, f"tuning {t.name}", args.max_minutes, args.yes)
     t = load_tuning(args.spec)  # the search box's corners checked (their controllers designed)
     _preflight([t.base_spec()], [t.controller], args.quiet)
-    with RunFolder(out) as folder:
+    with RunFolder(out, command="tune") as folder:
         log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
         res = tune(t, args.workers, args.scheduler, args.trials, args.backend, log, scheduler_file=args.scheduler_file,
                    connect_timeout=args.connect_timeout, wait_workers=args.wait_workers)  # fmt: skip

@@ -480,7 +480,7 @@ class Session:
     def open(self) -> None:
         s = self.s
         out = Path(s.out) if s.out else Path("results") / _dt.datetime.now().strftime("live-%Y%m%d-%H%M%S")
-        self.folder = RunFolder(out)
+        self.folder = RunFolder(out, command="live")
         self.tlog = TlogWriter(self.folder.path("flight.tlog"))
         self.link = Link(self.address, s.connect_timeout_s)
         self.link.recorder = self.tlog

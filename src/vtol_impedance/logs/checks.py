@@ -543,12 +543,42 @@ def check_conventions(
     return (raw if chosen == declared else reread(chosen)), rep
 
 
-def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
+#: A stretch of repeated thrust is the vehicle's own steady state, not a frozen logger, when over it the logged
+#: velocity departs from a straight line in time (a constant acceleration) by at most this, m/s, and every
+#: body rate varies by at most :data:`STEADY_RATE_RAD_S`: what only a noise-free log (a simulator's) holds;
+#: a real IMU's noise alone is a thousand times more.
+STEADY_VELOCITY_M_S = 1e-6
+STEADY_RATE_RAD_S = 1e-6
+
+
+def _steady(motion: tuple[Signal, Signal] | None, t0: float, t1: float) -> bool:
+    """Whether the logged velocity and body rates ``motion`` hold still (:data:`STEADY_VELOCITY_M_S`) over
+    ``[t0, t1]``, with at least three samples of each there."""
+    if motion is None:
+        return False
+    v, w = motion
+    iv = (v.t >= t0) & (v.t <= t1)
+    iw = (w.t >= t0) & (w.t <= t1)
+    if iv.sum() < 3 or iw.sum() < 3:
+        return False
+    tv, vv, ww = v.t[iv], v.values[iv], w.values[iw]
+    if not (np.all(np.isfinite(vv)) and np.all(np.isfinite(ww))):
+        return False
+    A = np.column_stack([np.ones_like(tv), tv - tv[0]])
+    resid = vv - A @ np.linalg.lstsq(A, vv, rcond=None)[0]
+    return bool(np.max(np.abs(resid)) <= STEADY_VELOCITY_M_S and np.max(np.ptp(ww, axis=0)) <= STEADY_RATE_RAD_S)
+
+
+def check_thrust_signal(
+    sig: Signal | None, notes: list[str], motion: tuple[Signal, Signal] | None = None
+) -> Signal | None:
     """Refuse a thrust column of zeros or one constant throughout; a stretch of at least 1 s (and 10
     samples) where the logger repeated the same value, below the column's maximum (not saturated) and above
     a fifth of its usual level (not idle on the ground), becomes a dropout (its repeated rows are dropped;
     the resampler bridges or restarts); at either end of the log, under half the usual level, it is the
-    vehicle idling before take-off or after landing, kept."""
+    vehicle idling before take-off or after landing, kept. With ``motion = (velocity_W, omega_B)``, a
+    stretch over which the vehicle's logged motion is as steady as its thrust (:func:`_steady`: a noise-free
+    log's hover or straight flight) is kept too, with a note."""
     if sig is None:
         return None
     v = np.asarray(sig.values, dtype=float)[:, 0]
@@ -587,7 +617,14 @@ def check_thrust_signal(sig: Signal | None, notes: list[str]) -> Signal | None:
         start = i - 1  # the run is v[start .. j-1]
         # at either end of the log and under half the usual level: idling before take-off or after landing
         idle = (start == 0 or j == n) and v[start] < 0.5 * float(np.percentile(np.abs(vf), 95))
-        if j - start >= 10 and t[j - 1] - t[start] >= 1.0 and lo < v[start] < hi and not idle:
+        frozen = j - start >= 10 and t[j - 1] - t[start] >= 1.0 and lo < v[start] < hi and not idle
+        if frozen and _steady(motion, t[start], t[j - 1]):
+            notes.append(
+                f"thrust ({sig.source}) repeats {v[start]:.6g} from {t[start]:.3f} s to {t[j - 1]:.3f} s, and the "
+                "logged velocity and body rates are as steady there (a noise-free log): kept as the vehicle's "
+                "steady state"
+            )
+        elif frozen:
             drop[start + 1 : j] = True  # keep the run's first row: the step to the next fresh value is a gap
             notes.append(
                 f"thrust ({sig.source}) repeats {v[start]:.6g} from {t[start]:.3f} s to {t[j - 1]:.3f} s "

@@ -132,7 +132,7 @@ def read_any(
             raw = read_tlog(path, sysid, compid)
         _long_enough(raw, path)
         if raw.thrust is not None:
-            raw.thrust = check_thrust_signal(raw.thrust, raw.notes)
+            raw.thrust = check_thrust_signal(raw.thrust, raw.notes, (raw.velocity_W, raw.omega_B))
         raw, rep = check_conventions(raw, conventions)
         return raw, rep
     table = read_csv_table(path, columns)
@@ -146,7 +146,9 @@ def read_any(
     _long_enough(raw, path)
     notes: list[str] = []
     if raw.thrust is not None:
-        check_thrust_signal(raw.thrust, notes)  # zeros or constant: refused before anything else
+        check_thrust_signal(
+            raw.thrust, notes, (raw.velocity_W, raw.omega_B)
+        )  # zeros or constant: refused before anything else
     block = _check_block(table)
     t_col = block.cols[block.time_role]
     cache: dict = {}
@@ -156,7 +158,7 @@ def read_any(
             raise ImplausibleTime
         r = table_to_raw(block, c, rotor_speed_unit, check_quaternion=False, cache=cache)
         if r.thrust is not None:
-            r.thrust = check_thrust_signal(r.thrust, [])
+            r.thrust = check_thrust_signal(r.thrust, [], (r.velocity_W, r.omega_B))
         return r
 
     if block is table:
@@ -165,12 +167,12 @@ def read_any(
         raw_block = table_to_raw(block, declared, rotor_speed_unit)
         notes.append(f"conventions checked on rows {len(t_col)} of the most dynamic part of the file")
     if raw_block.thrust is not None:
-        raw_block.thrust = check_thrust_signal(raw_block.thrust, [])
+        raw_block.thrust = check_thrust_signal(raw_block.thrust, [], (raw_block.velocity_W, raw_block.omega_B))
     _, rep = check_conventions(raw_block, conventions, declared, reread, table.relevant_conventions())
     if rep.chosen is not None and rep.chosen != declared:
         raw = table_to_raw(table, rep.chosen, rotor_speed_unit)
     if raw.thrust is not None:
-        raw.thrust = check_thrust_signal(raw.thrust, raw.notes)
+        raw.thrust = check_thrust_signal(raw.thrust, raw.notes, (raw.velocity_W, raw.omega_B))
     raw.notes.extend(notes)
     return raw, rep
 

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, ScenarioError, VtolImpedanceError, choice, instance, scalar
+from ..io import quiet_worker, spawning_quietly
 from ..robust import LOOPS
 from ..scenarios import ScenarioSpec, check, get, set_value, simulate
 from ..scenarios.spec import DESIGNED, _dotted, check_name, get_value, parse_value, resolved_control
@@ -227,7 +228,10 @@ class TunePage:
         if self.workers and self._pool is None:
             import multiprocessing
 
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(
+                self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=quiet_worker,
+                initargs=(False,),  # started by request threads: a death signal would follow the thread
+            )  # fmt: skip
 
     def start(self) -> None:
         """Start the worker processes and warm them and the compiled engine up (a first change is then
@@ -248,7 +252,8 @@ class TunePage:
         """Start the margins of ``variants`` (in the workers, at once) and return the wait for them: the
         reports per variant (or the error of a loop without margins) and the CPU time of each (s)."""
         pool = self._pool
-        futures: list[Future] = [pool.submit(_margins_job, spec, v) for v in variants] if pool is not None else []
+        with spawning_quietly():  # a submit may start a worker
+            futures: list[Future] = [pool.submit(_margins_job, spec, v) for v in variants] if pool is not None else []
 
         def result() -> tuple[dict[str, Any] | VtolImpedanceError, list[float]]:
             try:
