@@ -323,6 +323,52 @@ def test_step_arrays_after_reset_is_a_new_flight():
         assert all(np.array_equal(a[name], b[name]) for name in a.dtype.names)
 
 
+def test_a_loop_at_another_rate_than_ts_is_warned_about_when_timed():
+    """Stepped every 2 Ts, the estimator sees twice the momentum's rate of change: a vehicle pushed by 1 N
+    into a constant acceleration is estimated at 2 N, in silence. With the clock ``t`` given, that period is
+    a ControllerWarning (once), time going backwards an InputError with the state unchanged, and a real-time
+    loop's jitter nothing."""
+    from vtol_impedance import Estimator
+
+    m, Ts, a = 1.0, 0.01, 1.0  # 1 N along x on 1 kg, level, the thrust carrying the weight
+
+    def pushed(period, k):
+        return np.array([a * k * period, 0.0, 0.0])
+
+    for period, f_true in ((Ts, 1.0), (2 * Ts, 1.0)):
+        est = Estimator(m, [0.01, 0.01, 0.02], Ts)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            outs = [est.step(pushed(period, k), np.zeros(3), m * 9.81, np.zeros(3), omega_B=np.zeros(3),
+                             t=k * period) for k in range(400)]  # fmt: skip
+        said = [w for w in caught if issubclass(w.category, ControllerWarning)]
+        if period == Ts:
+            assert outs[-1].f_hat_W[0] == pytest.approx(f_true, abs=1e-3) and not said
+        else:  # the wrong number the warning is about, and the warning, once
+            assert outs[-1].f_hat_W[0] == pytest.approx(2 * f_true, abs=1e-3)
+            assert len(said) == 1 and "built for a step every Ts = 0.01 s" in str(said[0].message)
+    ctrl, twin = Controller(ControllerParams.paper("pdc")), Controller(ControllerParams.paper("pdc"))
+    meas = Measurement(np.array([0.1, 0.0, -1.0]), np.zeros(3), np.zeros(3), omega_B=np.zeros(3))
+    ref = Reference(np.array([0.0, 0.0, -1.0]))
+    jitter = np.cumsum(0.01 * (1 + 0.2 * np.sin(np.arange(50))))  # +-20 %: a real-time loop
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ControllerWarning)
+        for k, t in enumerate(jitter):
+            out = ctrl.step(meas, ref, t=t)
+            assert out.thrust == twin.step(meas, ref).thrust
+            if k == 10:
+                with pytest.raises(InputError, match="does not come after the previous step's"):
+                    ctrl.step(meas, ref, t=t - 0.005)
+                with pytest.raises(InputError, match="t \\(the step's time, s\\)"):
+                    ctrl.step(meas, ref, t=float("nan"))
+    y = np.array([0.1, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    r = np.array([0, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    ctrl.reset()  # a new flight: its clock starts again
+    ctrl.step_arrays(y, r, t=0.0)
+    with pytest.warns(ControllerWarning, match="stepped 0.5 s after"):
+        ctrl.step_arrays(y, r, t=0.5)  # a gap
+
+
 def test_step_arrays_checks_type_shape_and_dtype():
     ctrl = Controller(ControllerParams.paper("pdc"))
     y = np.zeros(12)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
-from typing import NamedTuple
+from collections.abc import Callable, Sequence
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from .estimator.momentum import initial_state as estimator_initial_state
 from .model.dynamics import body_moment_from_euler
 from .model.kinematics import check_euler_regular, euler_rate_matrix_Q
 
+_T = TypeVar("_T")
 _F8 = np.dtype(np.float64)
 _ND = np.ndarray
 _ONE_F8 = (8,)  # the strides of a contiguous vector of float64
@@ -39,6 +40,54 @@ _ONE_F8 = (8,)  # the strides of a contiguous vector of float64
 #: studies: 0.09), the ground under a vehicle at rest gives 1, while inputs in a wrong frame (ENU read
 #: as NED) gave 2.6 in a test flight.
 IMPLAUSIBLE_ESTIMATE = 1.5
+
+
+#: With the clock ``t`` given to a step, a period that differs from ``Ts`` by more than this share of it is
+#: warned about: a real-time loop's jitter stays well inside it, a loop run at another rate than the
+#: controller's ``Ts`` (a simulator stepping it at 200 Hz with the default 100 Hz) or a gap is far outside.
+PERIOD_TOLERANCE = 0.5
+
+
+class _Clock:
+    """The optional clock of :meth:`Controller.step` and :meth:`Estimator.step`: time must advance, and a
+    period far from ``Ts`` (:data:`PERIOD_TOLERANCE`) is warned about once until ``reset()``: the estimator
+    differentiates the momentum over ``Ts`` and the filters advance by ``Ts`` per step, so a step every
+    ``2 Ts`` doubles the rate of change of momentum it sees: in motion the estimate is off by ``m a``, in
+    silence."""
+
+    def __init__(self, Ts: float) -> None:
+        self.Ts = float(Ts)
+        self.t_prev: float | None = None
+
+    def check(self, t: object) -> float | None:
+        """``t`` as a float (s) that comes after the last step's, or :class:`InputError`; None stays None."""
+        if t is None:
+            return None
+        t = scalar("t (the step's time, s)", t)
+        if self.t_prev is not None and not t > self.t_prev:
+            raise InputError(
+                f"t = {t!r} s does not come after the previous step's t = {self.t_prev!r} s: the clock must "
+                "advance by Ts every step (reset() starts a new flight; the state is unchanged)"
+            )
+        return t
+
+    def commit(self, t: float | None, warned: set[str], who: str, stacklevel: int = 4) -> None:
+        """Record a step taken at ``t``; warn once (into ``warned``) when its period is far from ``Ts``."""
+        if t is None:
+            return
+        if self.t_prev is not None and "period" not in warned:
+            dt = t - self.t_prev
+            if abs(dt / self.Ts - 1.0) > PERIOD_TOLERANCE:
+                warned.add("period")
+                warnings.warn(
+                    f"{who} was stepped {dt:.6g} s after its previous step, but it was built for a step every "
+                    f"Ts = {self.Ts:g} s ({1.0 / self.Ts:g} Hz): its estimate and filters assume Ts, so a loop at "
+                    f"another rate gives a wrong estimate in silence. Build it with Ts = your period (or step it "
+                    f"every Ts); after a gap in the data call reset(); warned once until reset()",
+                    ControllerWarning,
+                    stacklevel=stacklevel,
+                )
+        self.t_prev = t
 
 
 _PITCH_RANGE = (
@@ -202,11 +251,12 @@ class Controller:
         """
         self.state = initial_controller_state(self.arrays)
         self._warned: set[str] = set()
+        self._clock = _Clock(self.arrays.Ts)
         if self.backend == "compiled":
             self._s, self._h = self._k.initial_state(self._p, self._d)
             self._fast = (self._step_entry, self._p, self._d, self._s, self._h, self._out, self._out_views)
 
-    def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0) -> np.void:
+    def step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int = 0, t: float | None = None) -> np.void:
         """One compiled step for ``vehicle`` with flat inputs ``y (12,)`` and ``r (12,)``, ``(15,)`` or
         ``(18,)`` (with ``comply`` for x, y, z or for x, y, z, roll, pitch, yaw), C-contiguous float64.
 
@@ -214,11 +264,14 @@ class Controller:
         ``out["f_hat_W"]``, ``out["thrust"]``, ...; a view, overwritten by the next call). Raises
         :class:`InputError` on a wrong type, dtype, shape, a non-finite value or a pitch beyond +-pi/2, and
         :class:`SingularityError` at theta = +-90 deg. ``y`` holds Euler rates, not the gyro's body rates
-        (``eta_dot = Q(eta)^-1 omega_B``).
+        (``eta_dot = Q(eta)^-1 omega_B``). ``t``: the step's time (s, any clock; for a batch, vehicle 0's
+        steps are timed), checked as :meth:`step` checks it.
         """
         fast = self._fast
         if fast is None:
             raise InputError("step_arrays needs backend='compiled'")
+        if t is not None:
+            return self._timed(t, vehicle, lambda: self.step_arrays(y, r, vehicle))
         entry, p, d, s, h, o, views = fast
         if type(vehicle) is not int and isinstance(vehicle, np.integer):
             vehicle = int(vehicle)  # an index from NumPy (np.arange, np.flatnonzero) is an index
@@ -266,8 +319,24 @@ class Controller:
             eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B[..., None])[..., 0]
         return Measurement(p_W, v_W, eta, eta_dot)
 
-    def step(self, meas: Measurement, ref: Reference) -> ControlOutput:
-        """One control period (call it every ``Ts``): returns rotor forces, thrust, torque and the estimate."""
+    def _timed(self, t: object, vehicle: int, step: Callable[[], _T]) -> _T:
+        """``step()`` at the time ``t`` (:class:`_Clock`); only vehicle 0's steps advance the clock."""
+        if vehicle != 0:
+            return step()
+        tt = self._clock.check(t)
+        out = step()
+        self._clock.commit(tt, self._warned, "the controller")
+        return out
+
+    def step(self, meas: Measurement, ref: Reference, t: float | None = None) -> ControlOutput:
+        """One control period (call it every ``Ts``): returns rotor forces, thrust, torque and the estimate.
+
+        ``t`` (optional, s, any clock: the simulator's time, the flight stack's): the time of this step.
+        Given, it must advance, or the step is refused (:class:`InputError`, the state unchanged), and a
+        period far from ``Ts`` (more than :data:`PERIOD_TOLERANCE` of it off: a loop at another rate, a
+        gap) is a :class:`ControllerWarning`, once until :meth:`reset`."""
+        if t is not None:
+            return self._timed(t, 0, lambda: self.step(meas, ref))
         bs = self.arrays.batch_shape
         if not bs and self._fast is not None:
             out = self._step_single(meas, ref)
@@ -455,6 +524,8 @@ class Estimator:
     def reset(self) -> None:
         """Start afresh: the next sample fills the history with its command and returns a zero estimate."""
         self._fresh = True
+        self._clock = _Clock(self.Ts)
+        self._warned: set[str] = set()
         if self.backend == "compiled":
             self._s, self._h = self._k.initial_state(self._d, 1)
         else:
@@ -469,9 +540,13 @@ class Estimator:
         *,
         eta_dot: object | None = None,
         omega_B: object | None = None,
+        t: float | None = None,
     ) -> EstimatorOutput:
         """One sample: measured world velocity (m/s, NED), ZYX Euler angles (rad) and exactly one of their
-        rates ``eta_dot`` or the gyro's ``omega_B`` (rad/s, body FRD)."""
+        rates ``eta_dot`` or the gyro's ``omega_B`` (rad/s, body FRD). ``t`` (optional, s, any clock): the
+        sample's time, checked as :meth:`Controller.step` checks it (it must advance; a period far from
+        ``Ts``, a gap or another rate, is a :class:`ControllerWarning`: call :meth:`reset` after a gap)."""
+        tt = self._clock.check(t)
         v_W = _vector3("v_W", v_W, 1e4)
         eta = _vector3("eta", eta, 1e3)
         _check_attitude(eta)
@@ -498,6 +573,7 @@ class Estimator:
             f, t_eta = w[:3], w[3:]
             t_B = body_moment_from_euler(t_eta, eta)
         self._fresh = False
+        self._clock.commit(tt, self._warned, "the estimator", stacklevel=3)
         if no_moment:
             t_eta = np.full(3, np.nan)
             t_B = np.full(3, np.nan)
