@@ -281,3 +281,18 @@ def test_cli_conventions_errors_exit_2_and_auto_reports(fl, tmp_path, capsys):
     rc = main(["estimate", "--example", "px4", "--world", "enu", "--out", str(tmp_path / "d")])
     err = capsys.readouterr().err
     assert rc == 2 and "--world applies to CSV logs" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("rate", [10.0, 15.0])
+def test_a_slow_log_is_not_read_as_milliseconds(tmp_path, rate):
+    """Read in milliseconds, a 40 s log at 10 Hz lasts 0.04 s: too short to score anything, which scored a
+    perfect 0 and beat the true reading ("time looks like milliseconds"). A reading that leaves nothing to
+    score is never preferred to one that can be scored; the time unit is then the declared one, decided."""
+    fl = S.flight(duration=40.0, rate=rate)
+    raw, rep = read_any(write_csv(tmp_path / "slow.csv", csv_cols(fl)))
+    assert "time_unit" not in rep.undetermined and "fit best" in rep.notes[0]
+    raw, rep = read_any(write_csv(tmp_path / "slow.csv", csv_cols(fl)), conventions="auto")
+    assert rep.chosen.time_unit == "s"
+    ms = csv_cols(fl, tunit="ms")  # the same log in milliseconds, declared as seconds: still found out
+    with pytest.raises(InputError, match="milliseconds"):
+        read_any(write_csv(tmp_path / "ms.csv", ms))
