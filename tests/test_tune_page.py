@@ -396,3 +396,24 @@ def _screenshot(page) -> None:
     page.screenshot(path=str(ARTIFACTS / "tune-page.png"), full_page=True)
     if os.environ.get("VTOL_IMPEDANCE_DOCS_IMG") == "1":
         shutil.copy(ARTIFACTS / "tune-page.png", ROOT / "docs" / "img" / "tune-page.png")
+
+
+def test_the_margin_workers_compute_and_ignore_a_ctrl_c():
+    """The pool's workers start with their initializer (a broken one left every margin to the server, with
+    a warning only), compute the margins, and ignore SIGINT: a Ctrl-C is the command's to answer."""
+    import signal
+    import warnings
+
+    app = TunePage(workers=1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)  # "a worker process of the margins died"
+            app.start()
+            pids = list(app._pool._processes)
+            assert pids, "no worker process started"
+            os.kill(pids[0], signal.SIGINT)
+            time.sleep(0.5)
+            first = app.evaluate({})  # still served by the same worker
+            assert list(app._pool._processes) == pids and first["margins"]
+    finally:
+        app.close(wait=False)

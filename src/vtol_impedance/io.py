@@ -71,7 +71,7 @@ def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]
     return Path(path)
 
 
-# --------------------------------------------------------------------------- on-disk caches
+# --------------------------------------------------------------------------- worker processes
 
 
 def quiet_worker(die_with_parent: bool = True) -> None:
@@ -93,68 +93,6 @@ def quiet_worker(die_with_parent: bool = True) -> None:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
-    """Yield a temporary path in the same folder; on success it is renamed onto ``path``."""
-    from .errors import path_like
-
-    path = path_like("path", path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, _default_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-
-
-def write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_path`); return the path."""
-    from .errors import instance, path_like
-
-    path = path_like("path", path)
-    instance("text", text, str)
-    with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    return Path(path)
-
-
-def write_with(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], None]) -> Path:
-    """Call ``writer(file)`` on a binary temporary file, then move it into place."""
-    from .errors import function, path_like
-
-    path = path_like("path", path)
-    function("writer", writer)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        writer(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    return Path(path)
-
-
-# --------------------------------------------------------------------------- on-disk caches
-
-
-def quiet_worker() -> None:
-    """A worker process's initializer (the paper's flights, the tuning page's margins, a local Dask
-    cluster): ignore SIGINT, which a Ctrl-C sends to the whole process group while the command alone
-    answers it (stopping its workers, without one traceback per worker), and die with the parent however it
-    dies (Linux ``PR_SET_PDEATHSIG``; elsewhere the parent's shutdown stops them)."""
-    import ctypes
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards one held back by spawning_quietly
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    try:
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):
-        pass
-
-
-@contextlib.contextmanager
 def spawning_quietly() -> Iterator[None]:
     """Around a process pool's ``submit`` calls, which start its workers: SIGINT is held back in this
     thread and so in the workers it starts, until their :func:`quiet_worker` ignores it (a Ctrl-C while a
@@ -167,6 +105,9 @@ def spawning_quietly() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+# --------------------------------------------------------------------------- on-disk caches
 
 
 def source_digest(sources: Iterable[str | os.PathLike[str]]) -> str:
