@@ -218,6 +218,28 @@ def test_concurrent_runs_into_one_folder_never_interleave(tmp_path):
     assert not out.exists()
 
 
+def test_a_file_output_never_replaces_a_device_a_fifo_or_a_folder(tmp_path, capsys):
+    """``--out`` of a command that writes one file (identify, design, bench) is renamed onto at the end: on
+    a FIFO or a device (``/dev/null`` as root) that replaced the node with a regular file, and the command
+    said "written". Refused up front, the node left as it was; ``write_text`` refuses it too."""
+    from vtol_impedance.io import write_text
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    (tmp_path / "dir").mkdir()
+    for out in (fifo, tmp_path / "dir"):
+        for argv in (["identify", "--example", "px4"], ["design", "pelican", "--cases", "case-a-payload", "--quiet"],
+                     ["bench", "--quick", "--quiet"]):  # fmt: skip
+            t0 = time.perf_counter()
+            assert main([*argv, "--out", str(out)]) == 2, argv
+            err = capsys.readouterr().err
+            assert ("FIFO" in err if out == fifo else "a folder" in err) and "Traceback" not in err, err
+            assert time.perf_counter() - t0 < 10.0  # before the work
+        with pytest.raises(InputError, match="not a file"):
+            write_text(out, "x")
+    assert fifo.is_fifo() and (tmp_path / "dir").is_dir()
+
+
 def test_a_live_recording_is_never_replaced(tmp_path, capsys):
     """A folder that ``live`` wrote holds a flight that cannot be flown again: no command replaces it, and
     the manifest names the command that wrote a folder (a run's is replaced by the next run, as above)."""

@@ -368,21 +368,12 @@ def _realistic_limit(folder: Path, n: int, T: float, rounds: int, log=print) -> 
 def _writable_report(out: Path) -> Path:
     """``out`` as a path where the JSON report can be written, or :class:`InputError` saying why not."""
     from .errors import InputError
+    from .io import check_output_file
 
-    out = Path(out)
-    if out.is_dir() or (out.exists() and not out.is_file()):
-        raise InputError(f"--out {out} is not a file (give the path of the JSON report)")
-    for parent in out.absolute().parents:
-        if parent.exists():
-            if not parent.is_dir() or not os.access(parent, os.W_OK):
-                raise InputError(f"--out {out}: {parent} is not a folder this user can write into")
-            try:  # before minutes of measuring: a file can be made there (not /proc, a read-only mount)
-                with tempfile.NamedTemporaryFile(dir=parent, prefix=".bench-probe-"):
-                    pass
-            except OSError as exc:
-                raise InputError(f"--out {out}: cannot write into {parent} ({exc.strerror or exc})") from None
-            break
-    return out
+    try:
+        return check_output_file(out)
+    except InputError as exc:
+        raise InputError(f"--out {out}: {exc} (give the path of the JSON report)") from None
 
 
 def run(

@@ -34,6 +34,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     from .errors import path_like
 
     path = path_like("path", path)
+    _not_special(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
@@ -45,6 +46,49 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _not_special(path: Path) -> None:
+    """:class:`~vtol_impedance.errors.InputError` when ``path`` is something a file written there would
+    replace but is not a file: a folder, a device (``/dev/null``: renamed onto as root, the machine's would
+    become a file), a FIFO or a socket."""
+    import stat
+
+    from .errors import InputError
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # nothing there (or a dangling link): a new file
+    if stat.S_ISREG(mode):
+        return
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "not a regular file")  # fmt: skip
+    raise InputError(f"{path} is {kind}, not a file: writing there would replace it; give the path of a file")
+
+
+def check_output_file(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a :class:`~pathlib.Path` when a file can be written there (new, or a regular file to
+    replace), else :class:`~vtol_impedance.errors.InputError` naming what is in the way (a folder, a device,
+    a FIFO; a folder on the way that cannot be made or written). Cheap: commands call it before any work."""
+    from .errors import InputError, path_like
+
+    path = path_like("path", path)
+    if not str(path).strip():
+        raise InputError("give the path of a file to write")
+    _not_special(path)
+    for parent in path.absolute().parents:  # the first existing folder up the path must take a new file
+        if parent.exists():
+            if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+                raise InputError(f"{path}: {parent} is not a folder this user can write into")
+            try:  # not /proc, not a read-only mount
+                with tempfile.NamedTemporaryFile(dir=parent, prefix=".vtol-probe-"):
+                    pass
+            except OSError as exc:
+                raise InputError(f"{path}: cannot write into {parent} ({exc.strerror or exc})") from None
+            break
+    return path
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> Path:

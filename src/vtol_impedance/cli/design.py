@@ -14,7 +14,7 @@ from .common import _Progress
 def cmd_design(args: argparse.Namespace) -> int:
     """Search the tuning that tracks the wind and circle cases best within the margins; print it against
     the printed gains, with the ``--set`` flags that fly it (and write them to ``--out``)."""
-    from ..io import check_folder_path, write_text
+    from ..io import check_output_file, write_text
     from ..scenarios.tracking import CASES, tracking_design
 
     cases = list(CASES) if args.cases is None else [c.strip() for c in args.cases.split(",") if c.strip()]
@@ -27,9 +27,10 @@ def cmd_design(args: argparse.Namespace) -> int:
 
         from ..errors import InputError
 
-        if not args.out.strip() or Path(args.out).is_dir():
-            raise InputError(f"--out {args.out!r}: give a file name for the tuning (a .toml file)")
-        check_folder_path(Path(args.out).resolve().parent)
+        try:
+            check_output_file(Path(args.out))
+        except InputError as exc:
+            raise InputError(f"--out {args.out!r}: {exc} (give a file name for the tuning, a .toml file)") from None
     if not args.quiet:
         print(f"designing for {', '.join(cases)} on {args.vehicle}: 108 tunings, about 40 s ...", file=sys.stderr)
     bar = _Progress("tunings checked", not args.quiet)

@@ -11,7 +11,7 @@ from typing import Any
 def cmd_identify(args: argparse.Namespace) -> int:
     """Fit the vehicle's aerodynamic coefficients and rotor lag to a log; print them and a TOML snippet."""
     from ..errors import InputError
-    from ..io import explain_path, write_text
+    from ..io import check_output_file, explain_path, write_text
     from ..logs import samples as sample_logs
     from ..logs.identify import identify_file
 
@@ -25,6 +25,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
         log = Path(args.log)
         if not log.is_file():
             raise InputError(f"cannot read log file {log}: {explain_path(log) or 'not a regular file'}")
+    if args.out:  # before the fit: a device or a folder named as the output is refused, not replaced
+        check_output_file(Path(args.out))
     from ..estimator import EstimatorParams
 
     read_options: dict[str, Any] = {"conventions": args.conventions}
