@@ -741,6 +741,8 @@ TABLE: dict[str, tuple[Any, dict[str, Any]]] = {
         {"path": "path", "writer": "func"},
     ),
     "io.sha256_of": (lambda: dict(path=csv_file()), {"path": "path"}),
+    "io.check_output_file": (lambda: dict(path=Path("no-such-folder/x")), {"path": "path"}),
+    "io.is_recording": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path"}),
     "io.check_output_folder": (lambda: dict(final=Path("no-such-folder")), {"final": "path"}),
     "io.FolderLock": (lambda: dict(folder=Path("no-such-folder")), {"folder": "path"}),
     "io.RunFolder": (lambda: dict(final=Path("no-such-folder")), {"final": "path"}),
@@ -834,6 +836,8 @@ EXEMPT = {
     "scenarios.names": "one flag (latest_only), any truth value is meaningful",
     "errors.check_keys": "checks a mapping's keys; the mapping and names come from the package's own readers",
     "errors.flag": "accepts only True or False; every other value is what it refuses",
+    "io.quiet_worker": "a process pool's initializer: its one flag (die_with_parent) takes any truth value",
+    "io.spawning_quietly": "no parameters",
     # results and records the package builds and hands out; users read them, never construct them
     **{n: "a result record the package builds" for n in (
         "model.Allocation", "model.RotorGeometry", "estimator.EstimatorDesign", "estimator.EstimatorState",

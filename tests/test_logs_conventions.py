@@ -296,3 +296,17 @@ def test_a_slow_log_is_not_read_as_milliseconds(tmp_path, rate):
     ms = csv_cols(fl, tunit="ms")  # the same log in milliseconds, declared as seconds: still found out
     with pytest.raises(InputError, match="milliseconds"):
         read_any(write_csv(tmp_path / "ms.csv", ms))
+
+
+def test_an_estimator_slower_than_the_log_says_so(fl, tmp_path):
+    """With wn = 0.05 rad/s (5 time constants: 100 s) on a 12 s log the estimate never reaches the force
+    and reads a fraction of it, which a reader takes for a small force: a warning says why."""
+    from vtol_impedance.estimator import EstimatorParams
+
+    f = resample(read_any(write_csv(tmp_path / "f.csv", csv_cols(fl, every=EVERY)))[0])
+    slow = estimate(f, S.MASS, None, params=EstimatorParams(wn=0.05))
+    truth = S.F_BIAS + S.F_STEP  # after the step at 5 s
+    assert np.linalg.norm(slow.f_W[-1]) < 0.2 * np.linalg.norm(truth)  # the wrong-looking number
+    (w,) = [w for w in slow.warnings if "never reaches the force" in w]
+    assert "100 s" in w and "raise --wn" in w
+    assert not any("never reaches" in w for w in estimate(f, S.MASS, None).warnings)

@@ -78,6 +78,22 @@ def reference(tmp_path_factory):
         ),
         ({"set": {"payload": {"mass": 0.3}}}, r"axis 'payload.mass' sets 'payload.mass', which \[set\] sets too"),
         ({"set": {"seed": 3}}, r"\[set\] seed: the sweep sets each flight's seed"),
+        # a vector and one of its entries are one value: the rows would name values never flown
+        (
+            {"axes": {"payload.offset_B": [[0.0, 0, 0], [0.05, 0, 0]], "payload.offset_B[0]": [0.02]}},
+            r"'payload.offset_B\[0\]', which axis 'payload.offset_B' sets too",
+        ),
+        (
+            {"set": {"payload.offset_B[2]": 0.09}, "axes": {"payload.offset_B": [[0.0, 0, 0]]}},
+            r"which \[set\] sets too \(as 'payload.offset_B\[2\]'\)",
+        ),
+        ({"controllers": [["pd"]]}, "controllers must be"),
+        (
+            {"max_flights": 10**9, "axes": {"payload.mass": {"min": 0.0, "max": 0.3, "n": 2000},
+                                            "control.Kp": {"min": 8.0, "max": 30.0, "n": 1000}}},
+            "2000000 points, above the 1000000 one sweep file can list",
+        ),  # fmt: skip
+        ({"description": {"a": 1}}, "description must be a str"),
         (
             {
                 "axes": {
@@ -539,3 +555,14 @@ def test_the_cluster_flags_help_names_the_true_defaults():
     helps = {a.dest: a.help for a in sub._actions}
     assert f"(default {CONNECT_TIMEOUT_S:g})" in helps["connect_timeout"]
     assert f"(default {WAIT_WORKERS_S:g})" in helps["wait_workers"]
+
+
+def test_two_entries_of_one_vector_are_two_values():
+    """Distinct entries of one vector are distinct values (only a vector and its own entries overlap), and an
+    axis over one entry of a vector that [set] gives whole varies that entry (built-in payload-vs-offset)."""
+    sw = from_dict({**SMALL, "axes": {"payload.offset_B[0]": [0.0, 0.02], "payload.offset_B[1]": [0.01]}},
+                   check_points=False)  # fmt: skip
+    assert len(sw.points) == 2
+    sw = from_dict({**SMALL, "set": {"payload.offset_B": [0.0, 0.0, 0.03]}, "axes": {"payload.offset_B[0]": [0.02]}},
+                   check_points=False)  # fmt: skip
+    assert sw.point_spec(0).payload.offset_B == (0.02, 0.0, 0.03)

@@ -3,6 +3,7 @@ controller API for a user's own loop, and the silent wrong answers of the past (
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -50,6 +51,11 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
         (["--set", "payload.offset_B=[1,2]"], "payload.offset_B expects 3 values"),
         (["--set", "payload.mass=true"], "payload.mass expects a number"),
         (["--set", "control.Kp=[[16,1,0],[0,16,0],[0,0,16]]"], "diagonal"),
+        (["--set", "control.Kp=[[16,0,0],[0,16,0],[0,0,true]]"], "control.Kp must be finite numbers"),  # not 1
+        (["--set", "payload.mass=100000000000000000000000"], "payload.mass must be in"),  # 2**64 and over
+        (["--set", "payload.mass=" + "9" * 400], "payload.mass must be a finite number"),  # beyond any float
+        (["--set", "payload.offset_B.0=0.1"], "payload.offset_B is a value, not a section; set one entry"),
+        (["--set", "interaction.switches.0.t=1"], "give the whole list"),
         (["--set", "control.Kp=-1"], "control.Kp must be in"),
         (["--set", "control.estimator_order=2.5"], "integer"),
         (["--set", 'control.estimator_prototype="bessel"'], "prototype"),
@@ -91,6 +97,9 @@ def test_cli_refuses_bad_values_with_their_name(argv, msg, capsys, tmp_path):
         ('base = "case-a-payload"\nname = "x-v1"\ndisturbances = [1, 2]\n', "disturbances must be"),
         ("base = 7\n", "unknown scenario"),
         ("name = [\n", "cannot read scenario file"),
+        ('base = "case-a-payload"\nname = "x-v1"\n[interaction]\nswitches = [[1' + "0" * 400 + ', "x", "comply"]]\n',
+         "switch time must be a finite number"),  # fmt: skip
+        ('base = "case-a-payload"\nname = "x-v1"\n[payload]\nmass = 1' + "0" * 400 + "\n", "finite number"),
     ],
 )
 def test_scenario_files_of_the_wrong_type_are_refused(toml, msg, tmp_path, capsys):
@@ -99,6 +108,14 @@ def test_scenario_files_of_the_wrong_type_are_refused(toml, msg, tmp_path, capsy
     assert main(["run", str(f), "--quiet", "--no-plots", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert msg in err and "Traceback" not in err
+
+
+def test_a_scenario_file_with_a_byte_order_mark_is_read(tmp_path, capsys):
+    """Windows editors start a UTF-8 file with a byte-order mark; it is not TOML text, and was refused as
+    "Invalid statement (at line 1, column 1)"."""
+    f = tmp_path / "bom.toml"
+    f.write_bytes(b"\xef\xbb\xbf" + b'base = "case-a-payload"\nname = "bom-v1"\nduration = 0.1\n')
+    assert main(["run", str(f), "--quiet", "--no-plots", "--out", str(tmp_path / "o")]) == 0
 
 
 def test_output_location_is_checked_before_the_work(tmp_path, capsys):
@@ -644,6 +661,29 @@ def test_a_vehicle_file_describes_a_custom_multirotor(tmp_path):
     bad.write_text("mass = 1.0\ninertia_diag = [1e-3, 1e-3, 1e-3]\n[[rotors]]\nposition_B = [0.1, 0, 0]\n")
     with pytest.raises(InputError, match="spin"):
         load_toml_vehicle(bad)
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        ('inertia = [[1e-3, 0, 0], [0, 1e-3, 0], [0, 0, 2e-3]]\n', "inertia or inertia_diag"),
+        ("drag_factor = 0.02\ntorque_constant = 1e-7\nthrust_constant = 1e-5\nmax_speed = 800.0\n",
+         "drag_factor or torque_constant"),
+        ("f_max = 5.0\nmax_speed = 800.0\nthrust_constant = 1e-5\n", "f_max or max_speed"),
+        ("torque_constant = 1e-7\n", "torque_constant needs thrust_constant"),
+        ("thrust_constant = 1e-5\n", "alone it sets nothing"),
+        ('layout = "hex"\narm_length = 0.5\nf_max = 3.0\n[[rotors]]\nposition_B = [0.1, 0.1, 0]\nspin = 1\n',
+         "explicit [[rotors]] or the shorthand"),
+    ],
+)
+def test_a_vehicle_file_that_says_one_thing_twice_is_refused(tmp_path, extra, named):
+    """Two ways of giving one quantity (or explicit rotors and the layout shorthand) each dropped one of
+    them in silence: a hexarotor file with four [[rotors]] flew those four with the Pelican's limits. Refused,
+    naming both; a constant that nothing uses is refused too."""
+    f = tmp_path / "twice.toml"
+    f.write_text("mass = 1.0\ninertia_diag = [1e-3, 1e-3, 2e-3]\n" + extra)
+    with pytest.raises(InputError, match=re.escape(named)):
+        load_toml_vehicle(f)
 
 
 def load_toml_vehicle(path):

@@ -43,6 +43,8 @@ def as_finite(name: str, value: Any, shape_tail: tuple[int, ...] | None = None) 
         raise
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} must be numeric, got {_short(value)} ({exc})") from None
+    except OverflowError:  # an integer such as 10**400, beyond any float
+        raise InputError(f"{name} is beyond any floating-point number, got {_short(value)}") from None
     if arr.dtype == object:
         raise InputError(f"{name} must be numeric, got {_short(value)}")
     if shape_tail is not None:
@@ -66,7 +68,9 @@ def positive(name: str, value: Any, allow_zero: bool = False) -> np.ndarray:
 
 
 def check_keys(where: str, data: dict[str, Any], valid: tuple[str, ...] | list[str]) -> None:
-    """Raise :class:`InputError` naming any key of ``data`` not in ``valid``."""
+    """Raise :class:`InputError` naming any key of ``data`` not in ``valid`` (or ``data`` that is no table)."""
+    if not isinstance(data, dict):
+        raise InputError(f"{where} must be a table of keys ({', '.join(valid)}), got {_short(data)}")
     unknown = sorted(set(data) - set(valid))
     if unknown:
         raise InputError(f"{where}: unknown key(s) {unknown}; valid keys: {', '.join(valid)}")
@@ -106,7 +110,7 @@ def scalar(
     if bad:
         left = "(" if lo_open else "["
         rng = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
-        raise InputError(f"{name} must be in {rng}, got {value!r}")
+        raise InputError(f"{name} must be in {rng}, got {_short(value)}")
     return int(v) if integer else v
 
 

@@ -278,7 +278,7 @@ def read_toml(path: str | os.PathLike[str], what: str, error: type[Exception] | 
     instance("what", what, str)
     error = error or InputError
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")  # a Windows editor's byte-order mark is not text
     except OSError as exc:
         raise error(f"cannot read {what} {path}: {explain_path(path, 'file') or exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
@@ -398,6 +398,9 @@ def is_recording(folder: Path) -> bool:
     before manifests named their command, lists a ``flight.tlog``): a flight's recording, never replaced."""
     import json
 
+    from .errors import path_like
+
+    folder = path_like("folder", folder)
     try:
         manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
     except (OSError, ValueError):

@@ -968,6 +968,22 @@ def _gap_bounds(flight: FlightLog, thrust: np.ndarray, tau: np.ndarray | None, d
             g["bound_tau_Nm"] = float(gmax[3:].max() * T**3 / 12.0 * ct)
 
 
+def _settles_within(flight: FlightLog, params: EstimatorParams, notes: list[str]) -> None:
+    """A WARNING when the estimator's settling (5 time constants of its slowest pole) is longer than every
+    stretch of the log it runs on without a restart: the estimate never reaches the force, and a reader
+    would take its near-zero for no force (``--wn 0.01`` on a 20 s log: 0.005 N against a true 1 N)."""
+    settle = 5.0 / float(np.min(np.abs(params.channel_poles())))
+    starts = np.union1d([0], np.flatnonzero(flight.restart))
+    ends = np.append(starts[1:], len(flight.t)) - 1
+    longest = float(np.max(flight.t[ends] - flight.t[starts]))
+    if settle > longest:
+        notes.append(
+            f"WARNING: the estimator settles in {settle:.3g} s (5 time constants of its slowest pole), longer than "
+            f"the longest stretch of the log it runs on without a restart ({longest:.3g} s): the estimate never "
+            "reaches the force and reads smaller than it is, near zero for a much slower estimator; raise --wn"
+        )
+
+
 def estimate(
     flight: FlightLog,
     mass: float,
@@ -1040,6 +1056,7 @@ def estimate(
     if tau is None:
         tau_eta = tau_B = tau_zp = None
     _gap_bounds(flight, thrust, tau, des)
+    _settles_within(flight, params, notes)
     bias = None
     if quiet_segment is not None:
         sel = _segment("quiet segment", quiet_segment, flight.t, 0.5)

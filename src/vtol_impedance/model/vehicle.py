@@ -389,6 +389,36 @@ PRESET_KEYS = (
 ROTOR_KEYS = ("position_B", "spin", "f_max", "f_min", "max_speed")
 
 
+def _one_of_each(data: dict[str, Any], source: str) -> None:
+    """Refuse a table that says one thing twice (one of the two would be dropped in silence) or gives a
+    constant that nothing uses."""
+    pairs = [("inertia", "inertia_diag"), ("drag_factor", "torque_constant"), ("f_max", "max_speed")]
+    for a, b in pairs:
+        if a in data and b in data:
+            raise InputError(f"{source}: give {a} or {b}, not both (one would be ignored)")
+    if "rotors" in data:
+        given = [k for k in ("layout", "arm_length", "f_max", "f_min", "max_speed") if k in data]
+        if given:
+            raise InputError(
+                f"{source}: give either explicit [[rotors]] or the shorthand {given} with a layout, not both "
+                "(each rotor takes its own position_B, spin, f_max, f_min)"
+            )
+        for i, r in enumerate(data["rotors"] if isinstance(data["rotors"], list) else []):
+            if isinstance(r, dict) and "f_max" in r and "max_speed" in r:
+                raise InputError(f"{source}: rotors[{i}]: give f_max or max_speed, not both (one would be ignored)")
+    if "torque_constant" in data and "thrust_constant" not in data:
+        raise InputError(f"{source}: torque_constant needs thrust_constant (drag factor = torque / thrust constant)")
+    rotor_speeds = "max_speed" in data or any(
+        isinstance(r, dict) and "max_speed" in r for r in (data.get("rotors") if isinstance(data.get("rotors"), list)
+                                                          else [])
+    )  # fmt: skip
+    if "thrust_constant" in data and "torque_constant" not in data and not rotor_speeds:
+        raise InputError(
+            f"{source}: thrust_constant is used with max_speed (rotor limits) or torque_constant (drag factor); "
+            "alone it sets nothing"
+        )
+
+
 def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleParams:
     """Build a vehicle from a parsed TOML table (see ``presets/*.toml`` and the README).
 
@@ -409,6 +439,7 @@ def vehicle_from_dict(data: dict[str, Any], source: str = "vehicle") -> VehicleP
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a table, got {data!r}")
     check_keys(source, data, PRESET_KEYS)
+    _one_of_each(data, source)
     try:
         inertia = data["inertia"] if "inertia" in data else data["inertia_diag"]
         mass = data["mass"]

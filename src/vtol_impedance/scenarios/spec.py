@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import re
 import tomllib
 import typing
@@ -255,6 +256,18 @@ class InteractionSpec:
         _check_fields(self)
 
 
+def _real(value: Any) -> float | None:
+    """``value`` as a finite float when it is a real number (not a boolean), else None (an integer beyond
+    any float, 10**400, included: NumPy could not even test it)."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
+
+
 def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
     """Validate ``[[time_s, axis, behaviour], ...]`` naming what is wrong."""
     if not isinstance(value, list | tuple):
@@ -264,8 +277,9 @@ def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
         if not isinstance(sw, list | tuple) or len(sw) != 3:
             raise ScenarioError(f"an interaction switch is [time_s, axis, behaviour], got {sw!r}")
         t, axis, beh = sw
-        if not isinstance(t, int | float) or isinstance(t, bool) or not np.isfinite(t) or t < 0:
-            raise ScenarioError(f"interaction switch time must be a number >= 0 s, got {t!r}")
+        t_s = _real(t)
+        if t_s is None or t_s < 0:
+            raise ScenarioError(f"interaction switch time must be a finite number >= 0 s, got {str(t)[:40]}")
         if axis not in AXES:
             raise ScenarioError(
                 f"interaction switch axis {axis!r} does not exist; the axes are x, y, z (world NED) and roll, "
@@ -273,7 +287,7 @@ def parse_switches(value: Any) -> tuple[tuple[float, str, str], ...]:
             )
         if beh not in BEHAVIOURS:
             raise ScenarioError(f"interaction switch behaviour {beh!r} is not one of {', '.join(BEHAVIOURS)}")
-        out.append((float(t), str(axis), str(beh)))
+        out.append((t_s, str(axis), str(beh)))
     return tuple(out)
 
 
@@ -655,6 +669,8 @@ def _check_range(path: str, value: Any) -> None:
 def _gain_value(path: str, value: Any) -> Any:
     """A gain may be a scalar, 3 values, or a diagonal 3x3 matrix (as eq. (18) writes it)."""
     if isinstance(value, list) and len(value) == 3 and all(isinstance(r, list) for r in value):
+        if not all(_real(v) is not None for r in value for v in r):  # no true for a 1, no 10**400
+            raise ScenarioError(f"{path} must be finite numbers, got {value!r}")
         try:
             mat = np.array(value, dtype=float)
         except (TypeError, ValueError):
@@ -694,9 +710,10 @@ def _coerce(path: str, current: Any, value: Any) -> Any:
         if path in _GAIN_KEYS and isinstance(value, list | tuple) and len(value) == 3:
             return tuple(float(_coerce(f"{path}[{i}]", 0.0, v)) for i, v in enumerate(value))
         if isinstance(value, int | float) and not isinstance(value, bool):
-            if not np.isfinite(value):
-                raise ScenarioError(f"{path} must be finite, got {value!r}")
-            return float(value)
+            number = _real(value)  # an integer of 2**64 or more is a Python int NumPy cannot test
+            if number is None:
+                raise ScenarioError(f"{path} must be a finite number, got {str(value)[:40]}")
+            return number
         raise ScenarioError(f"{path} expects a number, got {value!r}")
     if isinstance(current, str):
         if isinstance(value, str):
@@ -789,6 +806,12 @@ def _set(obj: Any, parts: list[str], value: Any, full: str) -> Any:
         raise ScenarioError(f"unknown key {full!r}: {head!r} is not one of {', '.join(valid)}")
     current = getattr(obj, head)
     if rest:
+        if not dataclasses.is_dataclass(current) and head != "disturbances":  # a value, not a section
+            key = full[: len(full) - len(".".join(rest)) - 1]
+            hint = f"; set one entry with {key}[i], e.g. {key}[0]" if isinstance(current, tuple) else ""
+            if key == "interaction.switches":
+                hint = "; give the whole list, interaction.switches=[[time_s, axis, behaviour], ...]"
+            raise ScenarioError(f"{full}: {key} is a value, not a section{hint}")
         return replace(obj, **{head: _set(current, rest, value, full)})
     if dataclasses.is_dataclass(current):
         raise ScenarioError(f"{full} is a section; set one of its keys: {', '.join(_section_keys(current))}")

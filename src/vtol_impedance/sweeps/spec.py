@@ -63,6 +63,10 @@ KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "
 #: (a scenario that switches comply on once airborne would otherwise be checked with comply off).
 MARGINS_AT = ("window", "engaged")
 MAX_FLIGHTS = 200_000
+#: Most points one sweep file lists, whatever ``max_flights`` says: its points are built as one list before
+#: any other check (9 million took 1.9 GB and 39 s before the 10-minute budget refused them); split a
+#: larger study into several sweeps.
+MAX_POINTS = 1_000_000
 
 
 def set_param(spec: ScenarioSpec, key: str, value: Any) -> ScenarioSpec:
@@ -317,7 +321,7 @@ def from_dict(
     if (
         not isinstance(ctrls, list)
         or not ctrls
-        or any(c not in VARIANTS for c in ctrls)
+        or any(not isinstance(c, str) or c not in VARIANTS for c in ctrls)
         or len(set(ctrls)) != len(ctrls)
     ):
         raise InputError(f"controllers must be a list of distinct names from {', '.join(VARIANTS)}, got {ctrls!r}")
@@ -358,6 +362,11 @@ def from_dict(
     else:
         n_points = int(scalar("samples", data.get("samples", 0), lo=1, hi=10_000_000, integer=True))
     n_flights = n_points * seeds * len(ctrls)
+    if n_points > MAX_POINTS:
+        raise InputError(
+            f"the sweep has {n_points} points, above the {MAX_POINTS} one sweep file can list (each is built "
+            "and checked before the first flight); split it into several sweeps"
+        )
     if n_flights > max_flights:  # before the points are built: a huge grid is refused, not allocated
         raise InputError(
             f"the sweep has {n_flights} flights ({n_points} points x {seeds} seeds x {len(ctrls)} "
@@ -376,7 +385,8 @@ def from_dict(
     else:
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2**31,)))
         points = [{a.key: a.draw(rng) for a in axes} for _ in range(n_points)]
-    sweep = Sweep(name, str(data.get("description", "")), base, list(ctrls), axes, points, seeds, seed, chunk, traces,
+    description = instance("description", data.get("description", ""), str)
+    sweep = Sweep(name, description, base, list(ctrls), axes, points, seeds, seed, chunk, traces,
                   source=data, margins=margins, margins_at=margins_at, measures=measures,
                   vehicle_file=_read_vehicle(base.vehicle))  # fmt: skip
     if check_points:
@@ -424,15 +434,30 @@ def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
     ``groups`` (joint axes count each of their keys): a second place would silently override the first
     (two axes over one key label flights by values they never flew)."""
     seen: dict[str, str] = {}
+
+    def overlap(k: str) -> str | None:
+        """A key set before that ``k`` would override or lose: itself, or a vector and one of its entries;
+        but an axis over one entry of a vector ``[set]`` gives whole is that vector with the entry varied."""
+        base = k.split("[", 1)[0]
+        for s in seen:
+            if s == k:
+                return s
+            if s.split("[", 1)[0] == base and ("[" not in s or "[" not in k):
+                if not (seen[s] == "[set]" and "[" not in s):
+                    return s
+        return None
+
     if isinstance(fixed, dict):
         seen.update({k: "[set]" for k in _dotted(fixed)})
     for group, axes in groups.items():
         for a in axes:
             for k in (x.strip() for x in a.key.split(",")):
-                if k in seen:
+                other = overlap(k)
+                if other is not None:
+                    also = "" if other == k else f" (as {other!r})"
                     raise InputError(
-                        f"{group} {a.key!r} sets {k!r}, which {seen[k]} sets too: set each value in one place "
-                        "(one would silently override the other)"
+                        f"{group} {a.key!r} sets {k!r}, which {seen[other]} sets too{also}: set each value in one "
+                        "place (one would silently override the other)"
                     )
                 seen[k] = f"{group} {a.key!r}"
 

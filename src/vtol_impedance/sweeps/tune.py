@@ -43,10 +43,10 @@ from typing import Any
 import numpy as np
 
 from ..control.impedance import VARIANTS
-from ..errors import InputError, check_keys, scalar
+from ..errors import InputError, check_keys, instance, scalar
 from ..io import read_toml
 from ..robust.design import DesignError
-from ..scenarios.spec import _INDEXED, _dotted, get_value
+from ..scenarios.spec import _INDEXED, _dotted, check_name, get_value
 from .budget import Progress, minutes
 from .run import METRICS, Executor, warm_up
 from .spec import Axis, _axis, distinct_keys, from_dict
@@ -173,7 +173,8 @@ def tuning_from_dict(data: dict[str, Any], where: Path | None = None, check_corn
     if not isinstance(controller, str):  # one controller is tuned at a time
         raise InputError(f"controller is one of {', '.join(sorted(VARIANTS))} (one per tuning), got {controller!r}")
     t = Tuning(
-        name=str(data.get("name", "tune")), description=str(data.get("description", "")), data=data, where=where,
+        name=check_name(data.get("name", "tune")),
+        description=instance("description", data.get("description", ""), str), data=data, where=where,
         controller=controller,
         trials=int(scalar("trials", data.get("trials", 30), lo=1, hi=100_000, integer=True)),
         seed=int(scalar("seed", data.get("seed", 0), lo=0, hi=2**63 - 1, integer=True)),
