@@ -310,3 +310,14 @@ def test_an_estimator_slower_than_the_log_says_so(fl, tmp_path):
     (w,) = [w for w in slow.warnings if "never reaches the force" in w]
     assert "100 s" in w and "raise --wn" in w
     assert not any("never reaches" in w for w in estimate(f, S.MASS, None).warnings)
+
+
+@pytest.mark.parametrize("cell", [1e200, -3e7])  # inf is a missing sample, as NaN (tests/test_logs.py)
+def test_one_garbled_cell_is_named_by_line_and_column(fl, tmp_path, cell):
+    """One absurd value in one velocity cell made the convention check compare NaN scores and print a
+    self-contradicting refusal ("the data agree (score nan against nan)"). It is named by line and column."""
+    cols = csv_cols(fl, every=EVERY)
+    cols["vx"] = cols["vx"].copy()
+    cols["vx"][299] = cell
+    with pytest.raises(InputError, match=r"line 301, column 'vx': .* beyond any flight's value"):
+        read_any(write_csv(tmp_path / "bad.csv", cols))

@@ -348,3 +348,18 @@ def test_a_gyro_vibrating_at_a_multiple_of_the_check_grid_is_not_a_wrong_column(
     k0 = evidence(read_any(write_csv(tmp_path / "clean.csv", clean))[0]).kin
     k1 = evidence(read_any(write_csv(tmp_path / "shaken.csv", shaken))[0]).kin
     assert k0 < 0.05 and k1 < k0 + 0.05, (k0, k1)
+
+
+@pytest.mark.parametrize("scale", [2.0, 0.5, 1.3])
+def test_a_gyro_of_the_wrong_scale_is_refused_on_its_gain(tmp_path, scale):
+    """Body rates k times too large (a gyro's full-scale range set wrong) score |1 - k| / (1 + k) on the
+    kinematic residual, 0.33 for k = 2, under its limit: the log was estimated with a wrong moment. The
+    gain on an axis that turns is tested on its own (within 0.2 of 1; a correct log is within 0.01)."""
+    fl, _ = figure_eight()
+    cols = csv_cols(fl)
+    right = estimate_file(write_csv(tmp_path / "right.csv", cols), MASS)
+    (kin,) = [t for t in right.info["verdict"]["tests"] if t["test"] == "kinematics"]
+    assert kin["status"] == "pass"
+    scaled = dict(cols, **{k: scale * cols[k] for k in ("wx", "wy", "wz")})
+    with pytest.raises(LogRefused, match=rf"body axis x are {scale:.3g} times the attitude's rate of change"):
+        estimate_file(write_csv(tmp_path / "scaled.csv", scaled), MASS)

@@ -56,6 +56,7 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
         (["--set", "payload.mass=" + "9" * 400], "payload.mass must be a finite number"),  # beyond any float
         (["--set", "payload.offset_B.0=0.1"], "payload.offset_B is a value, not a section; set one entry"),
         (["--set", "interaction.switches.0.t=1"], "give the whole list"),
+        (["--set", "payload.mass=0.1", "--set", "payload.mass=0.2"], "--set payload.mass given more than once"),
         (["--set", "control.Kp=-1"], "control.Kp must be in"),
         (["--set", "control.estimator_order=2.5"], "integer"),
         (["--set", 'control.estimator_prototype="bessel"'], "prototype"),
@@ -100,6 +101,7 @@ def test_cli_refuses_bad_values_with_their_name(argv, msg, capsys, tmp_path):
         ('base = "case-a-payload"\nname = "x-v1"\n[interaction]\nswitches = [[1' + "0" * 400 + ', "x", "comply"]]\n',
          "switch time must be a finite number"),  # fmt: skip
         ('base = "case-a-payload"\nname = "x-v1"\n[payload]\nmass = 1' + "0" * 400 + "\n", "finite number"),
+        ('base = "case-a-payload"\nname = "x-v1"\n[payload]\nmass = {}\n', "payload.mass is given an empty table"),
     ],
 )
 def test_scenario_files_of_the_wrong_type_are_refused(toml, msg, tmp_path, capsys):

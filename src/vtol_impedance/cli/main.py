@@ -89,6 +89,12 @@ def main(argv: list[str] | None = None) -> int:
                 from ..errors import InputError
 
                 raise InputError("--out is empty: give a folder (or leave --out out for the default)")
+            keys = [a.split("=", 1)[0].strip() for a in getattr(args, "set", None) or [] if isinstance(a, str)]
+            twice = sorted({k for k in keys if keys.count(k) > 1})
+            if twice:  # the last would win in silence
+                from ..errors import InputError
+
+                raise InputError(f"--set {', '.join(twice)} given more than once: give each key once")
             return int(args.func(args))
     except VtolImpedanceError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -155,6 +155,11 @@ def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> 
         raise  # pragma: no cover - astype and float agree
 
 
+#: Largest magnitude a CSV cell of a signal may hold (velocity, attitude, rates, thrust, torque, rotor speeds,
+#: in any unit the reader takes: rpm, deg/s, percent): far beyond any flight, so a larger one is a corrupt cell.
+CELL_LIMIT = 1e6
+
+
 def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None = None) -> CsvTable:
     """Parse a CSV log once: every known role's column as floats (NaN where empty)."""
     from ..errors import instance, path_like
@@ -242,6 +247,17 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
     if not ({"thrust_n", "thrust_norm"} & present or "rpm1" in present):
         need(("thrust_n",), "collective thrust (or thrust_norm, or rotor speeds rpm1..)")
     cols = {role: _column(path, header, rows, mapping[role]) for role in COLUMNS if role in present}
+    for role, v in cols.items():  # one garbled cell is named, not left to poison the checks' averages
+        if role in ("t_s", "timestamp_us"):
+            continue
+        bad = np.flatnonzero(np.isfinite(v) & (np.abs(np.where(np.isfinite(v), v, 0.0)) > CELL_LIMIT))  # inf: a gap
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(
+                f"{path}: line {i + 2}, column {mapping[role]!r}: {v[i]:g} is beyond any flight's value (|x| <= "
+                f"{CELL_LIMIT:g} in any unit this reader takes; {bad.size} such cell(s)): a corrupt cell? fix or "
+                "remove the row"
+            )
     if {"q0", "q1", "q2", "q3"} <= present:
         for r in ("roll", "pitch", "yaw"):
             cols.pop(r, None)

@@ -89,15 +89,6 @@ class Conventions:
         ru = self.angle_unit if self.rate_unit is None else self.rate_unit
         object.__setattr__(self, "rate_unit", _choice("rate unit (rate_unit)", ru, ANGLE_UNITS))
 
-    def with_(self, **changes: str) -> Conventions:
-        """A copy with some fields changed (``velocity_world``/``rate_unit`` follow ``world``/``angle_unit``
-        when they were equal to them)."""
-        if "world" in changes and "velocity_world" not in changes and self.velocity_world == self.world:
-            changes["velocity_world"] = changes["world"]
-        if "angle_unit" in changes and "rate_unit" not in changes and self.rate_unit == self.angle_unit:
-            changes["rate_unit"] = changes["angle_unit"]
-        return replace(self, **changes)
-
     def to_dict(self) -> dict[str, str]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 

@@ -91,6 +91,11 @@ KIN_MOTION = 0.02
 #: corpus's correct logs an axis past it scores at most 0.03, Euler-angle rates logged as body rates
 #: 0.38-0.89 on roll or pitch (an agile flight yawing at 1 rad/s and faster), where the whole score is 0.22-0.27.
 KIN_AXIS_MOTION = 0.1
+#: On a body axis turning past :data:`KIN_AXIS_MOTION`, body rates more than this share larger or smaller
+#: than the attitude's rate of change refuse the log: a gyro's scale (its full-scale range set wrong, x2 or
+#: x0.5) leaves the residual under :data:`KIN_LIMIT` (|1 - k| / (1 + k) is 0.33 for k = 2) while the moment
+#: estimate comes out wrong. On the corpus's correct logs such an axis's gain is within 0.01 of 1.
+KIN_GAIN_LIMIT = 0.2
 #: Relative residual of thrust against the rotors' sum of squared speeds above this refuses the log.
 ROTOR_LIMIT = 0.35
 #: What a verdict can be (module docstring).
@@ -184,6 +189,14 @@ def _kinematics(ev: Evidence) -> PhysicsTest:
     # each axis that turns on its own too: a fast yaw dominates the whole score and hides roll and pitch rates
     # of another quantity (Euler-angle rates logged as body rates: 0.22 in all, 0.89 on x)
     axes = [i for i in range(3) if ev.kin_axis_motion[i] > KIN_AXIS_MOTION]
+    off = [i for i in axes if not abs(ev.kin_gain[i] - 1.0) <= KIN_GAIN_LIMIT]
+    if off:
+        i = max(off, key=lambda j: abs(ev.kin_gain[j] - 1.0))
+        k = float(ev.kin_gain[i])
+        return PhysicsTest("kinematics", abs(k - 1.0), KIN_GAIN_LIMIT, "fail", "the body rates (wx, wy, wz)",
+                           f"body rates on body axis {'xyz'[i]} are {k:.3g} times the attitude's rate of change "
+                           f"(1 expected, within {KIN_GAIN_LIMIT:g}): a gyro's scale or unit (its full-scale "
+                           "range?)")  # fmt: skip
     worst = max(axes, key=lambda i: ev.kin_axis[i], default=None)
     score, where = ev.kin, ""
     if worst is not None and ev.kin_axis[worst] > ev.kin:

@@ -864,6 +864,14 @@ def apply_mapping(spec: ScenarioSpec, data: dict[str, Any], prefix: str = "") ->
     """Apply a nested mapping (a parsed TOML document) onto ``spec``."""
     for k, v in data.items():
         key = f"{prefix}{k}"
+        if isinstance(v, dict) and not v:  # an empty table sets nothing: a section may be empty, a value not
+            current: Any = spec
+            for part in key.split("."):
+                if not (dataclasses.is_dataclass(current) and part in _section_keys(current)):
+                    return set_value(spec, key, v)  # not a key of this scenario: named as such
+                current = getattr(current, part)
+            if not dataclasses.is_dataclass(current):
+                raise ScenarioError(f"{key} is given an empty table {{}}, which sets nothing; give its value")
         if isinstance(v, dict):
             spec = apply_mapping(spec, v, key + ".")
         else:
