@@ -12,8 +12,10 @@ wrong column:
   score of the convention check (:func:`~vtol_impedance.logs.checks.evidence`, 0 agree, about 1 unrelated
   or opposite); no force enters it. Refused above :data:`KIN_LIMIT` where the attitude moves.
 * **force balance**, horizontal and vertical: ``m a = m g e3 - u R e3 + f_ext`` (world NED) on band-passed
-  signals (0.5 s averages minus 4 s averages: :data:`BAND_S`), jointly with a linear drag model
-  ``f_ext = D v`` (``D`` diagonal, world, fitted by least squares on the same band). What is left, ``rel``,
+  signals (0.5 s averages minus 4 s averages: :data:`BAND_S`), jointly with a drag model linear and
+  quadratic in the velocity, ``f_ext,j = D_j v_j + D2_j |v| v_j`` (per world axis, fitted by least squares on
+  the same band; the quadratic term takes an agile flight's aerodynamic drag of up to half the weight, which
+  a linear one left as 0.21-0.30 of unexplained force). What is left, ``rel``,
   is the RMS of the unexplained acceleration over the sum of the RMS of the measured and the predicted
   acceleration (plus a noise floor :data:`ACCEL_FLOOR`). A steady force (payload, wind, a tether) lies
   below the band; drag, the force of an agile flight, is correlated with the velocity and taken by ``D``;
@@ -211,7 +213,7 @@ def _kinematics(ev: Evidence) -> PhysicsTest:
 def force_balance(
     flight: FlightLog, thrust_N: np.ndarray, mass: float, segs: list[slice] | None = None
 ) -> dict[str, Any]:
-    """The band-passed force balance with a fitted linear drag (module docstring): per axis group
+    """The band-passed force balance with a fitted drag (module docstring): per axis group
     (horizontal, vertical) the low quantile of the relative residual over windows (module docstring), how
     many windows had motion, the fitted drag ``D`` (N per m/s, world NED, negative opposes the velocity)
     and the RMS band speed."""
@@ -219,27 +221,35 @@ def force_balance(
         segs = _segments(flight, int(2 * BAND_S[1] * flight.rate_hz))
     n1 = max(1, int(round(BAND_S[0] * flight.rate_hz)))
     n2 = max(3, int(round(BAND_S[1] * flight.rate_hz)))
-    A, P, V, W = [], [], [], []
+    A, P, V, Q, W = [], [], [], [], []
     for s in segs:
         t = flight.t[s]
         a = _moving_average(np.gradient(flight.v_W[s], t, axis=0), n1)
         b = rotation_zyx(flight.eta[s])[:, :, 2]
         p = _moving_average(np.array([0.0, 0.0, G]) - thrust_N[s, None] * b / mass, n1)
         v = _moving_average(flight.v_W[s], n1)
+        q = _moving_average(np.linalg.norm(flight.v_W[s], axis=-1, keepdims=True) * flight.v_W[s], n1)
         air = _moving_average(thrust_N[s], n2) > 0.5 * mass * G  # not on the ground
         keep = air & (np.arange(len(t)) >= n2 // 2) & (np.arange(len(t)) < len(t) - n2 // 2)
         A.append((a - _moving_average(a, n2))[keep])
         P.append((p - _moving_average(p, n2))[keep])
         V.append((v - _moving_average(v, n2))[keep])
+        Q.append((q - _moving_average(q, n2))[keep])
         W.append(np.floor((t[keep] - flight.t[0]) / WINDOW_S).astype(int) + 1000 * len(W))
-    a, p, v, win = (np.concatenate(x) if x else np.zeros((0, 3)) for x in (A, P, V, W))
+    a, p, v, q, win = (np.concatenate(x) if x else np.zeros((0, 3)) for x in (A, P, V, Q, W))
     out: dict[str, Any] = {}
     if len(a) < 10:
         return {"horizontal": None, "vertical": None}
     n_windows = len(np.unique(win))  # airborne windows, moving or not
     d = a - p  # what the thrust does not explain: the external force over the mass
-    D = np.array([float(v[:, j] @ d[:, j] / max(v[:, j] @ v[:, j], 1e-12)) for j in range(3)])
-    res = d - D * v
+    # per axis, a drag linear and quadratic in the velocity (|v| v_j: an agile flight's aerodynamic force)
+    D, Dq = np.zeros(3), np.zeros(3)
+    for j in range(3):
+        X = np.column_stack([v[:, j], q[:, j]])
+        D[j], Dq[j] = np.linalg.lstsq(X, d[:, j], rcond=None)[0] if np.any(X) else (0.0, 0.0)
+    res = d - D * v - Dq * q
+    # the drag as one linear coefficient, for its sign test: its part along the velocity
+    D = D + Dq * np.array([float(q[:, j] @ v[:, j] / max(v[:, j] @ v[:, j], 1e-12)) for j in range(3)])
 
     def score(sl: slice, motion: float = DYN_MOTION) -> tuple[float, int]:
         """Median over the windows with motion on these axes, and how many there were."""
