@@ -255,9 +255,18 @@ def test_reference_and_frames_of_another_simulator_fly_the_same_controller():
     np.testing.assert_allclose(world_vector_from_ned(out_enu.f_hat_W, "enu"), T_W @ out_ned.f_hat_W, atol=1e-12)
     for bad, match in ((np.array([0.0, 0.0, 0.0, 2.0]), "not a unit quaternion"), (np.zeros(3), r"\(4,\)")):
         with pytest.raises(InputError, match=match):
-            Measurement.from_frames(np.zeros(3), np.zeros(3), bad, np.zeros(3))
+            Measurement.from_frames(np.zeros(3), np.zeros(3), bad, np.zeros(3), world="ned", body="frd",
+                                    quat_order="wxyz")  # fmt: skip
     with pytest.raises(InputError, match="world frame must be one of ned, enu"):
         Reference.from_frames(np.zeros(3), world="nwu")
+    # the frames are what this method is for: left out, one is not guessed (a SciPy quaternion taken as
+    # scalar-first flew the vehicle over in 0.6 s, with only a saturation warning)
+    for missing in ("world", "body", "quat_order"):
+        kw = {k: v for k, v in dict(world="enu", body="flu", quat_order="xyzw").items() if k != missing}
+        with pytest.raises(TypeError, match=missing):
+            Measurement.from_frames(np.zeros(3), np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), **kw)
+    with pytest.raises(TypeError, match="world"):
+        Reference.from_frames(np.zeros(3))
 
 
 def test_comply_fractions_from_another_simulators_frames_follow_its_axes():

@@ -163,10 +163,12 @@ def test_a_noise_free_steady_state_is_not_a_frozen_logger():
     rng = np.random.default_rng(0)
     bob = v.copy()
     bob[still, 2] += 1e-2 * np.sin(40 * t[still])  # moving while the thrust stays put
+    row = np.where(still[:, None], v, v + 1e-3 * rng.standard_normal(v.shape))  # a noisy log's whole row frozen
     for bad_v, bad_w in (
         (v + 1e-3 * rng.standard_normal(v.shape), w),  # a real log's noise on the velocity
         (v, w + 2e-3 * rng.standard_normal(w.shape)),  # or on the gyro
         (bob, w),
+        (row, w),
     ):
         notes = []
         assert len(check_thrust_signal(_thrust(u), notes, motion(bad_v, bad_w)).t) == 1000 - 219
@@ -310,6 +312,9 @@ def test_an_estimator_slower_than_the_log_says_so(fl, tmp_path):
     (w,) = [w for w in slow.warnings if "never reaches the force" in w]
     assert "100 s" in w and "raise --wn" in w
     assert not any("never reaches" in w for w in estimate(f, S.MASS, None).warnings)
+    # a lightly damped estimator settles on its poles' real part: wn = 1, zeta = 0.1 takes 50 s, not 5 s
+    ringing = estimate(f, S.MASS, None, params=EstimatorParams(wn=1.0, zeta=0.1))
+    assert any("settles in 50 s" in w for w in ringing.warnings), ringing.warnings
 
 
 @pytest.mark.parametrize("cell", [1e200, -3e7])  # inf is a missing sample, as NaN (tests/test_logs.py)
@@ -321,3 +326,7 @@ def test_one_garbled_cell_is_named_by_line_and_column(fl, tmp_path, cell):
     cols["vx"][299] = cell
     with pytest.raises(InputError, match=r"line 301, column 'vx': .* beyond any flight's value"):
         read_any(write_csv(tmp_path / "bad.csv", cols))
+    text = (tmp_path / "bad.csv").read_text().split("\n")  # two blank lines before it: the file's own line
+    (tmp_path / "blank.csv").write_text("\n".join(text[:5] + ["", ""] + text[5:]))
+    with pytest.raises(InputError, match=r"line 303, column 'vx'"):
+        read_any(tmp_path / "blank.csv")

@@ -216,6 +216,10 @@ def test_the_agile_flights_carry_10_to_25_percent_of_the_weight_as_drag(corpus):
 #: (a correct 10 s log with a 1 N step force scores the same; tests/test_logs_fields.py). They are estimated
 #: with the verdict "undecided" and a note that the horizontal force test was left out, never accepted.
 UNDECIDABLE = {"sample csv: vx and vy swapped", "sample csv without rotor speeds: vx and vy swapped"}
+#: Read as ENU (``--conventions auto``), vx and vy swapped are put back in place, and only the sign of vz is
+#: then wrong: on a circle at one height vz is noise, so no test can see it (the vertical test is left out
+#: for lack of vertical motion). The estimate's horizontal force is right; the verdict is undecided.
+REPAIRED = {("circle 5 m/s: vx and vy swapped", "auto"), ("circle 4 m/s: vx and vy swapped", "auto")}
 
 
 def test_no_wrong_log_accepted_and_no_correct_log_refused(corpus):
@@ -238,12 +242,14 @@ def test_no_wrong_log_accepted_and_no_correct_log_refused(corpus):
     print(f"\nlog verdict corpus: {len(wrong_estimated)} of {n_wrong} wrong logs estimated (all undecided), "
           f"{len(right_refused)} of {n_right} correct logs refused")  # fmt: skip
     assert not right_refused, right_refused
-    assert {label for label, _, _ in wrong_estimated} <= UNDECIDABLE, wrong_estimated
-    for _, _, verdict in wrong_estimated:  # never accepted: undecided, the horizontal force test left out
+    repaired = [(label, mode) for label, mode, _ in wrong_estimated if (label, mode) in REPAIRED]
+    assert {label for label, mode, _ in wrong_estimated if (label, mode) not in REPAIRED} <= UNDECIDABLE, wrong_estimated
+    for label, mode, verdict in wrong_estimated:  # never accepted: undecided, the test that could tell left out
         assert verdict["outcome"] == "undecided", verdict
-        (h,) = [t for t in verdict["tests"] if t["test"] == "horizontal force balance"]
+        which = "vertical" if (label, mode) in REPAIRED else "horizontal"
+        (h,) = [t for t in verdict["tests"] if t["test"] == f"{which} force balance"]
         assert h["status"] == "left out"
-    assert len(wrong_estimated) <= 4 and n_wrong >= 80 and n_right >= 15
+    assert len(wrong_estimated) - len(repaired) <= 4 and n_wrong >= 80 and n_right >= 15
 
 
 def test_an_agile_flight_with_rotor_speeds_only_gets_its_thrust_coefficient(corpus, tmp_path):
@@ -331,8 +337,8 @@ def test_euler_rates_logged_as_body_rates_are_refused_on_the_axis_that_shows_it(
     assert right.status == "pass" and right.value < 0.05
     ev, wrong = kin(eta_dot)
     assert ev.kin < KIN_LIMIT  # the premise: the whole score alone lets it through
-    assert wrong.status == "fail" and "on body axis" in wrong.detail and wrong.value > wrong.limit
-    assert np.max(ev.kin_axis[:2]) > KIN_LIMIT  # the axis's own residual refuses it too, as does its gain
+    assert wrong.status == "fail" and "relative residual" in wrong.detail and "on body axis" in wrong.detail
+    assert wrong.value > KIN_LIMIT
 
 
 @pytest.mark.parametrize(("rate", "hz"), [(250.0, 100.3), (400.0, 150.2), (250.0, 92.5)])
@@ -373,9 +379,10 @@ def test_a_gyro_of_the_wrong_scale_is_refused_on_its_gain(tmp_path, scale):
 
 def test_an_agile_flight_with_quadratic_drag_of_a_third_of_its_weight_is_accepted(tmp_path):
     """Aerodynamic drag grows with the square of the speed: a figure-eight whose drag is a third of the weight
-    in the median (up to two thirds) left 0.2-0.3 of unexplained force after a linear drag fit, and a correct
-    agile log was refused. The fit takes a quadratic term too; the same flight with its velocity reversed in
-    time is still refused."""
+    in the median (up to two thirds) left 0.2-0.3 of unexplained force after a linear drag fit, and its thrust
+    axis 18 degrees from the specific force (a steady fast flight's thrust tilts against the drag), which the
+    convention check took for angles in degrees: a correct agile log was refused. Both fit the drag, linear and
+    quadratic in the velocity; the same flight with its velocity reversed in time is still refused."""
     fl, share = figure_eight(drag=0.0, quad=0.35)
     assert 0.3 <= share <= 0.45, share
     cols = csv_cols(fl)
@@ -383,5 +390,15 @@ def test_an_agile_flight_with_quadratic_drag_of_a_third_of_its_weight_is_accepte
     (h,) = [t for t in est.info["verdict"]["tests"] if t["test"] == "horizontal force balance"]
     assert h["status"] == "pass" and h["value"] < 0.1, h
     back = dict(cols, **{k: cols[k][::-1] for k in ("vx", "vy", "vz")})
-    with pytest.raises(LogRefused, match="force balance"):
+    with pytest.raises(InputError, match="contradicts physics"):
         estimate_file(write_csv(tmp_path / "back.csv", back), MASS)
+
+
+def test_a_body_rate_of_the_opposite_sign_is_named_as_such(tmp_path):
+    """One gyro axis negated (a body frame mix-up) has a negative gain: it is refused for its residual and
+    its sign, not called a scale error."""
+    fl, _ = figure_eight()
+    cols = csv_cols(fl)
+    with pytest.raises(InputError, match="opposite sign|contradicts physics") as exc:
+        estimate_file(write_csv(tmp_path / "flip.csv", dict(cols, wy=-cols["wy"])), MASS)
+    assert "times the attitude's rate of change" not in str(exc.value)

@@ -57,6 +57,9 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
         (["--set", "payload.offset_B.0=0.1"], "payload.offset_B is a value, not a section; set one entry"),
         (["--set", "interaction.switches.0.t=1"], "give the whole list"),
         (["--set", "payload.mass=0.1", "--set", "payload.mass=0.2"], "--set payload.mass given more than once"),
+        (["--set", "payload.offset_B[0]=0.1", "--set", "payload.offset_B=[0,0,0]"],
+         "--set payload.offset_B[0] and payload.offset_B given more than once"),
+        (["--set", "foo", "--set", "foo"], "--set expects key=value"),
         (["--set", "control.Kp=-1"], "control.Kp must be in"),
         (["--set", "control.estimator_order=2.5"], "integer"),
         (["--set", 'control.estimator_prototype="bessel"'], "prototype"),
@@ -281,6 +284,8 @@ def test_a_live_recording_is_never_replaced(tmp_path, capsys):
             assert (folder / "flight.tlog").is_file()
     with pytest.raises(InputError, match="recording"):
         RunFolder(rec)
+    assert main(["identify", "--example", "px4", "--out", str(rec / "flight.tlog")]) == 2  # nor a file inside
+    assert "live flight's recording" in capsys.readouterr().err and (rec / "flight.tlog").read_bytes()[:1] == b"\xfd"
     out = tmp_path / "run"
     assert main(["run", "case-a-payload", "--quiet", "--no-plots", "--duration", "0.2", "--out", str(out)]) == 0
     assert json.loads((out / "manifest.json").read_text())["command"] == "run"
@@ -408,6 +413,25 @@ def test_a_loop_at_another_rate_than_ts_is_warned_about_when_timed():
     ctrl.step_arrays(y, r, t=0.0)
     with pytest.warns(ControllerWarning, match="stepped 0.5 s after"):
         ctrl.step_arrays(y, r, t=0.5)  # a gap
+    # each period inside the tolerance, but on average 30 % slow: warned once enough steps tell
+    for period, warned in ((0.013, True), (0.0101, False)):
+        ctrl.reset()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for k in range(40):
+                ctrl.step(meas, ref, t=k * period)
+        said = [str(w.message) for w in caught if issubclass(w.category, ControllerWarning)]
+        assert (len(said) == 1 and "on average" in said[0]) if warned else not said, said
+    # an untimed step in between forgets the clock: its period is not the sum of two
+    ctrl.reset()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ControllerWarning)
+        ctrl.step(meas, ref, t=0.0)
+        ctrl.step(meas, ref)
+        ctrl.step(meas, ref, t=0.02)
+        ctrl.step(meas, ref, t=0.03)
+    with pytest.raises(InputError, match="t \\(the step's time"):
+        Controller([ControllerParams.paper("pdc")] * 2).step_arrays(y, r, 1, t="soon")
 
 
 def test_step_arrays_checks_type_shape_and_dtype():

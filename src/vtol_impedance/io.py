@@ -51,11 +51,16 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 def _not_special(path: Path) -> None:
     """:class:`~vtol_impedance.errors.InputError` when ``path`` is something a file written there would
     replace but is not a file: a folder, a device (``/dev/null``: renamed onto as root, the machine's would
-    become a file), a FIFO or a socket."""
+    become a file), a FIFO or a socket; or lies in a live flight's recording (:func:`is_recording`)."""
     import stat
 
     from .errors import InputError
 
+    if is_recording(path.absolute().parent):
+        raise InputError(
+            f"{path} is inside {path.absolute().parent}, a live flight's recording (written by `vtol-impedance "
+            "live`), which no command may change; give a path outside it"
+        )
     try:
         mode = os.stat(path).st_mode
     except OSError:

@@ -89,12 +89,15 @@ def main(argv: list[str] | None = None) -> int:
                 from ..errors import InputError
 
                 raise InputError("--out is empty: give a folder (or leave --out out for the default)")
-            keys = [a.split("=", 1)[0].strip() for a in getattr(args, "set", None) or [] if isinstance(a, str)]
-            twice = sorted({k for k in keys if keys.count(k) > 1})
-            if twice:  # the last would win in silence
-                from ..errors import InputError
+            keys = [a.split("=", 1)[0].strip() for a in getattr(args, "set", None) or [] if "=" in str(a)]
+            for i, k in enumerate(keys):  # the last would win in silence; a vector and one of its entries too
+                for other in keys[:i]:
+                    base, obase = k.split("[", 1)[0], other.split("[", 1)[0]
+                    if other == k or (base == obase and ("[" not in k or "[" not in other)):
+                        from ..errors import InputError
 
-                raise InputError(f"--set {', '.join(twice)} given more than once: give each key once")
+                        both = k if other == k else f"{other} and {k}"
+                        raise InputError(f"--set {both} given more than once: set each value once")
             return int(args.func(args))
     except VtolImpedanceError as exc:
         print(f"error: {exc}", file=sys.stderr)

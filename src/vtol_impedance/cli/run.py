@@ -22,7 +22,7 @@ def cmd_run(args: argparse.Namespace, variants: list[str]) -> int:
     check(spec, variants)
     backend = _backend(args)
     t0 = time.perf_counter()
-    with RunFolder(_run_folder(args, spec.name, tag), command="run") as folder:
+    with RunFolder(_run_folder(args, spec.name, tag), command=args.command) as folder:
         margins = _preflight([spec], variants, args.quiet)
         _announce_compile(backend, args.quiet)
         result = _run_case(spec, variants, seed, args.quiet, backend)

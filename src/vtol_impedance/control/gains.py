@@ -134,7 +134,8 @@ class Impedance:
     ``M`` apparent mass [kg], ``D`` damping [N s/m], ``K`` stiffness [N/m]; ``M_o`` apparent inertia
     [kg m^2], ``D_o`` [N m s/rad], ``K_o`` [N m/rad]; scalars or three values, all positive. The attitude
     ones default (``None``) to the vehicle's own inertia and attitude gains. With ``M`` equal to the
-    vehicle's mass no estimate is needed (it is a plain PD); any other apparent mass needs the estimated
+    vehicle's mass the law is a plain PD's in the steady state (in transients the lead for the attitude
+    filter's delay still uses the estimate); any other apparent mass needs the estimated
     force, fed forward with weight ``m / M - 1``: the vehicle's own inertia must be cancelled in part
     (``M > m``: it feels heavier) or amplified (``M < m``), and only the estimate says how hard it is
     being pushed. The same holds for ``M_o`` and the estimated moment.

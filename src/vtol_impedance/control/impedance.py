@@ -158,7 +158,7 @@ class ControllerParams:
 
     def apparent_impedance(self) -> Impedance:
         """The impedance ``comply`` yields with: the set one, or by default the vehicle's own mass with
-        the position gains (a plain PD, which needs no estimate). Built once per parameter set."""
+        the position gains (a plain PD in the steady state). Built once per parameter set."""
         if self.impedance is not None:
             return self.impedance
         cached = self.__dict__.get("_default_impedance")

@@ -60,9 +60,9 @@ class Measurement(_MeasurementFields):
         q: np.ndarray,
         omega: np.ndarray,
         *,
-        world: str = "ned",
-        body: str = "frd",
-        quat_order: str = "wxyz",
+        world: str,
+        body: str,
+        quat_order: str,
         quat_direction: str = "body-to-world",
     ) -> Measurement:
         """The measurement from another tool's conventions: position ``p`` (m) and velocity ``v`` (m/s) of
@@ -71,7 +71,8 @@ class Measurement(_MeasurementFields):
         ``quat_direction`` ``"body-to-world"`` or ``"world-to-body"``) and the gyro's body rates ``omega``
         (rad/s) in ``body`` (``"frd"``, or ``"flu"``). Returns world NED, ZYX Euler angles of the NED/FRD
         attitude and ``omega_B`` in FRD (:mod:`vtol_impedance.model.frames`). Batches: ``(..., 3)`` and
-        ``(..., 4)``."""
+        ``(..., 4)``. ``world``, ``body`` and ``quat_order`` have no default: they are what this method is for,
+        and a guessed one (a SciPy quaternion taken as scalar-first) is still a unit quaternion, wrong."""
         from ..errors import as_finite
         from ..model.frames import body_vector_to_frd, eta_ned_frd, quaternion_rotation, world_vector_to_ned
 
@@ -158,13 +159,14 @@ class Reference(_ReferenceFields):
         heading_acc: np.ndarray | float = 0.0,
         comply: np.ndarray | float = 0.0,
         *,
-        world: str = "ned",
+        world: str,
     ) -> Reference:
         """The reference from another tool's world frame: position, velocity and acceleration in ``world``
         (``"ned"`` or ``"enu"``) and the heading with its rate and acceleration in that world's convention
         (ENU: counter-clockwise from east, so the default 0 is nose east; NED: clockwise from north).
         ``comply`` gives the world axes in ``world``'s order too (ENU ``[east, north, up]``, reordered
-        here to NED's ``[north, east, down]``); its Euler-angle fractions (six values) are not reordered."""
+        here to NED's ``[north, east, down]``); its Euler-angle fractions (six values) are not reordered.
+        ``world`` has no default: it is what this method is for."""
         from ..errors import as_finite
         from ..model.frames import heading_rate_to_ned, heading_to_ned, world_axes_to_ned, world_vector_to_ned
 

@@ -164,6 +164,12 @@ class EstimatorParams:
         """Diagonal of ``K2`` in eq. (11) (order 2): ``wn / (2 zeta)``."""
         return self.wn / (2.0 * self.zeta)  # eqs. (13a), (13b)
 
+    def settling_s(self) -> float:
+        """Five time constants of the slowest channel's slowest pole, ``5 / min |Re p|``, s: how long the
+        estimate takes to reach a step (a lightly damped pole's time constant is ``1 / |Re p|``, not
+        ``1 / |p|``)."""
+        return 5.0 / float(np.min(np.abs(np.real(self.channel_poles()))))
+
     def channel_poles(self) -> np.ndarray:
         """Continuous-time poles, shape ``(6, order)``."""
         if self.poles is not None:

@@ -247,23 +247,30 @@ def _split_at_dropouts(grids: list[np.ndarray], sigs: list[Signal], rate: float)
 
 
 #: A body-rate sample further than this many robust standard deviations (1.4826 MAD over 7 samples) from its
-#: neighbours' median, and more than :data:`SPIKE_FLOOR` rad/s, is a glitch (a garbled sample): the checks
-#: take the median there. A vibration, a flip or noise moves the median and the spread with it.
+#: neighbours' median, and more than :data:`SPIKE_FLOOR` rad/s, while both its neighbours are not, is a
+#: glitch (a garbled sample): the checks take the median there. Only in a gyro logged at
+#: :data:`SPIKE_MIN_RATE_HZ` or faster, where no turn lasts a single sample (at 10 Hz a real 0.3 s yaw turn
+#: spans three samples, and a flip can span one).
 SPIKE_SIGMAS = 8.0
 SPIKE_FLOOR = 0.5
+SPIKE_MIN_RATE_HZ = 100.0
 
 
-def _despiked(values: np.ndarray) -> np.ndarray:
-    """``values (N, k)`` with single-sample glitches replaced by their neighbours' median (:data:`SPIKE_SIGMAS`)."""
+def _despiked(t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values (N, k)`` sampled at ``t`` with isolated one-sample glitches replaced by their neighbours'
+    median (:data:`SPIKE_SIGMAS`); unchanged below :data:`SPIKE_MIN_RATE_HZ`."""
     import scipy.ndimage
 
-    if len(values) < 7:
+    if len(values) < 7 or 1.0 / typical_period(t) < SPIKE_MIN_RATE_HZ:
         return values
     med = scipy.ndimage.median_filter(values, size=(7, 1), mode="nearest")
     dev = np.abs(values - med)
     mad = scipy.ndimage.median_filter(dev, size=(7, 1), mode="nearest")
-    spike = dev > np.maximum(SPIKE_SIGMAS * 1.4826 * mad, SPIKE_FLOOR)
-    return np.where(spike, med, values)
+    out = dev > np.maximum(SPIKE_SIGMAS * 1.4826 * mad, SPIKE_FLOOR)
+    alone = out.copy()
+    alone[1:] &= ~out[:-1]
+    alone[:-1] &= ~out[1:]
+    return np.where(alone, med, values)
 
 
 def _interval_means(t: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -276,6 +283,29 @@ def _interval_means(t: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.n
                            np.cumsum(0.5 * (values[1:] + values[:-1]) * np.diff(t)[:, None], 0)])  # fmt: skip
     at = np.stack([np.interp(grid, t, area[:, j]) for j in range(values.shape[1])], -1)
     return np.diff(at, axis=0) / np.diff(grid)[:, None]
+
+
+def _drag_part(sf: np.ndarray, ub: np.ndarray, v: np.ndarray, air: np.ndarray) -> np.ndarray:
+    """Minus the drag's share of the specific force ``sf = g e3 - a`` (world NED, m/s^2), to be added to it
+    before the thrust axis is compared with it: ``sf = k ub - f/m`` with ``-f/m = D_j v_j + D2_j |v| v_j`` per
+    axis, fitted jointly with ``k`` by least squares on the airborne samples; an axis whose fit pushes along
+    its velocity (no drag does) keeps none. In steady fast flight the thrust tilts against the drag while the
+    specific force stays vertical: a correct agile log with drag of a third of its weight read 32 degrees
+    between them and was taken for angles in degrees. A wrong column gives an error in phase with the
+    acceleration, which a force in phase with the velocity cannot take."""
+    if air.sum() < 10 or not np.any(v[air]):
+        return np.zeros_like(sf)
+    q = np.linalg.norm(v, axis=-1, keepdims=True) * v
+    n = int(air.sum())
+    X = np.zeros((3 * n, 7))
+    X[:, 0] = ub[air].ravel()
+    for j in range(3):
+        X[j::3, 1 + j] = v[air, j]
+        X[j::3, 4 + j] = q[air, j]
+    coef = np.linalg.lstsq(X, sf[air].ravel(), rcond=None)[0]
+    share = coef[1:4] * v + coef[4:7] * q  # -f / m: sf = k ub + share
+    opposes = np.sum(share[air] * v[air], 0) > 0  # share . v > 0: the force f opposes the velocity
+    return np.where(opposes, -share, 0.0)
 
 
 def evidence(raw: RawLog) -> Evidence:
@@ -305,14 +335,14 @@ def evidence(raw: RawLog) -> Evidence:
         )
     smooth = max(2, int(round(max(SMOOTH_S, 2.5 * slow) * rate)))
     hp = max(3, int(round(HP_WINDOW_S * rate)))
-    w_att_all, w_log_all, ub_all, sf_all, a_hp_all, e_parts = [], [], [], [], [], []
+    w_att_all, w_log_all, ub_all, sf_all, a_hp_all, e_parts, v_all = [], [], [], [], [], [], []
     vel, att, omg, thr = sigs
     q_att = quat_from_euler(att.values)
     flip = np.cumprod(np.where(np.sum(q_att[1:] * q_att[:-1], -1) < 0, -1.0, 1.0))
     q_att[1:] *= flip[:, None]
     dt = 1.0 / rate
     grids = _split_at_dropouts(_windows(sigs, lo, hi, rate), sigs, rate)
-    w_clean = _despiked(omg.values)  # a glitch counts once in a sum over intervals; no point sample hid it
+    w_clean = _despiked(omg.t, omg.values)  # a glitch counts once in a sum over intervals; no point sample hid it
     if not grids:
         nan = float("nan")
         return Evidence(nan, np.full(3, nan), 0.0, 1.0, 0.0, 1.0, np.full(2, nan), np.zeros(2), rates, time_ok, span,
@@ -328,6 +358,7 @@ def evidence(raw: RawLog) -> Evidence:
         w_log_all.append(_moving_average(w_log, smooth))
         v = np.stack([np.interp(grid, vel.t, vel.values[:, j]) for j in range(3)], -1)
         a = _moving_average(np.gradient(v, dt, axis=0), smooth)
+        v_all.append(_moving_average(v, smooth))
         idx = np.clip(np.searchsorted(thr.t, grid, side="right") - 1, 0, len(thr.t) - 1)
         u = _moving_average(thr.values[idx, 0], smooth)
         ub_all.append(u[:, None] * R[:, :, 2])
@@ -344,7 +375,8 @@ def evidence(raw: RawLog) -> Evidence:
     k = float(np.sum(sf * ub) / max(np.sum(ub * ub), 1e-300))
     un = np.linalg.norm(ub, axis=-1)
     air = un > 0.3 * np.percentile(un, 95)
-    cosang = np.sum(sf * ub, -1) / np.maximum(np.linalg.norm(sf, axis=-1) * un, 1e-300)
+    sf_thrust = sf + _drag_part(sf, ub, np.concatenate(v_all), air)  # what the thrust alone must give
+    cosang = np.sum(sf_thrust * ub, -1) / np.maximum(np.linalg.norm(sf_thrust, axis=-1) * un, 1e-300)
     tilt = float(np.median(np.arccos(np.clip(cosang[air], -1, 1)))) if air.any() else 0.0
     for ubw in ub_all:  # the acceleration thrust and attitude predict, fast part
         m = -k * ubw
@@ -552,7 +584,8 @@ def check_conventions(
         flags = best[1].as_flags(tuple(_minimal_flags(declared, diff)))
         raise InputError(
             f"the log contradicts physics under the declared conventions ({_describe(declared, relevant)}): "
-            + "; ".join(ev0.symptoms() or [f"it fits much worse (score {ev0.score:.2f}) than another reading"])
+            + "; ".join(ev0.symptoms() or [f"it fits much worse (score {ev0.score:.2f}) than another reading"
+                                            if ev0.measured else "it leaves nothing long enough to score"])
             + f". Most likely: {causes}. With {flags} the data agree (score {best[0]:.2f} against {ev0.score:.2f}): "
             f"give {flags}, or --conventions auto to choose from the data" + escape
         )
@@ -589,11 +622,15 @@ def check_conventions(
 #: a real IMU's noise alone is a thousand times more.
 STEADY_VELOCITY_M_S = 1e-6
 STEADY_RATE_RAD_S = 1e-6
+#: ... and only in a log whose velocity is noise-free elsewhere: the RMS of its third differences below this,
+#: m/s (white noise of sigma gives 4.5 sigma; a smooth flight at 100 Hz with a snap of 100 m/s^4 gives 1e-4).
+STEADY_NOISE_M_S = 1e-4
 
 
 def _steady(motion: tuple[Signal, Signal] | None, t0: float, t1: float) -> bool:
     """Whether the logged velocity and body rates ``motion`` hold still (:data:`STEADY_VELOCITY_M_S`) over
-    ``[t0, t1]``, with at least three samples of each there."""
+    ``[t0, t1]``, with at least three samples of each there, in a log whose velocity is smooth elsewhere
+    (noise-free: a simulator's)."""
     if motion is None:
         return False
     v, w = motion
@@ -603,6 +640,13 @@ def _steady(motion: tuple[Signal, Signal] | None, t0: float, t1: float) -> bool:
         return False
     tv, vv, ww = v.t[iv], v.values[iv], w.values[iw]
     if not (np.all(np.isfinite(vv)) and np.all(np.isfinite(ww))):
+        return False
+    # and noise-free elsewhere: a logger that froze every column repeats a noisy log's whole row. White noise
+    # of sigma gives third differences of 4.5 sigma (a real velocity: 1e-3 m/s and more); a smooth flight
+    # sampled at 100 Hz well under STEADY_NOISE_M_S
+    parts = [p for p in (v.values[v.t < t0], v.values[v.t > t1]) if len(p) >= 4]
+    d3 = np.concatenate([np.diff(p, 3, axis=0) for p in parts]) if parts else np.zeros((0, 3))
+    if len(d3) < 10 or not np.sqrt(np.mean(d3**2)) < STEADY_NOISE_M_S:
         return False
     A = np.column_stack([np.ones_like(tv), tv - tv[0]])
     resid = vv - A @ np.linalg.lstsq(A, vv, rcond=None)[0]

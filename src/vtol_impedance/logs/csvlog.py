@@ -115,32 +115,35 @@ class CsvTable:
         return tuple(names)
 
 
-def _read_rows(path: Path, notes: list[str]) -> tuple[list[str], list[list[str]]]:
+def _read_rows(path: Path, notes: list[str]) -> tuple[list[str], list[list[str]], list[int]]:
+    """The header, the data rows and each data row's line in the file (blank lines skipped)."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
+            reader = csv.reader(fh)
+            numbered = [(reader.line_num, r) for r in reader]
     except UnicodeDecodeError:
         raise InputError(
             f"{path} is not a text CSV file (a ULog needs the .ulg extension, a DataFlash log .bin, a MAVLink "
             "telemetry log .tlog)"
         ) from None
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if not rows:
+    numbered = [(n, r) for n, r in numbered if r and any(c.strip() for c in r)]
+    if not numbered:
         raise InputError(f"{path} is empty")
-    header = [h.strip() for h in rows[0]]
-    body = rows[1:]
+    header = [h.strip() for h in numbered[0][1]]
+    body = [r for _, r in numbered[1:]]
+    lines = [n for n, _ in numbered[1:]]
     if not body:
         raise InputError(f"{path} has a header but no data rows")
     if len(body[-1]) < len(header):
         notes.append(f"last row of {path.name} is cut short (truncated file): dropped")
-        body = body[:-1]
-    for i, r in enumerate(body):
+        body, lines = body[:-1], lines[:-1]
+    for r, n in zip(body, lines, strict=True):
         if len(r) != len(header):
-            raise InputError(f"{path}: line {i + 2} has {len(r)} fields, the header has {len(header)}")
-    return header, body
+            raise InputError(f"{path}: line {n} has {len(r)} fields, the header has {len(header)}")
+    return header, body, lines
 
 
-def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> np.ndarray:
+def _column(path: Path, header: list[str], rows: list[list[str]], name: str, lines: list[int]) -> np.ndarray:
     j = header.index(name)
     cells = np.char.strip(np.array([r[j] for r in rows], dtype=str))
     cells = np.where((cells == "") | (np.char.lower(cells) == "nan"), "nan", cells)
@@ -151,7 +154,7 @@ def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> 
             try:
                 float(cell)
             except ValueError:
-                raise InputError(f"{path}: line {i + 2}, column {name!r}: {cell!r} is not a number") from None
+                raise InputError(f"{path}: line {lines[i]}, column {name!r}: {cell!r} is not a number") from None
         raise  # pragma: no cover - astype and float agree
 
 
@@ -171,7 +174,7 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
     if not path.is_file():
         raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
     notes: list[str] = []
-    header, rows = _read_rows(path, notes)
+    header, rows, lines = _read_rows(path, notes)
     mapping = {k: k for k in COLUMNS}
     for k, v in (columns or {}).items():
         if k not in COLUMNS:
@@ -246,7 +249,7 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
         raise InputError(f"{path}: give thrust_n (newtons) or thrust_norm (normalised), not both")
     if not ({"thrust_n", "thrust_norm"} & present or "rpm1" in present):
         need(("thrust_n",), "collective thrust (or thrust_norm, or rotor speeds rpm1..)")
-    cols = {role: _column(path, header, rows, mapping[role]) for role in COLUMNS if role in present}
+    cols = {role: _column(path, header, rows, mapping[role], lines) for role in COLUMNS if role in present}
     for role, v in cols.items():  # one garbled cell is named, not left to poison the checks' averages
         if role in ("t_s", "timestamp_us"):
             continue
@@ -254,7 +257,7 @@ def read_csv_table(path: str | os.PathLike[str], columns: dict[str, str] | None 
         if bad.size:
             i = int(bad[0])
             raise InputError(
-                f"{path}: line {i + 2}, column {mapping[role]!r}: {v[i]:g} is beyond any flight's value (|x| <= "
+                f"{path}: line {lines[i]}, column {mapping[role]!r}: {v[i]:g} is beyond any flight's value (|x| <= "
                 f"{CELL_LIMIT:g} in any unit this reader takes; {bad.size} such cell(s)): a corrupt cell? fix or "
                 "remove the row"
             )

@@ -972,7 +972,7 @@ def _settles_within(flight: FlightLog, params: EstimatorParams, notes: list[str]
     """A WARNING when the estimator's settling (5 time constants of its slowest pole) is longer than every
     stretch of the log it runs on without a restart: the estimate never reaches the force, and a reader
     would take its near-zero for no force (``--wn 0.01`` on a 20 s log: 0.005 N against a true 1 N)."""
-    settle = 5.0 / float(np.min(np.abs(params.channel_poles())))
+    settle = params.settling_s()
     starts = np.union1d([0], np.flatnonzero(flight.restart))
     ends = np.append(starts[1:], len(flight.t)) - 1
     longest = float(np.max(flight.t[ends] - flight.t[starts]))
@@ -1066,7 +1066,7 @@ def estimate(
                 f"WARNING: the quiet segment {a:g}-{b:g} s reaches outside the log "
                 f"({flight.t[0]:.2f}-{flight.t[-1]:.2f} s): the bias is measured on the part inside"
             )
-        settle = 5.0 / float(np.min(np.abs(params.channel_poles())))
+        settle = params.settling_s()
         starts = flight.t[flight.restart]
         if np.any((starts <= flight.t[sel][-1]) & (flight.t[sel][0] < starts + settle)):
             notes.append(

@@ -196,7 +196,7 @@ def identify(est: LogEstimate, *, tau_bounds: tuple[float, float] = TAU_BOUNDS) 
     R = rotation_zyx(fl.eta)  # R_WB
     v_B = np.einsum("nji,nj->ni", R, fl.v_W)
     # samples used: airborne, the estimator settled after each start (5 time constants of its slowest pole)
-    settle = 5.0 / float(np.min(np.abs(params0.channel_poles())))
+    settle = params0.settling_s()
     since = np.zeros(n)
     starts = np.flatnonzero(fl.restart)
     for i, s in enumerate(starts):

@@ -192,22 +192,28 @@ def _kinematics(ev: Evidence) -> PhysicsTest:
     # each axis that turns on its own too: a fast yaw dominates the whole score and hides roll and pitch rates
     # of another quantity (Euler-angle rates logged as body rates: 0.22 in all, 0.89 on x)
     axes = [i for i in range(3) if ev.kin_axis_motion[i] > KIN_AXIS_MOTION]
-    off = [i for i in axes if not abs(ev.kin_gain[i] - 1.0) <= KIN_GAIN_LIMIT]
-    if off:
-        i = max(off, key=lambda j: abs(ev.kin_gain[j] - 1.0))
-        k = float(ev.kin_gain[i])
-        return PhysicsTest("kinematics", abs(k - 1.0), KIN_GAIN_LIMIT, "fail", "the body rates (wx, wy, wz)",
-                           f"body rates on body axis {'xyz'[i]} are {k:.3g} times the attitude's rate of change "
-                           f"(1 expected, within {KIN_GAIN_LIMIT:g}): a gyro's scale or unit (its full-scale "
-                           "range?)")  # fmt: skip
     worst = max(axes, key=lambda i: ev.kin_axis[i], default=None)
     score, where = ev.kin, ""
     if worst is not None and ev.kin_axis[worst] > ev.kin:
         score, where = float(ev.kin_axis[worst]), f" on body axis {'xyz'[worst]}"
     detail = (f"body rates against the attitude's rate of change: relative residual {score:.2f}{where} (limit "
               f"{KIN_LIMIT:g})")  # fmt: skip
-    return PhysicsTest("kinematics", score, KIN_LIMIT, "fail" if score > KIN_LIMIT else "pass",
-                       "the body rates (wx, wy, wz) or the attitude", detail)  # fmt: skip
+    flipped = [i for i in axes if ev.kin_gain[i] < 0]
+    if score > KIN_LIMIT or flipped:  # a residual this large, or of the opposite sign: not a scale
+        if flipped:
+            detail += f"; body axis {'xyz'[flipped[0]]}'s rates have the opposite sign (a body frame or a column?)"
+        return PhysicsTest("kinematics", score, KIN_LIMIT, "fail", "the body rates (wx, wy, wz) or the attitude",
+                           detail)  # fmt: skip
+    off = [i for i in axes if not abs(ev.kin_gain[i] - 1.0) <= KIN_GAIN_LIMIT]
+    if off:  # the right shape at the wrong size: the residual passes, the gain does not
+        i = max(off, key=lambda j: abs(ev.kin_gain[j] - 1.0))
+        k = float(ev.kin_gain[i])
+        return PhysicsTest("kinematics", abs(k - 1.0), KIN_GAIN_LIMIT, "fail", "the body rates (wx, wy, wz)",
+                           f"body rates on body axis {'xyz'[i]} are {k:.3g} times the attitude's rate of change "
+                           f"(1 expected, within {KIN_GAIN_LIMIT:g}): a gyro's scale or unit (its full-scale "
+                           "range?)")  # fmt: skip
+    return PhysicsTest("kinematics", score, KIN_LIMIT, "pass", "the body rates (wx, wy, wz) or the attitude",
+                       detail)  # fmt: skip
 
 
 def force_balance(

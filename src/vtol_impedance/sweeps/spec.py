@@ -360,7 +360,7 @@ def from_dict(
     elif mode == "zip":
         n_points = len(axes[0].grid())
     else:
-        n_points = int(scalar("samples", data.get("samples", 0), lo=1, hi=10_000_000, integer=True))
+        n_points = int(scalar("samples", data.get("samples", 0), lo=1, hi=MAX_POINTS, integer=True))
     n_flights = n_points * seeds * len(ctrls)
     if n_points > MAX_POINTS:
         raise InputError(
@@ -409,7 +409,7 @@ def _read_vehicle(vehicle: str) -> dict[str, str]:
     if not vehicle.endswith(".toml"):
         return {}
     try:
-        return {"path": vehicle, "text": Path(vehicle).read_text(encoding="utf-8")}
+        return {"path": vehicle, "text": Path(vehicle).read_text(encoding="utf-8-sig")}
     except OSError as exc:
         raise InputError(f"cannot read the vehicle file {vehicle}: {exc.strerror or exc}") from None
 
