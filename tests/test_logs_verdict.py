@@ -39,8 +39,8 @@ def _rotation(b3: np.ndarray) -> np.ndarray:
 def figure_eight(drag: float = 0.55, duration: float = 25.0, rate: float = 50.0, quad: float = 0.0
                  ) -> tuple[types.SimpleNamespace, float]:  # fmt: skip
     """A prescribed figure-eight (10 s a lap) at up to ~5 m/s with vertical swings of 1 m/s, under the drag
-    ``f = -drag v - quad |v| v`` (N per m/s, N per (m/s)^2): the thrust vector is what Newton's law needs, ``u R e3 = m g e3 - m a + f``,
-    the attitude follows it (zero yaw), the body rates are ``R^T dR/dt``. Noise as a real log's. Returns the
+    ``f = -drag v - quad |v| v`` (N per m/s, N per (m/s)^2): the thrust vector is what Newton's law needs,
+    ``u R e3 = m g e3 - m a + f``, the attitude follows it (zero yaw), the body rates are ``R^T dR/dt``. Noise as a real log's. Returns the
     flight and the median drag force over the weight."""
     w = 2 * np.pi / 10.0
     amp = np.array([6.0, 3.0, 0.8])  # m: x at w, y and z at 2 w
@@ -243,7 +243,8 @@ def test_no_wrong_log_accepted_and_no_correct_log_refused(corpus):
           f"{len(right_refused)} of {n_right} correct logs refused")  # fmt: skip
     assert not right_refused, right_refused
     repaired = [(label, mode) for label, mode, _ in wrong_estimated if (label, mode) in REPAIRED]
-    assert {label for label, mode, _ in wrong_estimated if (label, mode) not in REPAIRED} <= UNDECIDABLE, wrong_estimated
+    others = {label for label, mode, _ in wrong_estimated if (label, mode) not in REPAIRED}
+    assert others <= UNDECIDABLE, wrong_estimated
     for label, mode, verdict in wrong_estimated:  # never accepted: undecided, the test that could tell left out
         assert verdict["outcome"] == "undecided", verdict
         which = "vertical" if (label, mode) in REPAIRED else "horizontal"

@@ -10,9 +10,9 @@ import sys
 import time
 import tracemalloc
 import warnings
-from pathlib import Path
 
 import numpy as np
+import procs
 import pytest
 
 from vtol_impedance import Controller, ControllerWarning
@@ -309,25 +309,6 @@ def test_manifest_binds_the_files(tmp_path):
         verify_run_folder(out)
 
 
-def _children(pid: int) -> set[int]:
-    out = set()
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            out.add(int(stat.parent.name))
-    return out
-
-
-def _running(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def test_paper_workers_die_with_their_parent(tmp_path):
     # the NumPy backend: its flights take seconds, so the pool is alive when looked for (with a warm numba
     # cache the compiled flights took milliseconds, and the pool could come and go between two looks)
@@ -339,12 +320,12 @@ def test_paper_workers_die_with_their_parent(tmp_path):
     deadline = time.time() + 120
     while time.time() < deadline and not children and p.poll() is None:
         time.sleep(0.1)
-        children = _children(p.pid)
+        children = procs.children(p.pid)
     assert children, "the pool never started"
     p.send_signal(signal.SIGKILL)
     p.wait()
     time.sleep(2.0)
-    alive = [c for c in children if _running(c)]
+    alive = [c for c in children if procs.running(c)]
     assert not alive, f"workers {alive} outlived their parent"
 
 

@@ -18,6 +18,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import procs
 import pytest
 
 from vtol_impedance.cli import main
@@ -230,9 +231,9 @@ def test_the_command_serves_until_stopped(tmp_path):
         with urllib.request.urlopen(url, timeout=30) as r:
             assert b"<title>vtol-impedance: tuning page</title>" in r.read()
         deadline = time.time() + 60  # the margins' worker process, warmed up by now or soon
-        while time.time() < deadline and not _children(proc.pid):
+        while time.time() < deadline and not procs.children(proc.pid, b"spawn_main", live_only=True):
             time.sleep(0.1)
-        assert _children(proc.pid), "the margins' worker never started"
+        assert procs.children(proc.pid, b"spawn_main", live_only=True), "the margins' worker never started"
         os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole group, workers included
         rc, err = proc.wait(timeout=60), proc.stderr.read()
         assert rc == 130 and "Traceback" not in err and err.endswith("interrupted; no results were written\n"), err
@@ -240,19 +241,6 @@ def test_the_command_serves_until_stopped(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-
-
-def _children(pid: int) -> set[int]:
-    """The live worker processes ``pid`` spawned (Linux ``/proc``)."""
-    out = set()
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z" and b"spawn_main" in (stat.parent / "cmdline").read_bytes():
-            out.add(int(stat.parent.name))  # a worker, not multiprocessing's resource tracker
-    return out
 
 
 # --------------------------------------------------------------------------- in the browser

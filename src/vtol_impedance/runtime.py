@@ -50,6 +50,7 @@ PERIOD_TOLERANCE = 0.5
 #: than this share: a loop at 70 or 130 Hz with a 100 Hz controller (each period inside the tolerance above)
 #: left the estimate of a 1 N step 0.15-0.25 N off G(s) F in a foreign simulator, against 0.035 N on time.
 MEAN_TOLERANCE = 0.05
+#: The fewest timed steps whose mean period is judged (:data:`MEAN_TOLERANCE`).
 MEAN_MIN_STEPS = 20
 
 
