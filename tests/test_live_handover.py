@@ -462,13 +462,15 @@ def session(monkeypatch, tmp_path):
         vehicle = fly.vehicle = ModeVehicle(clock, **kw)
         if setup is not None:
             setup(vehicle)
-        patch_session(monkeypatch, tmp_path / "run", vehicle, clock)
+        fly.flights += 1  # each flight its own folder: a live recording is never replaced
+        fly.out = tmp_path / ("run" if fly.flights == 1 else f"run-{fly.flights}")
+        patch_session(monkeypatch, fly.out, vehicle, clock)
         return vehicle
 
     def fly(duration: float, control: ControlSettings | None = None, autopilot: str = "auto", rate=RATE, **kw):
         vehicle = patch(**kw)
         screen = io.StringIO()
-        settings = LiveSettings("udpin:127.0.0.1:14550", display="tty", duration=duration, out=str(tmp_path / "run"),
+        settings = LiveSettings("udpin:127.0.0.1:14550", display="tty", duration=duration, out=str(fly.out),
                                 estimator=EstimatorSettings(backend="numpy", rate_hz=rate),
                                 control=control or ControlSettings(),
                                 autopilot=autopilot)  # fmt: skip
@@ -476,6 +478,7 @@ def session(monkeypatch, tmp_path):
         return res, vehicle, screen.getvalue()
 
     fly.patch = patch
+    fly.flights = 0
     fly.out = tmp_path / "run"
     return fly
 

@@ -170,7 +170,7 @@ def patch_session(monkeypatch, folder, vehicle, clock: Clock) -> None:
     from vtol_impedance.live.link import TlogWriter
 
     def open_(self) -> None:
-        self.folder = RunFolder(folder)
+        self.folder = RunFolder(folder, command="live")
         self.tlog = TlogWriter(self.folder.path("flight.tlog"))
         self.link = ScriptedLink(vehicle, clock)
         self.link.recorder = self.tlog
