@@ -330,3 +330,24 @@ def test_one_garbled_cell_is_named_by_line_and_column(fl, tmp_path, cell):
     (tmp_path / "blank.csv").write_text("\n".join(text[:5] + ["", ""] + text[5:]))
     with pytest.raises(InputError, match=r"line 303, column 'vx'"):
         read_any(tmp_path / "blank.csv")
+
+
+def test_a_stretch_on_the_ground_is_named_and_left_out_of_the_statistics(fl, tmp_path):
+    """Two flights with a pause on the ground between them: there the thrust carries nothing and the estimate
+    is the ground's reaction (about -m g), which the summary's mean counted as external force (-6.2 N in a
+    hunt's ArduPilot log). The stretch is named, and the statistics are those of the airborne samples."""
+    from vtol_impedance.logs.output import summary
+
+    cols = csv_cols(fl, every=EVERY)
+    t = cols["t_s"]
+    pause = (t > 6.0) & (t < 8.5)
+    cols["thrust_n"] = np.where(pause, 0.0, cols["thrust_n"])
+    est = estimate(resample(read_any(write_csv(tmp_path / "two.csv", cols), conventions="unchecked")[0]), S.MASS,
+                   None)  # fmt: skip
+    ((a, b),) = est.info["ground_s"]
+    assert a == pytest.approx(6.0, abs=0.05) and b == pytest.approx(8.5, abs=0.05)
+    assert any("the estimate there is the ground's reaction" in n for n in est.notes)
+    s = summary(est)
+    air = (est.t < a) | (est.t > b)  # the stretch found, checked against the true 6-8.5 s above
+    np.testing.assert_allclose(s["stats"]["f_W_N"]["mean"], est.f_W[air].mean(0), atol=1e-9)
+    assert s["ground_samples_left_out"] == int((~air).sum()) and est.f_W[~air, 2].mean() < -0.5 * S.MASS * 9.81

@@ -316,3 +316,32 @@ def test_a_time_stamp_jump_is_named_with_its_size_and_place_and_the_advice_works
         estimate_file(path, mass=S.MASS, inertia=S.INERTIA)
     est = estimate_file(path, mass=S.MASS, inertia=S.INERTIA, t_end=9.9, read_options={"conventions": "unchecked"})
     assert est.t[-1] <= 9.9 and est.t[-1] - est.t[0] > 9.0
+
+
+def test_damaged_or_absurd_vehicle_parameters_are_named_or_left_out():
+    """A log's SIH_MASS of 1e6 kg flew through the estimate (the thrust scales with it, so no balance sees it)
+    while --mass 1e6 is refused: checked the same way, naming the parameter. A non-finite CA_ROTOR_COUNT or
+    SERVOn_FUNCTION gave internal errors; the geometry and motor channels they name are then unknown, which
+    the force estimate does not need."""
+    from vtol_impedance.logs import samples
+    from vtol_impedance.logs.ardupilot import motor_channels
+    from vtol_impedance.logs.pipeline import _vehicle
+    from vtol_impedance.logs.ulog import rotor_geometry
+
+    raw, _ = read_any(samples.path("px4"))
+    assert _vehicle(raw, None, None, None)[0] == pytest.approx(raw.mass)
+    for bad in (1e6, 1e-4):
+        raw.mass = bad
+        with pytest.raises(InputError, match=r"the log's mass \(the SIH_\* parameters"):
+            _vehicle(raw, None, None, None)
+    assert _vehicle(raw, 1.2, None, None)[0] == 1.2  # given: the log's is only compared
+    quad = {"CA_ROTOR_COUNT": 4.0, **{f"CA_ROTOR{i}_P{c}": v for i, (x, y) in
+                                      enumerate(((0.1, 0.1), (-0.1, -0.1), (0.1, -0.1), (-0.1, 0.1)))
+                                      for c, v in (("X", x), ("Y", y))}}  # fmt: skip
+    assert rotor_geometry(quad) is not None
+    for key, value in (("CA_ROTOR_COUNT", math.inf), ("CA_ROTOR_COUNT", math.nan), ("CA_ROTOR1_PX", math.nan),
+                       ("CA_ROTOR2_KM", math.inf)):  # fmt: skip
+        assert rotor_geometry({**quad, key: value}) is None, key
+    motors = {f"SERVO{ch}_FUNCTION": 32.0 + ch for ch in (1, 2, 3, 4)}
+    assert motor_channels(motors) == [1, 2, 3, 4]
+    assert motor_channels({**motors, "SERVO2_FUNCTION": math.nan, "SERVO3_FUNCTION": math.inf}) == [1, 4]

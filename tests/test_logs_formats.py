@@ -348,3 +348,48 @@ def test_a_csv_column_is_read_for_one_role_from_one_place(tmp_path):
     with pytest.raises(InputError, match=r"column 'vy' is mapped to more than one role \(vx, vy\)"):
         read_any(good, columns={"vx": "vy"})
     read_any(good, columns={"vx": "vx"})  # a mapping to its own column is no conflict
+
+
+@pytest.mark.parametrize("cut", [1, 5, 10])
+def test_a_tlog_cut_inside_a_frame_of_a_new_kind_is_read_up_to_the_cut(tmp_path, cut):
+    """A recording stopped by a power loss ends inside a frame. When that frame was the first of its kind (a
+    STATUSTEXT at disarming), pymavlink's index of the file failed and the whole log was refused as "not a
+    readable tlog". It is read without the cut frame, as the same log ending on a whole frame is."""
+    import struct
+
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    src = samples.path("tlog").read_bytes()
+    ofs, last_t = 0, 0
+    while ofs + 10 <= len(src):  # the receive time of the last frame
+        last_t, marker, length = struct.unpack(">Q", src[ofs : ofs + 8])[0], src[ofs + 8], src[ofs + 9]
+        ofs += 8 + length + ((12 + (13 if src[ofs + 10] & 1 else 0)) if marker == 0xFD else 8)
+    pkt = mav.MAVLink_statustext_message(6, b"Disarming motors").pack(mav.MAVLink(None, srcSystem=1, srcComponent=1))
+    full = src + struct.pack(">Q", last_t + 100_000) + pkt
+    (tmp_path / "full.tlog").write_bytes(full)
+    (tmp_path / "cut.tlog").write_bytes(full[: len(full) - cut])
+    whole = estimate_file(tmp_path / "full.tlog", 1.2)
+    got = estimate_file(tmp_path / "cut.tlog", 1.2)
+    assert any("cut short" in n for n in got.notes)
+    np.testing.assert_allclose(got.f_W, whole.f_W)
+
+
+def test_a_ulog_with_a_lost_block_is_read_around_it(tmp_path):
+    """A 4 kB block of an SD card lost (zeros) in the middle of a ULog: pyulog resynchronises and leaves a
+    garbled sample whose time stamp jumps back to 0 s, and the whole log was refused as "time goes backwards
+    ... several logs were joined". The out-of-order sample is dropped with a note; the estimate matches the
+    undamaged log's away from the block."""
+    from vtol_impedance.logs.ulog import _in_order
+
+    data = bytearray(samples.path("px4").read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 4096] = bytes(4096)
+    (tmp_path / "lost.ulg").write_bytes(bytes(data))
+    got = estimate_file(tmp_path / "lost.ulg")
+    assert any("out of time order in the damaged data dropped" in n for n in got.notes)
+    whole = estimate_file(samples.path("px4"))
+    assert abs(float(np.mean(got.f_W[:, 2])) - float(np.mean(whole.f_W[:, 2]))) < 0.05
+    # the rule itself: a lone sample out of order goes, a jump back that stays (joined logs) does not
+    np.testing.assert_array_equal(_in_order(np.array([1.0, 2.0, 0.0, 4.0, 5.0])), [1, 1, 0, 1, 1])
+    np.testing.assert_array_equal(_in_order(np.array([1.0, 2.0, 9e9, 4.0, 5.0])), [1, 1, 0, 1, 1])
+    assert _in_order(np.array([5.0, 6.0, 7.0, 1.0, 2.0, 3.0])).all()

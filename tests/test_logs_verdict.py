@@ -403,3 +403,16 @@ def test_a_body_rate_of_the_opposite_sign_is_named_as_such(tmp_path):
     with pytest.raises(InputError, match="opposite sign|contradicts physics") as exc:
         estimate_file(write_csv(tmp_path / "flip.csv", dict(cols, wy=-cols["wy"])), MASS)
     assert "times the attitude's rate of change" not in str(exc.value)
+
+
+def test_a_refusal_carries_what_the_estimate_already_doubted(tmp_path):
+    """A hover thrust parameter 30 % off made the horizontal balance fail and named the velocity; the cause
+    ("the thrust gives 1.46 times the weight ... check the hover thrust") was said only with --force. A
+    refusal now carries the estimate's warnings."""
+    fl, _ = figure_eight()
+    cols = csv_cols(fl)
+    cols = dict(cols, thrust_n=1.45 * cols["thrust_n"])  # a thrust map off by 45 %: the weight warning
+    with pytest.raises(LogRefused) as exc:
+        estimate_file(write_csv(tmp_path / "heavy.csv", cols), MASS)
+    text = str(exc.value)
+    assert "perhaps the cause" in text and "times the weight" in text, text

@@ -15,7 +15,8 @@ def _estimate_tables(est: Any, s: dict[str, Any]) -> list[tuple[str, list[str], 
     tables = []
     for name, st in s["stats"].items():
         rows = [[k] + [f"{v:.4g}" for v in vals] for k, vals in st.items()]
-        tables.append((f"Estimate {name} over the log", [name, "x", "y", "z"], rows))
+        over = "in the air (the ground stretches left out)" if s.get("ground_samples_left_out") else "over the log"
+        tables.append((f"Estimate {name} {over}", [name, "x", "y", "z"], rows))
     if est.bias is not None:
         rows = [[k] + [f"{v:.4g}" for v in est.bias[k]] for k in ("f_W_N", "tau_B_Nm") if k in est.bias]
         a, b = est.bias["segment_s"]
@@ -166,6 +167,8 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         print(f"{len(est.t)} samples at {flight.rate_hz:g} Hz, {est.info['segments']} segment(s) "
               f"({restarts} restart(s), {bridged} bridged dropout(s))")  # fmt: skip
         what = "ground reaction + external force" if est.info.get("on_ground") else "force"
+        if s.get("ground_samples_left_out"):
+            what += f" in the air ({s['ground_samples_left_out']} samples on the ground left out)"
         print(f"{what}, world NED [N]  mean " + " ".join(f"{v:+.3f}" for v in st["mean"]) + "   max |.| "
               + " ".join(f"{v:.3f}" for v in st["max_abs"]))  # fmt: skip
         sd = (est.info.get("hover_thrust") or {}).get("fz_sd_at_hover_N")

@@ -166,6 +166,6 @@ def motor_channels(params: Mapping[str, float], n_max: int = 16) -> list[int] | 
     by_motor = {}
     for ch in range(1, n_max + 1):
         f = params.get(f"SERVO{ch}_FUNCTION")
-        if f is not None and 33 <= int(f) <= 40:
+        if f is not None and np.isfinite(f) and 33 <= f <= 40 and float(f).is_integer():  # a damaged one: none
             by_motor.setdefault(int(f) - 32, ch)
     return [by_motor[k] for k in sorted(by_motor)] or None

@@ -968,6 +968,40 @@ def _gap_bounds(flight: FlightLog, thrust: np.ndarray, tau: np.ndarray | None, d
             g["bound_tau_Nm"] = float(gmax[3:].max() * T**3 / 12.0 * ct)
 
 
+#: A stretch of at least this long, s, with the thrust under :data:`GROUND_THRUST_SHARE` of the weight is the
+#: vehicle on the ground (before take-off, landed, disarmed between flights).
+GROUND_MIN_S = 1.0
+GROUND_THRUST_SHARE = 0.2
+
+
+def _grounded(flight: FlightLog, thrust: np.ndarray, mass: float, info: dict[str, Any], notes: list[str]) -> None:
+    """Name the stretches on the ground (:data:`GROUND_THRUST_SHARE`) in ``info["ground_s"]`` and a note: the
+    estimate there is the ground's reaction (the thrust carries nothing), which a log of two flights with a
+    pause between showed as an external force of -11.8 N and a headline mean of -6.2 N (the summary's
+    statistics now leave them out)."""
+    low = np.asarray(thrust, float) < GROUND_THRUST_SHARE * mass * G
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(np.int8), [0]])))
+    spans = [(flight.t[a], flight.t[b - 1]) for a, b in zip(edges[::2], edges[1::2], strict=True)
+             if flight.t[b - 1] - flight.t[a] >= GROUND_MIN_S]  # fmt: skip
+    if not spans:
+        return
+    info["ground_s"] = [[float(a), float(b)] for a, b in spans]
+    where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in spans[:4]) + (" ..." if len(spans) > 4 else "")
+    notes.append(
+        f"the thrust is under {100 * GROUND_THRUST_SHARE:.0f} % of the weight at {where} (on the ground: before "
+        "take-off, landed or disarmed): the estimate there is the ground's reaction, not an external force; "
+        "the summary's statistics leave these stretches out (the series keeps them)"
+    )
+
+
+def airborne(est: LogEstimate) -> np.ndarray:
+    """The samples of ``est`` outside its ground stretches (``info["ground_s"]``): a boolean mask."""
+    keep = np.ones(len(est.t), bool)
+    for a, b in est.info.get("ground_s", []):
+        keep &= ~((est.t >= a) & (est.t <= b))
+    return keep
+
+
 def _settles_within(flight: FlightLog, params: EstimatorParams, notes: list[str]) -> None:
     """A WARNING when the estimator's settling (5 time constants of its slowest pole) is longer than every
     stretch of the log it runs on without a restart: the estimate never reaches the force, and a reader
@@ -1095,6 +1129,8 @@ def estimate(
     if sd_rel is not None:
         fz_sd = np.abs(thrust * np.cos(flight.eta[:, 0]) * np.cos(flight.eta[:, 1])) * sd_rel
         info["hover_thrust"]["fz_sd_at_hover_N"] = mass * G * sd_rel
+    if not on_ground:
+        _grounded(flight, thrust, mass, info, notes)
     if on_ground:
         info["on_ground"] = True
         info["force_meaning"] = "ground reaction plus external force (--on-ground)"
@@ -1128,6 +1164,7 @@ def estimate(
 
 __all__ = [
     "LogEstimate",
+    "airborne",
     "ROTOR_SPEED_UNITS",
     "THRUST_SOURCES",
     "check_inertia",

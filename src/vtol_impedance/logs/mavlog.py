@@ -55,6 +55,7 @@ import contextlib
 import io
 import os
 import struct
+import tempfile
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -447,10 +448,10 @@ def read_dataflash(path: str | os.PathLike[str]) -> RawLog:
     )
 
 
-def _tlog_frames(path: Path) -> tuple[int, int, str | None]:
+def _tlog_frames(path: Path) -> tuple[int, int, str | None, int]:
     """Walk the tlog's frames (8-byte big-endian time, then a MAVLink 1 or 2 packet): ``(complete frames,
-    damaged bytes skipped, note about a cut or damaged file)``. After damage the walk resynchronises on the
-    next frame whose time is within a day of the last good one."""
+    damaged bytes skipped, note about a cut or damaged file, bytes cut off the end)``. After damage the walk
+    resynchronises on the next frame whose time is within a day of the last good one."""
     data = path.read_bytes()
     ofs, n, skipped, last_t = 0, 0, 0, None
     cut = None
@@ -483,7 +484,7 @@ def _tlog_frames(path: Path) -> tuple[int, int, str | None]:
             f"the file ends inside a MAVLink frame ({cut} byte(s)): it was cut short; the incomplete message was "
             "dropped"
         )
-    return n, skipped, (f"{path.name}: " + "; ".join(notes)) if notes else None
+    return n, skipped, (f"{path.name}: " + "; ".join(notes)) if notes else None, int(cut or 0)
 
 
 TLOG_TYPES = [
@@ -511,12 +512,26 @@ def read_tlog(path: str | os.PathLike[str], sysid: int | None = None, compid: in
     path = Path(path)
     if not path.is_file():
         raise InputError(f"cannot read log file {path}: {explain_path(path) or 'not a regular file'}")
-    n_frames, _, tail = _tlog_frames(path)
+    n_frames, _, tail, cut = _tlog_frames(path)
     if n_frames == 0:
         raise InputError(f"{path} holds no MAVLink frames (not a .tlog, or empty)")
+    if cut:  # pymavlink's index of a tlog fails on a cut frame that is the first of its kind: read it without
+        with tempfile.TemporaryDirectory() as tmp:
+            trimmed = Path(tmp) / path.name
+            with open(path, "rb") as src:
+                trimmed.write_bytes(src.read(path.stat().st_size - cut))
+            return _read_tlog(path, trimmed, sysid, compid, tail, n_frames)
+    return _read_tlog(path, path, sysid, compid, tail, n_frames)
+
+
+def _read_tlog(
+    path: Path, source: Path, sysid: int | None, compid: int | None, tail: str | None, n_frames: int
+) -> RawLog:
+    """:func:`read_tlog` of the file ``source`` (``path`` itself, or its copy without a cut last frame),
+    named by ``path``."""
     out, err = io.StringIO(), io.StringIO()
     try:
-        conn = _connect(path, out, err)
+        conn = _connect(source, out, err)
     except Exception as exc:
         raise InputError(f"{path} is not a readable tlog ({type(exc).__name__}: {exc})") from None
     raw_rows: dict[tuple[int, int], dict[str, list]] = defaultdict(lambda: defaultdict(list))

@@ -24,16 +24,24 @@ VALUE_FORMAT = "%.12g"
 
 
 def summary(est: LogEstimate) -> dict[str, Any]:
-    """Per-component mean, RMS and largest magnitude of the causal estimate, plus how the log was read."""
-    stats = {}
+    """Per-component mean, RMS and largest magnitude of the causal estimate off the ground (the ground
+    stretches of ``info["ground_s"]`` left out), plus how the log was read."""
+    from .estimate import airborne
+
+    keep = airborne(est)
+    if not keep.any():  # never airborne (a bench test): every sample
+        keep[:] = True
+    stats: dict[str, Any] = {}
     for name, arr in (("f_W_N", est.f_W), ("tau_B_Nm", est.tau_B)):
         if arr is not None:
+            arr = arr[keep]
             stats[name] = {
                 "mean": arr.mean(0).tolist(),
                 "rms": np.sqrt((arr**2).mean(0)).tolist(),
                 "max_abs": np.abs(arr).max(0).tolist(),
             }
-    return {"info": est.info, "bias": est.bias, "warnings": est.warnings, "notes": est.notes, "stats": stats}
+    return {"info": est.info, "bias": est.bias, "warnings": est.warnings, "notes": est.notes, "stats": stats,
+            "stats_samples": int(keep.sum()), "ground_samples_left_out": int((~keep).sum())}  # fmt: skip
 
 
 def csv_formats(names: list[str]) -> list[str]:

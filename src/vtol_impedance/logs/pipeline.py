@@ -192,8 +192,12 @@ def _vehicle(
         m, m_src = float(mass), "given (--mass)"
     elif vehicle is not None:
         m, m_src = float(vehicle.mass), f"the vehicle {vehicle.name}"
-    elif raw.mass is not None:
-        m, m_src = float(raw.mass), raw.vehicle_source
+    elif raw.mass is not None:  # as --mass would be checked, naming where it came from
+        try:
+            m = scalar(f"the log's mass ({raw.vehicle_source})", raw.mass, lo=MIN_MASS_KG, hi=MAX_MASS_KG)
+        except InputError as exc:
+            raise InputError(f"{exc}; give the vehicle's own with --mass KG or --vehicle") from None
+        m_src = raw.vehicle_source
     else:
         raise InputError(
             "the estimator needs the vehicle's nominal mass: give --mass KG or --vehicle NAME|FILE.toml (the log "
@@ -207,7 +211,11 @@ def _vehicle(
     elif vehicle is not None:
         I_B, i_src = np.asarray(vehicle.inertia, dtype=float), f"the vehicle {vehicle.name}"
     elif raw.inertia is not None:
-        I_B, i_src = check_inertia(raw.inertia), raw.vehicle_source
+        try:
+            I_B, i_src = check_inertia(raw.inertia), raw.vehicle_source
+        except InputError as exc:
+            raise InputError(f"the log's inertia ({raw.vehicle_source}): {exc}; give it with --inertia or --vehicle") \
+                from None
     else:
         I_B, i_src = None, "none given: the force only (the moment needs --inertia or --vehicle)"
     choices.append("inertia: " + ("" if I_B is None else f"diag {np.round(np.diag(I_B), 6).tolist()} kg m^2, ") + i_src)
@@ -305,7 +313,7 @@ def estimate_file(
     )  # fmt: skip
     if verdict.outcome == "refused":
         if not force:
-            raise LogRefused(verdict, str(path))
+            raise LogRefused(verdict, str(path), rep.warnings + est.warnings)
         verdict.forced = True
     est.info["verdict"] = verdict.to_dict()
     choices = list(raw.choices) + vchoices + [f"max gap: {flight.max_gap_source}"]

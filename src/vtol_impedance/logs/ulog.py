@@ -102,8 +102,13 @@ def _pyulog():
 
 
 def _pca_matrix(params: dict[str, float]) -> tuple[np.ndarray, np.ndarray, int] | None:
-    n = int(params.get("CA_ROTOR_COUNT", 0) or 0)
-    if n < 2 or any(f"CA_ROTOR{i}_PX" not in params or f"CA_ROTOR{i}_PY" not in params for i in range(n)):
+    """The rotor geometry from PX4's control-allocation parameters; ``None`` when they are absent or not
+    finite (a damaged parameter: the force estimate does not need the geometry)."""
+    count = params.get("CA_ROTOR_COUNT", 0) or 0
+    if not np.isfinite(count) or not 2 <= count <= 64:
+        return None
+    n = int(count)
+    if any(f"CA_ROTOR{i}_PX" not in params or f"CA_ROTOR{i}_PY" not in params for i in range(n)):
         return None
     pos = np.zeros((n, 3))
     axes = np.zeros((n, 3))
@@ -113,6 +118,8 @@ def _pca_matrix(params: dict[str, float]) -> tuple[np.ndarray, np.ndarray, int] 
         a = np.array([params.get(f"CA_ROTOR{i}_A{c}", d) for c, d in (("X", 0.0), ("Y", 0.0), ("Z", -1.0))])
         axes[i] = a / max(np.linalg.norm(a), 1e-9)
         km[i] = params.get(f"CA_ROTOR{i}_KM", 0.05)
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(axes)) and np.all(np.isfinite(km))):
+        return None
     return pos, np.column_stack([axes, km]), n
 
 
@@ -273,6 +280,21 @@ def read_ulog(path: str | os.PathLike[str]) -> RawLog:
         ) from None
 
 
+def _in_order(t: np.ndarray) -> np.ndarray:
+    """The samples of the time stamps ``t`` that lie between their neighbours where those are in order: a
+    garbled sample (0 s, or a time years ahead) is dropped, a true jump back in time (joined logs) is not
+    hidden, since both its neighbours stay out of order."""
+    keep = np.ones(len(t), bool)
+    prev, nxt = t[:-2], t[2:]
+    mid = t[1:-1]
+    keep[1:-1] = ~((prev <= nxt) & ((mid < prev) | (mid > nxt)))
+    if t[0] > t[1] and t[1] <= t[min(2, len(t) - 1)]:
+        keep[0] = False
+    if t[-1] < t[-2] and t[-3] <= t[-2]:
+        keep[-1] = False
+    return keep
+
+
 def _from_ulog(path: Path, ulog: Any) -> RawLog:
     """:func:`read_ulog` of a file pyulog parsed."""
     notes: list[str] = []
@@ -295,7 +317,14 @@ def _from_ulog(path: Path, ulog: Any) -> RawLog:
             sample_times.append(name)
         else:
             t = d.data["timestamp"].astype(float) * 1e-6
-        available[name] = (t, d.data)
+        data = d.data
+        if getattr(ulog, "file_corruption", False) and len(t) >= 3:
+            keep = _in_order(t)  # pyulog resynchronised after the damage, with a garbled sample or two
+            if not keep.all():
+                notes.append(f"topic {name}: {int((~keep).sum())} sample(s) out of time order in the damaged data "
+                             "dropped")  # fmt: skip
+                t, data = t[keep], {k: np.asarray(v)[keep] for k, v in data.items()}
+        available[name] = (t, data)
     params = {}
     for k, v in ulog.initial_parameters.items():
         try:

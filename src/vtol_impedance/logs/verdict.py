@@ -163,11 +163,14 @@ class Verdict:
 class LogRefused(InputError):
     """A log whose columns contradict physics (:mod:`vtol_impedance.logs.verdict`); ``verdict`` says why."""
 
-    def __init__(self, verdict: Verdict, what: str = "") -> None:
+    def __init__(self, verdict: Verdict, what: str = "", warnings: list[str] | None = None) -> None:
         self.verdict = verdict
+        also = ""
+        if warnings:  # what the estimate already doubted may be the cause (a hover thrust 30 % off)
+            also = " The estimate also warned, perhaps the cause: " + " | ".join(warnings) + "."
         super().__init__(
-            (f"{what}: " if what else "") + verdict.message() + ". If the columns are right (check them), "
-            "--force estimates anyway and records the override"
+            (f"{what}: " if what else "") + verdict.message() + "." + also + " If the columns are right (check "
+            "them), --force estimates anyway and records the override"
         )
 
 
