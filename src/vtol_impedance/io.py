@@ -145,8 +145,8 @@ def quiet_worker(die_with_parent: bool = True) -> None:
 def spawning_quietly() -> Iterator[None]:
     """Around a process pool's ``submit`` calls, which start its workers: SIGINT is held back in this
     thread and so in the workers it starts, until their :func:`quiet_worker` ignores it (a Ctrl-C while a
-    worker imports Python would otherwise print that worker's traceback). Here a Ctrl-C waits until
-    the block ends, a few milliseconds."""
+    worker imports Python would otherwise print that worker's traceback). A Ctrl-C the kernel gives this
+    thread waits until the block ends, a few milliseconds (another thread may take it at once)."""
     import signal
 
     old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
