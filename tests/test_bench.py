@@ -54,7 +54,7 @@ def test_a_bad_report_path_or_yardstick_is_refused_before_measuring(tmp_path, ca
     monkeypatch.setattr(bench, "_child", measured)
     (tmp_path / "file").write_text("x")
     for args, message in (
-        (["--out", str(tmp_path)], "is not a file"),
+        (["--out", str(tmp_path)], "not a file"),
         (["--out", str(tmp_path / "file" / "b.json")], "is not a folder"),
         (["--out", str(tmp_path / "b.json"), "--yardstick", str(tmp_path / "nope.py")], "no file"),
         (["--out", str(tmp_path / "b.json"), "--yardstick", str(tmp_path / "file")], "not the yardstick"),
