@@ -401,6 +401,7 @@ def test_the_margin_workers_compute_and_ignore_a_ctrl_c():
             assert pids, "no worker process started"
             os.kill(pids[0], signal.SIGINT)
             time.sleep(0.5)
+            assert procs.running(pids[0]), "the worker died of the Ctrl-C"  # the pool's own list lags a death
             first = app.evaluate({})  # still served by the same worker
             assert list(app._pool._processes) == pids and first["margins"]
     finally:
