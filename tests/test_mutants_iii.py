@@ -21,8 +21,6 @@ from vtol_impedance.logs import estimate, read_any, resample
 from vtol_impedance.logs.checks import evidence
 from vtol_impedance.logs.timeseries import RawLog, Signal
 
-Y = np.array([0.1, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
-R = np.array([0, 0, -1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
 MEAS = Measurement(np.array([0.1, 0.0, -1.0]), np.zeros(3), np.zeros(3), omega_B=np.zeros(3))
 REF = Reference(np.array([0.0, 0.0, -1.0]))
 
@@ -54,16 +52,6 @@ def test_reset_starts_the_estimators_clock_again():
         est.step(z, z, 9.81, z, omega_B=z, t=4.0 + 0.01 * k)
     est.reset()  # a new flight: its clock may start at 0 again
     est.step(z, z, 9.81, z, omega_B=z, t=0.0)
-
-
-def test_an_untimed_step_arrays_forgets_the_clock():
-    ctrl = Controller(ControllerParams.paper("pdc"))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", ControllerWarning)
-        ctrl.step_arrays(Y, R, t=0.0)
-        ctrl.step_arrays(Y, R)
-        ctrl.step_arrays(Y, R, t=0.02)
-        ctrl.step_arrays(Y, R, t=0.03)
 
 
 # --------------------------------------------------------------------------- outputs

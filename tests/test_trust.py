@@ -403,14 +403,13 @@ def test_a_loop_at_another_rate_than_ts_is_warned_about_when_timed():
                 ctrl.step(meas, ref, t=k * period)
         said = [str(w.message) for w in caught if issubclass(w.category, ControllerWarning)]
         assert (len(said) == 1 and "on average" in said[0]) if warned else not said, said
-    # an untimed step in between forgets the clock: its period is not the sum of two
-    ctrl.reset()
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", ControllerWarning)
-        ctrl.step(meas, ref, t=0.0)
-        ctrl.step(meas, ref)
-        ctrl.step(meas, ref, t=0.02)
-        ctrl.step(meas, ref, t=0.03)
+    # an untimed step in between forgets the clock: its period is not the sum of two (step and step_arrays)
+    for step in (lambda t=None: ctrl.step(meas, ref, t=t), lambda t=None: ctrl.step_arrays(y, r, t=t)):
+        ctrl.reset()
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", ControllerWarning)
+            for t in (0.0, None, 0.02, 0.03):
+                step(t)
     with pytest.raises(InputError, match="t \\(the step's time"):
         Controller([ControllerParams.paper("pdc")] * 2).step_arrays(y, r, 1, t="soon")
 
