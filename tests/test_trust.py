@@ -394,13 +394,16 @@ def test_a_loop_at_another_rate_than_ts_is_warned_about_when_timed():
     ctrl.step_arrays(y, r, t=0.0)
     with pytest.warns(ControllerWarning, match="stepped 0.5 s after"):
         ctrl.step_arrays(y, r, t=0.5)  # a gap
-    # each period inside the tolerance, but on average 30 % slow: warned once enough steps tell
-    for period, warned in ((0.013, True), (0.0101, False)):
+    # each period inside the tolerance, but on average 30 % slow: warned once enough steps tell (both calls)
+    for period, warned, arrays in ((0.013, True, False), (0.0101, False, False), (0.013, True, True)):
         ctrl.reset()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             for k in range(40):
-                ctrl.step(meas, ref, t=k * period)
+                if arrays:
+                    ctrl.step_arrays(y, r, t=k * period)
+                else:
+                    ctrl.step(meas, ref, t=k * period)
         said = [str(w.message) for w in caught if issubclass(w.category, ControllerWarning)]
         assert (len(said) == 1 and "on average" in said[0]) if warned else not said, said
     # an untimed step in between forgets the clock: its period is not the sum of two (step and step_arrays)

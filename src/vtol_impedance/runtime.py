@@ -289,13 +289,16 @@ class Controller:
         (``eta_dot = Q(eta)^-1 omega_B``). ``t``: the step's time (s, any clock; for a batch, vehicle 0's
         steps are timed), checked as :meth:`step` checks it.
         """
+        if t is not None:
+            return self._timed(t, vehicle, lambda: self._step_arrays(y, r, vehicle))
+        if vehicle == 0 and self._clock.t_prev is not None:
+            self._clock.commit(None)  # an untimed step: the next timed one starts the clock again
+        return self._step_arrays(y, r, vehicle)
+
+    def _step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int) -> np.void:
         fast = self._fast
         if fast is None:
             raise InputError("step_arrays needs backend='compiled'")
-        if t is not None:
-            return self._timed(t, vehicle, lambda: self.step_arrays(y, r, vehicle))
-        if vehicle == 0 and self._clock.t_prev is not None:
-            self._clock.commit(None)  # an untimed step: the next timed one starts the clock again
         entry, p, d, s, h, o, views = fast
         if type(vehicle) is not int and isinstance(vehicle, np.integer):
             vehicle = int(vehicle)  # an index from NumPy (np.arange, np.flatnonzero) is an index
