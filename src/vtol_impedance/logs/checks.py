@@ -290,7 +290,7 @@ def _drag_part(sf: np.ndarray, ub: np.ndarray, v: np.ndarray, air: np.ndarray) -
     before the thrust axis is compared with it: ``sf = k ub - f/m`` with ``-f/m = D_j v_j + D2_j |v| v_j`` per
     axis, fitted jointly with ``k`` by least squares on the airborne samples; an axis whose fit pushes along
     its velocity (no drag does) keeps none. In steady fast flight the thrust tilts against the drag while the
-    specific force stays vertical: a correct agile log with drag of a third of its weight read 32 degrees
+    specific force stays vertical: a correct agile log with drag of a third of its weight read 18 degrees
     between them and was taken for angles in degrees. A wrong column gives an error in phase with the
     acceleration, which a force in phase with the velocity cannot take."""
     if air.sum() < 10 or not np.any(v[air]):
