@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
 import re
 import tomllib
 import typing
@@ -259,7 +260,7 @@ class InteractionSpec:
 def _real(value: Any) -> float | None:
     """``value`` as a finite float when it is a real number (not a boolean), else None (an integer beyond
     any float, 10**400, included: NumPy could not even test it)."""
-    if not isinstance(value, int | float) or isinstance(value, bool):
+    if not isinstance(value, numbers.Real) or isinstance(value, bool | np.bool_):  # NumPy's numbers are Real
         return None
     try:
         number = float(value)
