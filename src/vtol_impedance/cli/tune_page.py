@@ -23,7 +23,14 @@ def cmd_tune_page(args: argparse.Namespace) -> int:
     server = make_server(app, args.host, args.port, args.allow_remote)  # refuses a remote bind before any work
 
     def warm() -> None:  # the first change is then as fast as the next; a request meanwhile waits for it
-        app.start()
+        try:
+            app.start()
+        except Exception as exc:  # noqa: BLE001 - a thread's error would print as a traceback
+            if app._pool is None and args.workers:  # stopped meanwhile (Ctrl-C): the pool shut down under it
+                return
+            print(f"warning: the warm-up failed ({type(exc).__name__}: {exc}); the first change will be slower",
+                  file=sys.stderr, flush=True)  # fmt: skip
+            return
         if not args.quiet:
             print(f"warmed up in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
