@@ -81,7 +81,7 @@ class _Clock:
                 "advance by Ts every step (reset() starts a new flight; the state is unchanged)"
             )
         dt = t - self.t_prev
-        mean = (t - self.t_first) / (self.n + 1) if self.t_first is not None else dt
+        mean = (t - self.t_first) / (self.n + 1)  # t_first is set with t_prev
         if "period" not in warned and abs(dt / self.Ts - 1.0) > PERIOD_TOLERANCE:
             said = f"stepped {dt:.6g} s after its previous step"
         elif "period" not in warned and self.n + 1 >= MEAN_MIN_STEPS and abs(mean / self.Ts - 1.0) > MEAN_TOLERANCE:
@@ -289,13 +289,14 @@ class Controller:
         (``eta_dot = Q(eta)^-1 omega_B``). ``t``: the step's time (s, any clock; for a batch, vehicle 0's
         steps are timed), checked as :meth:`step` checks it.
         """
+        timed = None  # vehicle 0's time, checked: only its steps advance the clock
         if t is not None:
-            return self._timed(t, vehicle, lambda: self._step_arrays(y, r, vehicle))
-        if vehicle == 0 and self._clock.t_prev is not None:
+            if vehicle == 0:
+                timed = self._clock.check(t, self._warned, "the controller", stacklevel=3)
+            else:
+                scalar("t (the step's time, s)", t)
+        elif vehicle == 0 and self._clock.t_prev is not None:
             self._clock.commit(None)  # an untimed step: the next timed one starts the clock again
-        return self._step_arrays(y, r, vehicle)
-
-    def _step_arrays(self, y: np.ndarray, r: np.ndarray, vehicle: int) -> np.void:
         fast = self._fast
         if fast is None:
             raise InputError("step_arrays needs backend='compiled'")
@@ -328,6 +329,8 @@ class Controller:
                     f"rates <= 1e4 rad/s): y = {y}, r = {r}; the controller's state is unchanged"
                 )
             raise InputError(f"non-finite measurement or reference: y = {y}, r = {r}")
+        if timed is not None:
+            self._clock.commit(timed)
         return out
 
     def _measurement(self, meas: Measurement, bs: tuple[int, ...]) -> Measurement:
@@ -346,11 +349,8 @@ class Controller:
             eta_dot = np.linalg.solve(euler_rate_matrix_Q(eta), omega_B[..., None])[..., 0]
         return Measurement(p_W, v_W, eta, eta_dot)
 
-    def _timed(self, t: object, vehicle: int, step: Callable[[], _T]) -> _T:
-        """``step()`` at the time ``t`` (:class:`_Clock`); only vehicle 0's steps advance the clock."""
-        if vehicle != 0:
-            scalar("t (the step's time, s)", t)
-            return step()
+    def _timed(self, t: object, step: Callable[[], _T]) -> _T:
+        """``step()`` at the time ``t`` (:class:`_Clock`)."""
         tt = self._clock.check(t, self._warned, "the controller", stacklevel=5)
         out = step()
         self._clock.commit(tt)
@@ -364,7 +364,7 @@ class Controller:
         period far from ``Ts`` (more than :data:`PERIOD_TOLERANCE` of it off: a loop at another rate, a
         gap) is a :class:`ControllerWarning`, once until :meth:`reset`."""
         if t is not None:
-            return self._timed(t, 0, lambda: self._step(meas, ref))
+            return self._timed(t, lambda: self._step(meas, ref))
         out = self._step(meas, ref)
         self._clock.commit(None)  # an untimed step: the next timed one starts the clock again
         return out

@@ -92,8 +92,9 @@ def main(argv: list[str] | None = None) -> int:
             keys = [a.split("=", 1)[0].strip() for a in getattr(args, "set", None) or [] if "=" in str(a)]
             for i, k in enumerate(keys):  # the last would win in silence; a vector and one of its entries too
                 for other in keys[:i]:
-                    base, obase = k.split("[", 1)[0], other.split("[", 1)[0]
-                    if other == k or (base == obase and ("[" not in k or "[" not in other)):
+                    from ..scenarios.spec import keys_overlap
+
+                    if keys_overlap(other, k):
                         from ..errors import InputError
 
                         both = k if other == k else f"{other} and {k}"

@@ -396,6 +396,7 @@ def _one_of_each(data: dict[str, Any], source: str) -> None:
     for a, b in pairs:
         if a in data and b in data:
             raise InputError(f"{source}: give {a} or {b}, not both (one would be ignored)")
+    rows = [r for r in data.get("rotors", []) if isinstance(r, dict)] if isinstance(data.get("rotors"), list) else []
     if "rotors" in data:
         given = [k for k in ("layout", "arm_length", "f_max", "f_min", "max_speed") if k in data]
         if given:
@@ -408,10 +409,7 @@ def _one_of_each(data: dict[str, Any], source: str) -> None:
                 raise InputError(f"{source}: rotors[{i}]: give f_max or max_speed, not both (one would be ignored)")
     if "torque_constant" in data and "thrust_constant" not in data:
         raise InputError(f"{source}: torque_constant needs thrust_constant (drag factor = torque / thrust constant)")
-    rotor_speeds = "max_speed" in data or any(
-        isinstance(r, dict) and "max_speed" in r for r in (data.get("rotors") if isinstance(data.get("rotors"), list)
-                                                          else [])
-    )  # fmt: skip
+    rotor_speeds = "max_speed" in data or any("max_speed" in r for r in rows)
     if "thrust_constant" in data and "torque_constant" not in data and not rotor_speeds:
         raise InputError(
             f"{source}: thrust_constant is used with max_speed (rotor limits) or torque_constant (drag factor); "

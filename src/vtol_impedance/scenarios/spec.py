@@ -750,6 +750,15 @@ def get_value(spec: ScenarioSpec, key: str) -> Any:
     return obj
 
 
+def keys_overlap(a: str, b: str) -> bool:
+    """Whether the dotted keys ``a`` and ``b`` (as :func:`set_value` takes them) set one value: the same key,
+    or a vector and one of its entries (``payload.offset_B`` and ``payload.offset_B[0]``); two entries of one
+    vector are two values."""
+    if a == b:
+        return True
+    return a.split("[", 1)[0] == b.split("[", 1)[0] and ("[" not in a or "[" not in b)
+
+
 def _dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     """A scenario's plain data (``to_dict``) by the dotted keys :func:`set_value` takes (``control.Kp``);
     lists and the disturbances kept whole."""

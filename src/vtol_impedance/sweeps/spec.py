@@ -53,7 +53,7 @@ from ..errors import InputError, ScenarioError, check_keys, flag, instance, path
 from ..estimator.momentum import EstimatorBandwidthWarning
 from ..io import read_toml
 from ..scenarios import get, load_toml, set_value
-from ..scenarios.spec import ScenarioSpec, _dotted, check, check_name
+from ..scenarios.spec import ScenarioSpec, _dotted, check, check_name, keys_overlap
 
 MODES = ("grid", "zip", "random")
 KEYS = ("name", "description", "base", "controllers", "seeds", "seed", "mode", "samples", "chunk", "traces",
@@ -438,13 +438,9 @@ def distinct_keys(groups: dict[str, list[Axis]], fixed: Any = None) -> None:
     def overlap(k: str) -> str | None:
         """A key set before that ``k`` would override or lose: itself, or a vector and one of its entries;
         but an axis over one entry of a vector ``[set]`` gives whole is that vector with the entry varied."""
-        base = k.split("[", 1)[0]
         for s in seen:
-            if s == k:
+            if keys_overlap(s, k) and (s == k or not (seen[s] == "[set]" and "[" not in s)):
                 return s
-            if s.split("[", 1)[0] == base and ("[" not in s or "[" not in k):
-                if not (seen[s] == "[set]" and "[" not in s):
-                    return s
         return None
 
     if isinstance(fixed, dict):
