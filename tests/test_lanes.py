@@ -113,6 +113,34 @@ def test_the_plant_loop_is_vector_code():
     assert packed > 100 and packed > 5 * scalar, (packed, scalar)
 
 
+def test_the_truth_and_the_failure_checks_at_a_tick_are_vector_code():
+    """What a tick observes of the truth (the plant's derivative, the Euler angles, the lumped wrench, the body
+    origin) and the failure checks run over the lanes as packed instructions too (twelfth stop): a scalar FMA
+    would say a call or a branch kept the loop scalar."""
+    flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    if not re.search(r"\bavx2\b", flags):
+        pytest.skip("no AVX2 on this machine")
+    from numba import njit
+
+    from vtol_impedance.compiled.jit import FLAGS
+    from vtol_impedance.compiled.lanes import failure_lanes, new_buffer, observe_lanes
+
+    @njit(**{**FLAGS, "cache": False})
+    def observe(buf):
+        observe_lanes(buf, 4)
+
+    @njit(**{**FLAGS, "cache": False})
+    def fail(buf):
+        failure_lanes(buf, 4)
+
+    for fn, least in ((observe, 100), (fail, 10)):
+        fn(new_buffer())
+        asm = fn.inspect_asm(fn.signatures[0])
+        packed = len(re.findall(r"vfn?m(?:add|sub)\w*pd\s+%[yz]mm", asm))
+        scalar = len(re.findall(r"vfn?m(?:add|sub)\w*sd\s", asm))
+        assert packed >= least and scalar == 0, (fn, packed, scalar)
+
+
 def test_a_lane_holds_a_state_and_a_plant_as_the_records_do():
     """Writing a state record into a lane and reading it back gives it unchanged; the lane's plant reads back
     as the record's (the rows' order is the one both directions use)."""

@@ -15,6 +15,7 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 
 from .control.impedance import (
+    ControllerArrays,
     ControllerParams,
     compile_controllers,
     controller_step,
@@ -28,6 +29,8 @@ from .estimator.momentum import design as design_estimator
 from .estimator.momentum import initial_state as estimator_initial_state
 from .model.dynamics import body_moment_from_euler
 from .model.kinematics import check_euler_regular, euler_rate_matrix_Q
+from .model.mixer import moment_reach
+from .model.vehicle import warn_if_cannot_hover
 
 _T = TypeVar("_T")
 _F8 = np.dtype(np.float64)
@@ -40,6 +43,17 @@ _ONE_F8 = (8,)  # the strides of a contiguous vector of float64
 #: studies: 0.09), the ground under a vehicle at rest gives 1, while inputs in a wrong frame (ENU read
 #: as NED) gave 2.6 in a test flight.
 IMPLAUSIBLE_ESTIMATE = 1.5
+#: ... and when the estimated external moment (body FRD) exceeds this many times what the rotors can give about
+#: that axis: a vehicle that flies holds its moments within its rotors' reach, while rotors with the wrong spins
+#: or positions in FLU read as FRD (a foreign simulator, twelfth stop) gave a yaw estimate of 1.7 times it.
+IMPLAUSIBLE_MOMENT = 1.5
+#: :meth:`Controller.step` warns once when the yaw reference is further than this (rad) from the measured yaw.
+#: Eq. (20) turns the desired roll and pitch with the *desired* yaw, so while the heading catches up, the tilt
+#: that holds a steady horizontal force (wind, a push, a payload's offset) points the wrong way: with 2 N held
+#: sideways, a heading step of 0.5 rad moved a 1 kg quadrotor 2.5 cm, of pi/2 32 cm, of pi 3.1 m (a foreign
+#: simulator), and the Pelican 0.4-0.6 m for pi in this project's own (twelfth stop); ramped at 1 rad/s, pi
+#: moved it 0.8 cm. Below 0.5 rad the excursion is a few centimetres.
+YAW_GAP_RAD = 0.5
 
 
 #: With the clock ``t`` given to a step, a period that differs from ``Ts`` by more than this share of it is
@@ -72,12 +86,14 @@ class _Clock:
         Warns, before the step is taken (an error filter then leaves the state unchanged)."""
         if t is None:
             return None
+        narrow = isinstance(t, np.floating) and np.finfo(type(t)).bits < 64
         t = scalar("t (the step's time, s)", t)
         if self.t_prev is None:
             return t
         if not t > self.t_prev:
+            hint = " (a float32 time rounds steps of a large clock together: pass seconds as float64)" if narrow else ""
             raise InputError(
-                f"t = {t!r} s does not come after the previous step's t = {self.t_prev!r} s: the clock must "
+                f"t = {t!r} s does not come after the previous step's t = {self.t_prev!r} s{hint}: the clock must "
                 "advance by Ts every step (reset() starts a new flight; the state is unchanged)"
             )
         dt = t - self.t_prev
@@ -144,6 +160,39 @@ class ControllerWarning(UserWarning):
     """Something the controller did that a user should know of (once per cause and :class:`Controller`)."""
 
 
+def _rebuilt(cls: type, args: tuple, kwargs: dict, learnt: dict) -> object:
+    """A :class:`Controller` or :class:`Estimator` built afresh, then given what another learnt (a copy, an
+    unpickling): arrays are filled in place, since the compiled step holds them."""
+    obj = cls(*args, **kwargs)
+    for name, value in learnt.items():
+        old = getattr(obj, name, None)
+        if isinstance(old, np.ndarray) and isinstance(value, np.ndarray) and old.shape == value.shape:
+            old[...] = value
+        else:
+            setattr(obj, name, value)
+    return obj
+
+
+class _Learns:
+    """Copies and pickles of an object that learns in flight: independent of the original (a copy stepped
+    does not move the original's estimate), with what it learnt so far, on either backend. The compiled
+    kernels are not data: a copy builds its own."""
+
+    _LEARNT: tuple[str, ...] = ()
+
+    def _init_args(self) -> tuple[tuple, dict]:
+        raise NotImplementedError
+
+    def __reduce__(self) -> tuple:
+        args, kwargs = self._init_args()
+        return (_rebuilt, (type(self), args, kwargs, {n: getattr(self, n) for n in self._LEARNT if hasattr(self, n)}))
+
+    def __copy__(self) -> object:
+        import copy
+
+        return copy.deepcopy(self)  # a shallow copy would share the estimate and the filters
+
+
 def _vec_input(name: str, value: object, bs: tuple[int, ...], who: str = "this controller") -> np.ndarray:
     arr = as_finite(name, value, (3,))
     if arr.shape[:-1] != bs:
@@ -164,11 +213,16 @@ def _vector3(name: str, value: object, limit: float) -> np.ndarray:
     return _plausible(name, _vec_input(name, value, (), "one sample of the estimator"), limit)
 
 
+_ANGLES = ("eta", "psi_d")
+
+
 def _plausible(name: str, value: np.ndarray, limit: float) -> np.ndarray:
     """Refuse a finite value beyond any vehicle's (it would overflow the arithmetic and poison the state)."""
     if np.any(np.abs(value) > limit):
+        hint = " (an angle: wrap it into [-pi, pi); the controller wraps the yaw error itself)"
+        hint = hint if name in _ANGLES else ""
         raise InputError(
-            f"{name} = {np.asarray(value).tolist()} is beyond any vehicle's (|{name}| <= {limit:g}); the "
+            f"{name} = {np.asarray(value).tolist()} is beyond any vehicle's (|{name}| <= {limit:g}){hint}; the "
             "controller's state is unchanged"
         )
     return value
@@ -205,7 +259,7 @@ def _plain(out: ControlOutput) -> ControlOutput:
     )
 
 
-class Controller:
+class Controller(_Learns):
     """Stateful controller + estimator for use outside the simulator (a flight loop, a ROS node).
 
     >>> import numpy as np
@@ -231,8 +285,13 @@ class Controller:
 
     ``backend="compiled"`` (default) runs the numba kernels, ``"numpy"`` the reference functions of this
     module; both compute the same numbers. A :class:`ControllerWarning` is issued once per cause
-    (rotor saturation, tilt limit) per controller and :meth:`reset`.
+    (rotor saturation, tilt limit, an implausible estimate, a yaw reference far from the measured yaw:
+    :data:`YAW_GAP_RAD`) per controller and :meth:`reset`. ``params``, ``backend`` and ``arrays`` are read-only:
+    build a new controller for other parameters. A copy (``copy.copy``, ``copy.deepcopy``, ``pickle``) is an
+    independent controller with what this one learnt so far.
     """
+
+    _LEARNT = ("state", "_warned", "_clock", "_s", "_h")
 
     def __init__(self, params: ControllerParams | Sequence[ControllerParams], backend: str = "compiled") -> None:
         if backend not in ("compiled", "numpy"):
@@ -244,9 +303,11 @@ class Controller:
             or not all(isinstance(p, ControllerParams) for p in params)  # type: ignore[union-attr]
         ):
             raise InputError(f"params must be a ControllerParams or a sequence of them, got {params!r:.80}")
-        self.params = params
-        self.backend = backend
-        self.arrays = compile_controllers(params)
+        self._params = params
+        self._backend = backend
+        self._arrays = compile_controllers(params)
+        for vehicle in {id(p.vehicle): p.vehicle for p in ([params] if single else params)}.values():  # type: ignore[union-attr]
+            warn_if_cannot_hover(vehicle, stacklevel=3)
         if backend == "compiled":
             from .compiled import controller as kernels
 
@@ -260,7 +321,25 @@ class Controller:
         #: What :meth:`step_arrays` calls, in one tuple (one attribute read per call); None with NumPy.
         self._fast: tuple | None = None
         self._weight = np.asarray(self.arrays.mass) * G
+        self._reach_B = moment_reach(self.arrays.E, self.arrays.f_min, self.arrays.f_max)
         self.reset()
+
+    @property
+    def params(self) -> ControllerParams | Sequence[ControllerParams]:
+        """What the controller was built from (read-only: build a new one for other parameters)."""
+        return self._params
+
+    @property
+    def backend(self) -> str:
+        return self._backend
+
+    @property
+    def arrays(self) -> ControllerArrays:
+        """The parameters as arrays (:func:`vtol_impedance.control.compile_controllers`), read-only."""
+        return self._arrays
+
+    def _init_args(self) -> tuple[tuple, dict]:
+        return (self._params,), {"backend": self._backend}
 
     @property
     def n_rotors(self) -> int:
@@ -375,6 +454,7 @@ class Controller:
             out = self._step_single(meas, ref)
             if out is not None:
                 self._warn_once(out)
+                self._warn_yaw(meas.eta, ref.psi)
                 return out
             # refused or unusual: the named checks below say why (the kernel left the state unchanged)
         meas = self._measurement(meas, bs)  # sense: checked, the gyro's rates as Euler rates (1c)
@@ -384,6 +464,7 @@ class Controller:
         else:
             out = self._step_compiled(meas, ref, bs)
         self._warn_once(out)
+        self._warn_yaw(meas.eta, ref.psi)
         return out if bs else _plain(out)
 
     def _reference(self, ref: Reference, bs: tuple[int, ...]) -> Reference:
@@ -435,6 +516,33 @@ class Controller:
                 "ENU/FLU and quaternions) and the mass; warned once until reset()",
                 ControllerWarning,
                 stacklevel=3,
+            )
+        ratio_m = np.abs(out.tau_hat_B) / self._reach_B
+        if "tau_hat_B" not in self._warned and np.any(ratio_m > IMPLAUSIBLE_MOMENT):
+            self._warned.add("tau_hat_B")
+            axis = "xyz"[int(np.argmax(np.max(ratio_m.reshape(-1, 3), axis=0)))]
+            warnings.warn(
+                f"the estimated external moment about body {axis} is {np.max(ratio_m):.2g} times what the rotors can "
+                "give about it: unless something that strong turns the vehicle, check the rotors' spin directions and "
+                "positions (body FRD: x forward, y right, z down) and omega_B's frame; warned once until reset()",
+                ControllerWarning,
+                stacklevel=3,
+            )
+
+    def _warn_yaw(self, eta: object, psi_d: object) -> None:
+        """Warn once when the yaw reference is :data:`YAW_GAP_RAD` or more from the measured yaw."""
+        if "yaw" in self._warned:
+            return
+        gap = np.abs((np.asarray(psi_d, float) - np.asarray(eta, float)[..., 2] + math.pi) % (2 * math.pi) - math.pi)
+        if np.any(gap > YAW_GAP_RAD):
+            self._warned.add("yaw")
+            warnings.warn(
+                f"the yaw reference is {np.max(gap):.2f} rad from the measured yaw: eq. (20) tilts for the desired "
+                "heading, so while the heading turns a horizontal force the vehicle holds (wind, a push) is held in "
+                "the wrong direction and the vehicle is pushed off (with 2 N sideways, pi/2 moved a 1 kg quadrotor "
+                "30 cm); ramp heading changes (Reference.psi_dot) by about 1 rad/s; warned once until reset()",
+                ControllerWarning,
+                stacklevel=4,
             )
 
     def _step_single(self, meas: Measurement, ref: Reference) -> ControlOutput | None:
@@ -500,7 +608,7 @@ class EstimatorOutput(NamedTuple):
     tau_hat_B: np.ndarray
 
 
-class Estimator:
+class Estimator(_Learns):
     """The momentum-based estimator of eqs. (6)-(13) alone, one sample at a time (an online loop fed by
     telemetry, another simulator): the same kernels as the simulator's controller and ``estimate``.
 
@@ -516,7 +624,11 @@ class Estimator:
     ended; without a torque command (``tau_B_prev=None``) the moment estimate is meaningless and reported
     as NaN. Call :meth:`step` every ``Ts`` seconds; after a gap in the data call :meth:`reset` (the filter
     assumes uniform sampling). ``backend="numpy"`` runs :func:`vtol_impedance.estimator.estimator_step`.
+    ``mass``, ``I_B``, ``params`` and ``backend`` are read-only; a copy or a pickle is an independent estimator
+    with what this one learnt.
     """
+
+    _LEARNT = ("_fresh", "_clock", "_warned", "_s", "_h", "_state")
 
     def __init__(
         self,
@@ -528,19 +640,20 @@ class Estimator:
     ) -> None:
         if backend not in ("compiled", "numpy"):
             raise InputError(f"backend must be 'compiled' or 'numpy', got {backend!r}")
-        self.mass = scalar("mass", mass, lo=0.0, lo_open=True)
+        self._mass = scalar("mass", mass, lo=0.0, lo_open=True)
         from .model.vehicle import check_inertia
 
         try:
             I_B = check_inertia(inertia_B)  # symmetric, positive definite, a rigid body's
         except InputError as exc:
             raise InputError(f"inertia_B: {exc}") from None
-        self.I_B = np.ascontiguousarray(I_B, dtype=float)
-        self.params = params or EstimatorParams()
-        if not isinstance(self.params, EstimatorParams):
+        self._I_B = np.ascontiguousarray(I_B, dtype=float)
+        self._I_B.flags.writeable = False
+        self._params = params or EstimatorParams()
+        if not isinstance(self._params, EstimatorParams):
             raise InputError(f"params must be an EstimatorParams, got {type(params).__name__}")
-        self.design = design_estimator(self.params, Ts)
-        self.backend = backend
+        self.design = design_estimator(self._params, Ts)
+        self._backend = backend
         if backend == "compiled":
             from .compiled import estimator as kernels
 
@@ -553,6 +666,25 @@ class Estimator:
     @property
     def Ts(self) -> float:  # noqa: N802
         return float(self.design.Ts)
+
+    @property
+    def mass(self) -> float:
+        return self._mass
+
+    @property
+    def I_B(self) -> np.ndarray:  # noqa: N802
+        return self._I_B
+
+    @property
+    def params(self) -> EstimatorParams:
+        return self._params
+
+    @property
+    def backend(self) -> str:
+        return self._backend
+
+    def _init_args(self) -> tuple[tuple, dict]:
+        return (self._mass, self._I_B, self.Ts), {"params": self._params, "backend": self._backend}
 
     def reset(self) -> None:
         """Start afresh: the next sample fills the history with its command and returns a zero estimate."""

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..conventions import G
 from .jit import kernel
+from .vmath import sin_cos
 
 
 @kernel(inline="always")
@@ -25,14 +26,14 @@ def mod_2pi(w):
 
 
 @kernel(inline="always")
-def _Q9(f, t):
-    cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
+def _Q9(f, t, vector):
+    (sf, cf), (st, ct) = sin_cos(f, vector), sin_cos(t, vector)
     return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)  # eq. (1c)
 
 
 @kernel(inline="always")
-def _Qd9(f, t, df, dt):
-    cf, sf, ct, st = math.cos(f), math.sin(f), math.cos(t), math.sin(t)
+def _Qd9(f, t, df, dt, vector):
+    (sf, cf), (st, ct) = sin_cos(f, vector), sin_cos(t, vector)
     return (0.0, 0.0, -ct * dt, 0.0, -sf * df, cf * ct * df - sf * st * dt, 0.0, -cf * df, -sf * ct * df - cf * st * dt)
 
 
@@ -101,13 +102,13 @@ def _QtA(A, cf, sf, ct, st):
 
 
 @kernel(inline="always")
-def _QMC(e0, e1, d0, d1, d2, I):  # noqa: E741
+def _QMC(e0, e1, d0, d1, d2, I, vector):  # noqa: E741
     """``Q``, ``M = Q^T I Q``, ``C = Q^T (S(I Q eta_dot)^T Q + I Q_dot)`` as 9-tuples (eq. (3b), (7)).
 
     The products use the zeros of ``Q`` and ``Q_dot`` (:func:`_Q9`, :func:`_Qd9`): about half the
-    arithmetic of dense 3x3 products."""
-    cf, sf, ct, st = math.cos(e0), math.sin(e0), math.cos(e1), math.sin(e1)
-    Q = _Q9(e0, e1)  # eq. (1c)
+    arithmetic of dense 3x3 products. ``vector`` (a literal): the sines of :mod:`.vmath` (code in lanes)."""
+    (sf, cf), (st, ct) = sin_cos(e0, vector), sin_cos(e1, vector)
+    Q = (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)  # eq. (1c), as _Q9
     M = _QtA(_AQ(I, cf, sf, ct, st), cf, sf, ct, st)  # eq. (3b)
     w0, w1, w2 = d0 - st * d2, cf * d1 + sf * ct * d2, -sf * d1 + cf * ct * d2  # Q eta_dot
     h0, h1, h2 = _mv9(I, w0, w1, w2)
@@ -139,9 +140,7 @@ def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
 @kernel(inline="always")
 def _beta_lin(e0, e1, e2, u, m):
     """Linear part of eq. (8): ``-u R(eta) e3 + m g``."""
-    cf, sf = math.cos(e0), math.sin(e0)
-    ct, st = math.cos(e1), math.sin(e1)
-    cp, sp = math.cos(e2), math.sin(e2)
+    (sf, cf), (st, ct), (sp, cp) = sin_cos(e0, False), sin_cos(e1, False), sin_cos(e2, False)
     return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G  # eq. (8), linear part
 
 

@@ -20,37 +20,47 @@ from numba import prange
 from numba.core.errors import NumbaPendingDeprecationWarning
 from numba.typed import List
 
-from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, MAX_DISTANCE_M, MAX_TILT_RAD
 from .algebra import _Q9, _solve9
 from .controller import controller_step
 from .jit import kernel
 from .lanes import (
     W,
+    failure_at,
+    failure_lanes,
     get_state,
+    instant_rotors_lane,
     new_buffer,
+    observe_lanes,
+    observed_at,
     put_command,
     put_disturbance,
+    put_held,
+    put_nominal,
     put_plant,
-    put_rotors,
     put_state,
     state_view,
     step_lanes,
 )
 from .layouts import OUTPUT
 from .plant import (
+    _body_of,
     _origin,
     _R_of,
+    _v3,
     clip_command,
     disturbance_at,
     euler_of,
+    failure_of,
+    instant_force,
     lane_of,
-    lowest_contact_depth,
-    lumped_wrench,
+    observed,
     rk4_step,
     truth_at,
 )
 
-_COS_TILT_MAX = math.cos(MAX_TILT_RAD)
+_Z3 = (0.0, 0.0, 0.0)
+_NO_OBS = (_Z3, _Z3, _Z3, _Z3, _Z3)  # a tick without the truth (:func:`_truth_needed`)
+_NO_ENV = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @kernel()
@@ -66,12 +76,12 @@ def _measure(pp, xm, xi, sigma, noise, y):
     from the motion-capture state ``xm``, attitude and gyro from the IMU state ``xi``, with noise; Euler
     rates from the noisy gyro. Euler angles are computed here, once per control period."""
     o = _origin(pp, xm, _R_of(xm.q_WB))
-    phi, theta, psi = euler_of(_R_of(xi.q_WB))
+    phi, theta, psi = euler_of(_R_of(xi.q_WB), False)
     y[6] = phi + sigma[2] * noise[6]
     y[7] = theta + sigma[2] * noise[7]
     y[8] = psi + sigma[2] * noise[8]
     w = xi.omega_B
-    ed = _solve9(_Q9(y[6], y[7]), w[0] + sigma[3] * noise[9], w[1] + sigma[3] * noise[10], w[2] + sigma[3] * noise[11])
+    ed = _solve9(_Q9(y[6], y[7], False), w[0] + sigma[3] * noise[9], w[1] + sigma[3] * noise[10], w[2] + sigma[3] * noise[11])
     for i in range(3):
         y[i] = o[i] + sigma[0] * noise[i]
         y[3 + i] = o[3 + i] + sigma[1] * noise[3 + i]
@@ -81,7 +91,7 @@ def _measure(pp, xm, xi, sigma, noise, y):
 @kernel(inline="always")
 def _log(row, pp, x, r, y, o, env, eta, f_l, t_l, p_o, v_o):
     """One :data:`~vtol_impedance.records.LOG_ROW`."""
-    Q = _Q9(eta[0], eta[1])
+    Q = _Q9(eta[0], eta[1], False)
     for i in range(3):
         row.p_W[i] = p_o[i]
         row.v_W[i] = v_o[i]
@@ -138,45 +148,36 @@ def _accumulate(a, t, win, p_o, v_o, r, o, f_l, t_l):
 
 @kernel(inline="always")
 def _failure(pp, x):
-    """Why the vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop.check_vehicles`."""
-    s = 0.0
-    for i in range(3):
-        s += x.p_com_W[i] + x.v_com_W[i] + x.omega_B[i] + x.r_pend_W[i] + x.v_pend_W[i]
-    for i in range(4):
-        s += x.q_WB[i]
+    """Why the vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop.check_vehicles`
+    (:func:`~.plant.failure_of` of the records)."""
+    rotors = 0.0
     for i in range(pp.n_rotors):
-        s += x.f_rotor[i]
-    if not math.isfinite(s):
-        return FAIL_NAN
-    R = _R_of(x.q_WB)
-    p = x.p_com_W
-    if R[8] < _COS_TILT_MAX:
-        return FAIL_TILT
-    if math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) > MAX_DISTANCE_M:
-        return FAIL_FAR
-    if pp.ground > 0 and lowest_contact_depth(pp, x) > CRASH_DEPTH_M:
-        return FAIL_CRASH
-    return 0
+        rotors += x.f_rotor[i]
+    return int(failure_of(lane_of(pp), _body_of(x), rotors))
 
 
 @kernel(inline="always")
-def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, r, logs_b, dec, acc_b, win,
-                  o, y, noise, f_l, t_l, tau_prev, rc):  # fmt: skip
+def _observed(pp_b, p_b, s_b, x, a_o, w_dot):
+    """:func:`~.plant.observed` for the records of one vehicle (before its controller steps: the command held
+    over the last period)."""
+    tau = (s_b.tau_B_prev[0], s_b.tau_B_prev[1], s_b.tau_B_prev[2])
+    return observed(_v3(pp_b.c_B), _body_of(x), a_o, w_dot, s_b.thrust_prev, tau, p_b.mass, _nominal_inertia(p_b))
+
+
+@kernel(inline="always")
+def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, gen, r, logs_b, dec, acc_b, win, o, y,
+                  noise, rc):  # fmt: skip
     """Control tick ``k`` (time ``t``) of one vehicle, whichever plant flies it: its sensors (the states
     ``xm``, ``xi`` they read, and twelve normals from ``gen`` in the order of ``NoiseSource.block``), the
-    controller step (the rotor command in ``o``), the lumped wrench from the truth at ``t`` (the state ``x``,
-    the body origin's acceleration ``a_o`` (world), ``w_dot`` (body) and ``env = [f_ext_W, tau_ext_B]``),
-    the window metrics and the log row (the last three only where :func:`_truth_needed`). ``r`` is the
-    reference row ``[p_d, v_d, a_d, psi, psi_dot, psi_ddot, comply (6), p_d, v_d at the measurement's
-    time (6)]`` (:func:`vtol_impedance.sim.loop.reference_rows`): the controller is given the last six in
-    place of the first, the metrics and log the first. ``y``, ``noise``, ``f_l``, ``t_l``, ``tau_prev``,
-    ``rc`` (18) are scratch."""
+    controller step (the rotor command in ``o``), and where :func:`_truth_needed` the window metrics and the log
+    row from the truth at ``t``: ``obs = (eta, f_l, t_l, p_o, v_o)`` of :func:`~.plant.observed` (taken before
+    the controller steps), ``env = [f_ext_W, tau_ext_B]`` and the state ``x``. ``r`` is the reference row
+    ``[p_d, v_d, a_d, psi, psi_dot, psi_ddot, comply (6), p_d, v_d at the measurement's time (6)]``
+    (:func:`vtol_impedance.sim.loop.reference_rows`): the controller is given the last six in place of the
+    first, the metrics and log the first. ``y``, ``noise``, ``rc`` (18) are scratch."""
     for i in range(12):  # [position, velocity, attitude, gyro]
         noise[i] = gen.standard_normal()
     _measure(pp_b, xm, xi, sigma, noise, y)
-    u_prev = s_b.thrust_prev
-    for i in range(3):
-        tau_prev[i] = s_b.tau_B_prev[i]
     for i in range(18):
         rc[i] = r[i]
     for i in range(6):
@@ -184,11 +185,7 @@ def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, si
     controller_step(p_b, des, s_b, h_b, y, rc, o)
     if not _truth_needed(k, t, dec, win):
         return
-    R = _R_of(x.q_WB)
-    eta = euler_of(R)
-    lumped_wrench(a_o, x.omega_B, w_dot, R, eta, u_prev, tau_prev, p_b.mass, _nominal_inertia(p_b), f_l, t_l)
-    po = _origin(pp_b, x, R)
-    p_o, v_o = (po[0], po[1], po[2]), (po[3], po[4], po[5])
+    eta, f_l, t_l, p_o, v_o = obs
     if win[0] <= t <= win[1]:
         _accumulate(acc_b, t, win, p_o, v_o, r, o, f_l, t_l)
     if dec > 0 and k % dec == 0:
@@ -231,11 +228,7 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     y = np.empty(12)
     noise = np.empty(12)
     gen = gens[np.int64(b)]  # prange gives an unsigned index; the typed list takes a signed one
-    env = np.empty(6)  # [f_ext_W, tau_ext_B] at the logged instant
     dist = np.empty(6)  # explicit disturbances, held over each plant step
-    f_l = np.empty(3)
-    t_l = np.empty(3)
-    tau_prev = np.empty(3)
     rc = np.empty(18)
     has_dists = dists.shape[0] > 0
     for i in range(6):
@@ -249,16 +242,15 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     for k in range(k0, k1):
         t = k * Ts
         # the truth at t_k, where it is logged or measured (the rotor-lag rate is not used here)
-        a_o, w_dot = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        obs, env = _NO_OBS, _NO_ENV
         if _truth_needed(k, t, dec, win):
             if has_dists:
                 disturbance_at(pp_b, x, t, dists, series, dist)
-            a_o, w_dot, e = truth_at(pp_b, x, dist)
-            for i in range(6):
-                env[i] = e[i]
+            a_o, w_dot, env = truth_at(pp_b, x, dist)
+            obs = _observed(pp_b, p_b, s_b, x, a_o, w_dot)
         xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
-        _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, a_o, w_dot, env, sigma, gen, refs[k], logs[b], dec,
-                      acc[b], win, o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
+        _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, gen, refs[k], logs[b], dec, acc[b],
+                      win, o, y, noise, rc)  # fmt: skip
         f_cmd = o.f_rotor
         _instant_rotors(pp_b, x, f_cmd)  # then hold the command over the period
         for js in range(n_sub):
@@ -298,17 +290,19 @@ def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_im
 def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp,
                dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicles ``b0 .. b0 + n - 1`` of :func:`run_block_lanes` from tick ``k0`` to ``k1``; lanes past ``n``
-    repeat the block's first vehicle and are never read back."""
+    repeat the block's first vehicle and are never read back. The lanes hold the states between ticks: the
+    records ``X`` are written at the end (or when a vehicle stops), and before a logged tick."""
     buf = new_buffer()
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
-    y, noise, env, dist = np.empty(12), np.empty(12), np.empty(6), np.empty(6)
-    f_l, t_l, tau_prev, rc = np.empty(3), np.empty(3), np.empty(3), np.empty(18)
+    y, noise, dist, rc = np.empty(12), np.empty(12), np.empty(6), np.empty(18)
     nr = 0
     for i in range(W):
         b = b0 + (i if i < n else 0)
         put_plant(buf, i, pp[b], lane_of(pp[b]))
         put_state(buf, i, X[b])
+        put_nominal(buf, i, p[b].mass, _nominal_inertia(p[b]))
+        put_held(buf, i, S[b].thrust_prev, S[b].tau_B_prev)
         nr = max(nr, pp[b].n_rotors)
     for i in range(6):
         dist[i] = 0.0
@@ -327,27 +321,37 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         if live == 0:
             break
         t = k * Ts
+        truth = _truth_needed(k, t, dec, win)
+        if truth:  # the truth at t_k for the whole block, in lanes
+            if has_dists:
+                for i in range(n):
+                    if alive[b0 + i]:
+                        disturbance_at(pp[b0 + i], state_view(buf, i), t, dists, series, dist)
+                        put_disturbance(buf, i, dist)
+            if nr == 4:  # a literal count lets the compiler unroll the quadrotor's rotors
+                observe_lanes(buf, 4)
+            else:
+                observe_lanes(buf, nr)
+        logged = dec > 0 and k % dec == 0
         for i in range(n):
             b = b0 + i
             if not alive[b]:
                 continue
-            x, pp_b = X[b], pp[b]
-            # as _fly, not a shared function: numba does not inline one of this many arguments, and as a call it
-            # cost a quarter of the batch's time (measured; a shared helper for the kept steps cost a fifth)
-            a_o, w_dot = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-            if _truth_needed(k, t, dec, win):
-                if has_dists:
-                    disturbance_at(pp_b, x, t, dists, series, dist)
-                a_o, w_dot, e = truth_at(pp_b, x, dist)
-                for j in range(6):
-                    env[j] = e[j]
+            pp_b, s_b = pp[b], S[b]
+            obs, env = _NO_OBS, _NO_ENV
+            if truth:
+                obs, env = observed_at(buf, i)
+            if logged:  # the log reads the rates and rotor forces of the record
+                get_state(buf, i, X[b])
             head, count = hhead[b], hcount[b]
             xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
-            _control_tick(k, t, pp_b, p[b], d[0], S[b], EH[b], xm, xi, x, a_o, w_dot, env, sigma, gens[np.int64(b)],
-                          refs[k], logs[b], dec, acc[b], win, o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
-            _instant_rotors(pp_b, x, o.f_rotor)
-            put_rotors(buf, i, x)  # the only states the tick changes: the lane holds the rest since last period
+            _control_tick(k, t, pp_b, p[b], d[0], s_b, EH[b], xm, xi, X[b], obs, env, sigma, gens[np.int64(b)],
+                          refs[k], logs[b], dec, acc[b], win, o, y, noise, rc)  # fmt: skip
+            up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0
+            if up_now or down_now:  # as _instant_rotors, on the lane's rotors
+                instant_rotors_lane(buf, i, up_now, down_now, o.f_rotor, pp_b.f_min, pp_b.f_max, pp_b.n_rotors)
             put_command(buf, i, o.f_rotor, pp_b.n_rotors)
+            put_held(buf, i, s_b.thrust_prev, s_b.tau_B_prev)
         for js in range(n_sub):
             if has_dists:
                 for i in range(n):
@@ -355,7 +359,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                     if alive[b]:
                         disturbance_at(pp[b], state_view(buf, i), t + js * dt, dists, series, dist)
                         put_disturbance(buf, i, dist)
-            if nr == 4:  # a literal count lets the compiler unroll the quadrotor's rotors
+            if nr == 4:
                 step_lanes(buf, 4, dt)
             else:
                 step_lanes(buf, nr, dt)
@@ -366,18 +370,22 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                     hhead[b], hcount[b] = head, min(hcount[b] + 1, H)
                     if keep[js]:
                         get_state(buf, i, hist[b, head])
+        if nr == 4:
+            failure_lanes(buf, 4)
+        else:
+            failure_lanes(buf, nr)
         for i in range(n):
             b = b0 + i
-            if not alive[b]:
-                continue
-            get_state(buf, i, X[b])
-            code = _failure(pp[b], X[b])
-            if code != 0:
+            code = failure_at(buf, i)
+            if alive[b] and code != 0:
                 alive[b] = False
                 fail_code[b] = code
                 fail_time[b] = t + Ts
                 X[b] = x_park[b]
                 live -= 1
+    for i in range(n):
+        if alive[b0 + i]:
+            get_state(buf, i, X[b0 + i])
 
 
 @kernel(inline="always")
@@ -387,8 +395,7 @@ def _instant_rotors(pp_b, x, f_cmd):
     if up_now or down_now:
         for i in range(pp_b.n_rotors):
             g = clip_command(f_cmd[i], pp_b.f_min[i], pp_b.f_max[i])
-            if (up_now and g > x.f_rotor[i]) or (down_now and g < x.f_rotor[i]):
-                x.f_rotor[i] = g
+            x.f_rotor[i] = instant_force(up_now, down_now, g, x.f_rotor[i])
 
 
 @kernel()
@@ -400,13 +407,19 @@ def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, gens, S, EH, p, d, p
     :func:`run_block`."""
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
-    y, noise, f_l, t_l, tau_prev, rc = np.empty(12), np.empty(12), np.empty(3), np.empty(3), np.empty(3), np.empty(18)
+    y, noise, rc = np.empty(12), np.empty(12), np.empty(18)
+    truth = _truth_needed(k, k * Ts, dec, win)
     for b in range(X.shape[0]):
         if alive[b]:
-            w_dot = (W_DOT[b, 0], W_DOT[b, 1], W_DOT[b, 2])
-            _control_tick(k, k * Ts, pp[b], p[b], d[0], S[b], EH[b], XM[b], XI[b], X[b], A_O[b], w_dot, ENV[b],
-                          sigma, gens[b], refs[k], logs[b], dec, acc[b], win,
-                          o, y, noise, f_l, t_l, tau_prev, rc)  # fmt: skip
+            obs, env = _NO_OBS, _NO_ENV
+            if truth:
+                a_o = (A_O[b, 0], A_O[b, 1], A_O[b, 2])
+                w_dot = (W_DOT[b, 0], W_DOT[b, 1], W_DOT[b, 2])
+                obs = _observed(pp[b], p[b], S[b], X[b], a_o, w_dot)
+                e = ENV[b]
+                env = (e[0], e[1], e[2], e[3], e[4], e[5])
+            _control_tick(k, k * Ts, pp[b], p[b], d[0], S[b], EH[b], XM[b], XI[b], X[b], obs, env, sigma, gens[b],
+                          refs[k], logs[b], dec, acc[b], win, o, y, noise, rc)  # fmt: skip
             for i in range(F.shape[1]):
                 F[b, i] = o.f_rotor[i]
 

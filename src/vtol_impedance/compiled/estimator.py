@@ -73,7 +73,7 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
     of change in ``s.r_dot``.
     """
     n = d.order
-    Q, M, C = _QMC(e0, e1, de0, de1, de2, I)
+    Q, M, C = _QMC(e0, e1, de0, de1, de2, I, False)
     qa = _mv9(M, de0, de1, de2)
     q = (m * v0, m * v1, m * v2, qa[0], qa[1], qa[2])  # eq. (6)
     cmd = (s.thrust_prev, s.tau_B_prev[0], s.tau_B_prev[1], s.tau_B_prev[2])

@@ -16,8 +16,10 @@ The arithmetic is that of :mod:`.plant`, not a copy of it: every lane calls :fun
 Rows (each :data:`W` wide): the :data:`~.plant.PlantLane` (:data:`N_LANE` rows), the body's 19 states,
 then per rotor (:data:`~vtol_impedance.model.vehicle.MAX_ROTORS` rows each) its force, command, lower and upper
 limit, the true effectiveness ``E`` (four rows per rotor), the held disturbance ``[f_W, tau_B]`` (6) and
-the four stages' ``E f`` (16). A vehicle with fewer rotors has zero rows for the others (zero force,
-limits and effect), which add exact zeros to the sums.
+the four stages' ``E f`` (16), the controller's nominal mass and inertia and the command it held over the last
+period (14), what a tick observes of the truth (21, :func:`observe_lanes`) and each lane's failure code. A
+vehicle with fewer rotors has zero rows for the others (zero force, limits and effect), which add exact zeros
+to the sums.
 """
 
 from __future__ import annotations
@@ -28,10 +30,10 @@ import numpy as np
 
 from ..model.vehicle import MAX_ROTORS
 from .jit import kernel
-from .plant import PlantLane, body_rk4, clip_command, rotor_rk4
+from .plant import PlantLane, body_rk4, clip_command, failure_of, instant_force, observed, rotor_rk4, truth_of
 
 #: Vehicles per block. 16 doubles are two AVX-512 or four AVX2 registers per row; a block's buffer
-#: (:data:`ROWS` x 16 x 8 bytes, 22.5 kB) stays in a core's L1 cache through its plant steps.
+#: (:data:`ROWS` x 16 x 8 bytes, 23 kB) stays in a core's L1 cache through its plant steps.
 W = 16
 
 _R = MAX_ROTORS
@@ -45,7 +47,10 @@ _FMAX = _FMIN + _R
 _E = _FMAX + _R  # E[c, r] at row _E + 4 r + c
 _D = _E + 4 * _R  # [f_W, tau_B]
 _U = _D + 6  # E f at stage j: rows _U + 4 j .. + 3
-ROWS = _U + 16
+_N = _U + 16  # the controller's nominal mass and inertia (10), the command held over the last period (4)
+_O = _N + 14  # what the tick observes of the truth (plant.observed): eta, f_l, t_l, p_o, v_o (15), the wrench (6)
+_X = _O + 21  # why each lane must stop (plant.failure_of)
+ROWS = _X + 1
 
 #: The states the disturbances read, as a record's fields (:func:`state_view`).
 StateView = namedtuple("StateView", ("p_com_W", "v_com_W", "q_WB", "omega_B"))
@@ -237,3 +242,98 @@ def step_lanes(buf, n_rotors, dt):
 def _four(buf, k):
     """Rows ``k``, ``k + W``, ``k + 2 W``, ``k + 3 W`` of one lane (a stage's thrust and moments)."""
     return buf[k], buf[k + W], buf[k + 2 * W], buf[k + 3 * W]
+
+
+@kernel(inline="always")
+def put_nominal(buf, i, mass, I9):
+    """Lane ``i``'s controller's nominal mass and inertia (row-major 9-tuple), for the lumped wrench."""
+    buf[_N * W + i] = mass
+    for j in range(9):
+        buf[(_N + 1 + j) * W + i] = I9[j]
+
+
+@kernel(inline="always")
+def put_held(buf, i, u, tau):
+    """Lane ``i``'s command held over the period that starts: thrust ``u`` and body moments ``tau``."""
+    buf[(_N + 10) * W + i] = u
+    for j in range(3):
+        buf[(_N + 11 + j) * W + i] = tau[j]
+
+
+@kernel(inline="always")
+def _sum_rotors(buf, n_rotors):
+    """``E f`` of every lane's rotor forces into rows ``_U .. _U + 3``, summed in rotor order (as
+    :func:`~.plant.truth_at` sums them), and the forces' plain sum into row ``_U + 4``."""
+    for j in range(5):
+        for i in range(W):
+            buf[(_U + j) * W + i] = 0.0
+    for r in range(n_rotors):
+        for i in range(W):  # vectorised: one lane per vehicle
+            f = buf[(_F + r) * W + i]
+            for c in range(4):
+                buf[(_U + c) * W + i] += buf[(_E + 4 * r + c) * W + i] * f
+            buf[(_U + 4) * W + i] += f
+
+
+@kernel(inline="always")
+def observe_lanes(buf, n_rotors):
+    """The truth at a control tick for every lane, as one vehicle's :func:`~.plant.truth_at` and
+    :func:`~.plant.observed` give it, into the rows read by :func:`observed_at`: the state, rotor forces and
+    disturbance the lanes hold, the command held over the last period."""
+    _sum_rotors(buf, n_rotors)
+    for i in range(W):  # vectorised: one lane per vehicle
+        u, dd, nn = _U * W + i, _D * W + i, _N * W + i
+        pl, s = _plant_at(buf, i), _body_at(buf, i)
+        dist = (buf[dd], buf[dd + W], buf[dd + 2 * W], buf[dd + 3 * W], buf[dd + 4 * W], buf[dd + 5 * W])
+        a_o, w_dot, env = truth_of(pl, s, buf[u], buf[u + W], buf[u + 2 * W], buf[u + 3 * W], dist)
+        I9 = (buf[nn + W], buf[nn + 2 * W], buf[nn + 3 * W], buf[nn + 4 * W], buf[nn + 5 * W], buf[nn + 6 * W],
+              buf[nn + 7 * W], buf[nn + 8 * W], buf[nn + 9 * W])  # fmt: skip
+        tau = (buf[nn + 11 * W], buf[nn + 12 * W], buf[nn + 13 * W])
+        eta, f_l, t_l, p_o, v_o = observed(pl.c_B, s, a_o, w_dot, buf[nn + 10 * W], tau, buf[nn], I9)
+        k = _O * W + i
+        for j in range(3):
+            buf[k + j * W] = eta[j]
+            buf[k + (3 + j) * W] = f_l[j]
+            buf[k + (6 + j) * W] = t_l[j]
+            buf[k + (9 + j) * W] = p_o[j]
+            buf[k + (12 + j) * W] = v_o[j]
+        for j in range(6):
+            buf[k + (15 + j) * W] = env[j]
+
+
+@kernel(inline="always")
+def observed_at(buf, i):
+    """Lane ``i``'s ``(eta, f_l, t_l, p_o, v_o)`` and wrench ``[f_ext_W, tau_ext_B]`` of :func:`observe_lanes`."""
+    k = _O * W + i
+
+    def three(j):
+        return buf[k + j * W], buf[k + (j + 1) * W], buf[k + (j + 2) * W]
+
+    env = (buf[k + 15 * W], buf[k + 16 * W], buf[k + 17 * W], buf[k + 18 * W], buf[k + 19 * W], buf[k + 20 * W])
+    return (three(0), three(3), three(6), three(9), three(12)), env
+
+
+@kernel(inline="always")
+def failure_lanes(buf, n_rotors):
+    """Every lane's :func:`~.plant.failure_of` into the row read by :func:`failure_at`."""
+    for i in range(W):
+        buf[(_U + 4) * W + i] = 0.0
+    for r in range(n_rotors):
+        for i in range(W):
+            buf[(_U + 4) * W + i] += buf[(_F + r) * W + i]
+    for i in range(W):  # vectorised: one lane per vehicle
+        buf[_X * W + i] = failure_of(_plant_at(buf, i), _body_at(buf, i), buf[(_U + 4) * W + i])
+
+
+@kernel(inline="always")
+def failure_at(buf, i):
+    """Lane ``i``'s failure code of :func:`failure_lanes` (0: it flies on)."""
+    return int(buf[_X * W + i])
+
+
+@kernel(inline="always")
+def instant_rotors_lane(buf, i, up_now, down_now, f_cmd, f_min, f_max, n):
+    """Lane ``i``'s rotors follow their commands at once in a direction without lag (:func:`~.plant.instant_force`)."""
+    for r in range(n):
+        k = (_F + r) * W + i
+        buf[k] = instant_force(up_now, down_now, clip_command(f_cmd[r], f_min[r], f_max[r]), buf[k])

@@ -16,12 +16,15 @@ import math
 from collections import namedtuple
 
 from ..conventions import G
+from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, MAX_DISTANCE_M, MAX_TILT_RAD
 from .algebra import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
 from .jit import kernel
 from .layouts import KIND, PUSH
+from .vmath import arcsin, arctan2
 
 _CONSTANT, _STEP, _RAMP, _SINUSOID = KIND["constant"], KIND["step"], KIND["ramp"], KIND["sinusoid"]
 _SERIES, _WALL = KIND["series"], KIND["wall"]
+_COS_TILT_MAX = math.cos(MAX_TILT_RAD)
 
 #: What the body's dynamics read of a plant, as plain numbers (inertias as row-major 9-tuples): built from a
 #: :data:`~.layouts.PLANT` record by :func:`lane_of`, or from one lane of a batch in lanes
@@ -52,9 +55,11 @@ def _R_of(q):
 
 
 @kernel(inline="always")
-def euler_of(R):
-    """ZYX Euler angles ``(phi, theta, psi)`` of a row-major rotation 9-tuple."""
-    return math.atan2(R[7], R[8]), -math.asin(min(max(R[6], -1.0), 1.0)), math.atan2(R[3], R[0])
+def euler_of(R, vector):
+    """ZYX Euler angles ``(phi, theta, psi)`` of a row-major rotation 9-tuple (``vector``, a literal: with the
+    functions of :mod:`.vmath`, for code in lanes)."""
+    phi, psi = arctan2(R[7], R[8], vector), arctan2(R[3], R[0], vector)
+    return phi, -arcsin(min(max(R[6], -1.0), 1.0), vector), psi
 
 
 @kernel(inline="always")
@@ -79,11 +84,10 @@ def lane_of(pp):
 
 
 @kernel(inline="always")
-def _origin(pp, x, R):
-    """Body-origin position and velocity (6-tuple, world) as :func:`vtol_impedance.sim.plant.origin_kinematics`."""
-    c, w = pp.c_B, x.omega_B
+def origin_of(c, p, v, w, R):
+    """Body-origin position and velocity (6-tuple, world) of a body whose CoM (at ``c``, body) is at ``p`` moving
+    at ``v`` (world) and turning at ``w`` (body), as :func:`vtol_impedance.sim.plant.origin_kinematics`."""
     a0, a1, a2 = w[1] * c[2] - w[2] * c[1], w[2] * c[0] - w[0] * c[2], w[0] * c[1] - w[1] * c[0]
-    p, v = x.p_com_W, x.v_com_W
     return (
         p[0] - (R[0] * c[0] + R[1] * c[1] + R[2] * c[2]),
         p[1] - (R[3] * c[0] + R[4] * c[1] + R[5] * c[2]),
@@ -92,6 +96,12 @@ def _origin(pp, x, R):
         v[1] - (R[3] * a0 + R[4] * a1 + R[5] * a2),
         v[2] - (R[6] * a0 + R[7] * a1 + R[8] * a2),
     )
+
+
+@kernel(inline="always")
+def _origin(pp, x, R):
+    """:func:`origin_of` for the plant record ``pp`` in the state ``x`` (a record or a lane's view)."""
+    return origin_of(pp.c_B, x.p_com_W, x.v_com_W, x.omega_B, R)
 
 
 @kernel(inline="always")
@@ -214,6 +224,13 @@ def _lag(up, down, g, f):
 def clip_command(f_cmd, f_min, f_max):
     """A rotor's command within its limits."""
     return min(max(f_cmd, f_min), f_max)
+
+
+@kernel(inline="always")
+def instant_force(up_now, down_now, g, f):
+    """A rotor's force ``f`` after its clipped command ``g`` arrives, in a direction without lag (``up_now``:
+    no lag rising, ``down_now``: none falling) at once, else unchanged."""
+    return g if (up_now and g > f) or (down_now and g < f) else f
 
 
 @kernel(inline="always")
@@ -366,16 +383,29 @@ def truth_at(pp, x, dist):
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, 4)
     else:
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, pp.n_rotors)
-    s_dot, env = body_derivative(lane_of(pp), _body_of(x), u, tm0, tm1, tm2, dist)
+    return truth_of(lane_of(pp), _body_of(x), u, tm0, tm1, tm2, dist)
+
+
+@kernel(inline="always")
+def truth_of(pl, s, u, tm0, tm1, tm2, dist):
+    """:func:`truth_at` of the plant ``pl`` (a :data:`PlantLane`) in the body states ``s`` with the rotors'
+    thrust ``u`` and moments ``tm`` (the true ``E f``): pure, for one vehicle or a lane."""
+    s_dot, env = body_derivative(pl, s, u, tm0, tm1, tm2, dist)
     w_dot = (s_dot[10], s_dot[11], s_dot[12])
-    return origin_acceleration(pp, x, (s_dot[3], s_dot[4], s_dot[5]), w_dot, _R_of(x.q_WB)), w_dot, env
+    R = _R_of((s[6], s[7], s[8], s[9]))
+    return origin_acceleration(pl.c_B, s, (s_dot[3], s_dot[4], s_dot[5]), w_dot, R), w_dot, env
 
 
 @kernel()
 def lowest_contact_depth(pp, x):
     """Depth below ground of the lower contact point, as :func:`vtol_impedance.sim.plant.lowest_contact_depth`."""
-    R = _R_of(x.q_WB)
-    c, r, z = pp.c_B, pp.r_contact_B, x.p_com_W[2]
+    return lowest_depth(pp.c_B, pp.r_contact_B, x.p_com_W[2], _R_of(x.q_WB))
+
+
+@kernel(inline="always")
+def lowest_depth(c, r, z, R):
+    """:func:`lowest_contact_depth` with the CoM at ``c`` and the second contact at ``r`` (body), the CoM's
+    depth ``z`` and the attitude ``R``."""
     z_o = z - (R[6] * c[0] + R[7] * c[1] + R[8] * c[2])
     return max(z_o, z + R[6] * (r[0] - c[0]) + R[7] * (r[1] - c[1]) + R[8] * (r[2] - c[2]))
 
@@ -478,11 +508,10 @@ def rk4_step(pp, x, f_cmd, dist, dt):
 
 
 @kernel(inline="always")
-def origin_acceleration(pp, x, a_com, wd, R):
-    """The body origin's acceleration (world) from the CoM's ``a_com`` (world) and ``wd = w_dot`` (body):
-    ``a_com - R (w_dot x c + w x (w x c))``."""
-    c, w = pp.c_B, x.omega_B
-    w0, w1, w2 = w[0], w[1], w[2]
+def origin_acceleration(c, s, a_com, wd, R):
+    """The body origin's acceleration (world) from the CoM's ``a_com`` (world) and ``wd = w_dot`` (body), the
+    body states ``s`` and the CoM ``c`` (body): ``a_com - R (w_dot x c + w x (w x c))``."""
+    w0, w1, w2 = s[10], s[11], s[12]
     a0, a1, a2 = wd[0], wd[1], wd[2]
     u0, u1, u2 = w1 * c[2] - w2 * c[1], w2 * c[0] - w0 * c[2], w0 * c[1] - w1 * c[0]
     s0 = (a1 * c[2] - a2 * c[1]) + (w1 * u2 - w2 * u1)
@@ -495,21 +524,48 @@ def origin_acceleration(pp, x, a_com, wd, R):
     )
 
 
-@kernel()
-def lumped_wrench(a_o, omega, w_dot, R, eta, u_prev, tau_prev, m_nom, I_nom, f, tau_eta):
+@kernel(inline="always")
+def lumped(a_o, omega, w_dot, R, eta, u_prev, tau_prev, m_nom, I_nom):
     """What the nominal model (mass ``m_nom``, inertia ``I_nom`` as a 9-tuple) misses, as
-    :func:`vtol_impedance.sim.loop._lumped_wrench`: ``f`` (world) and ``tau_eta`` (Euler coordinates), from
-    the body origin's acceleration ``a_o`` (world), the body rate ``omega`` and ``w_dot`` (body), whichever
-    plant computed them."""
-    for i in range(3):
-        f[i] = m_nom * (a_o[i] - (G if i == 2 else 0.0)) + u_prev * R[3 * i + 2]  # eq. (5a) solved for f_ext
-    Q = _Q9(eta[0], eta[1])
+    :func:`vtol_impedance.sim.loop._lumped_wrench`: ``(f (world), tau_eta (Euler coordinates))``, from the body
+    origin's acceleration ``a_o`` (world), the body rate ``omega`` and ``w_dot`` (body), whichever plant computed
+    them, and the command ``u_prev``, ``tau_prev`` held over the last period. Pure: tuples in and out."""
+    f0 = m_nom * a_o[0] + u_prev * R[2]  # eq. (5a) solved for f_ext
+    f1 = m_nom * a_o[1] + u_prev * R[5]
+    f2 = m_nom * (a_o[2] - G) + u_prev * R[8]
+    Q = _Q9(eta[0], eta[1], True)
     d0, d1, d2 = _solve9(Q, omega[0], omega[1], omega[2])
-    qd = _mv9(_Qd9(eta[0], eta[1], d0, d1), d0, d1, d2)
+    qd = _mv9(_Qd9(eta[0], eta[1], d0, d1, True), d0, d1, d2)
     dd0, dd1, dd2 = _solve9(Q, w_dot[0] - qd[0], w_dot[1] - qd[1], w_dot[2] - qd[2])
-    _, M, C = _QMC(eta[0], eta[1], d0, d1, d2, I_nom)
+    _, M, C = _QMC(eta[0], eta[1], d0, d1, d2, I_nom, True)
     me = _mv9(M, dd0, dd1, dd2)
     ce = _mv9(C, d0, d1, d2)
     qt = _mv9(_t9(Q), tau_prev[0], tau_prev[1], tau_prev[2])
-    for i in range(3):
-        tau_eta[i] = me[i] + ce[i] - qt[i]  # eq. (5b) solved for tau_ext
+    return (f0, f1, f2), (me[0] + ce[0] - qt[0], me[1] + ce[1] - qt[1], me[2] + ce[2] - qt[2])  # eq. (5b)
+
+
+@kernel(inline="always")
+def observed(c, s, a_o, w_dot, u_prev, tau_prev, m_nom, I_nom):
+    """What the metrics and the log take of the truth at a control tick, from the body states ``s`` (CoM at
+    ``c``, body) and the truth ``a_o``, ``w_dot`` (:func:`truth_of`): the Euler angles, the lumped wrench
+    (:func:`lumped`) and the body origin's position and velocity (world). Pure, for one vehicle or a lane."""
+    R = _R_of((s[6], s[7], s[8], s[9]))
+    eta = euler_of(R, True)  # in lanes: the functions LLVM vectorises
+    f_l, t_l = lumped(a_o, (s[10], s[11], s[12]), w_dot, R, eta, u_prev, tau_prev, m_nom, I_nom)
+    po = origin_of(c, (s[0], s[1], s[2]), (s[3], s[4], s[5]), (s[10], s[11], s[12]), R)
+    return eta, f_l, t_l, (po[0], po[1], po[2]), (po[3], po[4], po[5])
+
+
+@kernel(inline="always")
+def failure_of(pl, s, rotors):
+    """Why a vehicle must stop (0: it flies on), as :func:`vtol_impedance.sim.loop.check_vehicles`, from its plant
+    ``pl`` (a :data:`PlantLane`), body states ``s`` and the sum of its rotor forces ``rotors`` (only its
+    finiteness counts). Pure and free of branches (a float code), for one vehicle or a lane."""
+    total = (rotors + s[0] + s[1] + s[2] + s[3] + s[4] + s[5] + s[6] + s[7] + s[8] + s[9] + s[10] + s[11] + s[12]
+             + s[13] + s[14] + s[15] + s[16] + s[17] + s[18])  # fmt: skip
+    R = _R_of((s[6], s[7], s[8], s[9]))
+    crash = (pl.ground > 0.0) & (lowest_depth(pl.c_B, pl.r_contact_B, s[2], R) > CRASH_DEPTH_M)
+    code = float(FAIL_CRASH) if crash else 0.0
+    code = float(FAIL_FAR) if math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) > MAX_DISTANCE_M else code
+    code = float(FAIL_TILT) if R[8] < _COS_TILT_MAX else code
+    return code if total - total == 0.0 else float(FAIL_NAN)  # an infinity or NaN anywhere: NaN

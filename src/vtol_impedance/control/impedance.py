@@ -140,10 +140,11 @@ class ControllerParams:
         gains = ImpedanceGains.paper(vehicle.inertia, Ki=Ki, mass=vehicle.mass)
         return cls(vehicle=vehicle, gains=gains, variant=variant, **kw)
 
-    def to_dict(self) -> dict:
+    def to_dict(self, memo: dict[int, dict] | None = None) -> dict:
+        """The parameters as plain data (``memo``: as :meth:`VehicleParams.to_dict`)."""
         return {
             "variant": self.variant,
-            "vehicle": self.vehicle.to_dict(),
+            "vehicle": self.vehicle.to_dict(memo),
             "gains": self.gains.to_dict(),
             "estimator": self.estimator.to_dict(),
             "Ts": self.Ts,

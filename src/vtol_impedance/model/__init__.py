@@ -20,6 +20,7 @@ from .mixer import THRUST_SHIFT_MAX, Allocation, allocate, mix, unmix
 from .vehicle import (
     FILE_DEFAULTS,
     LAYOUTS,
+    HoverWarning,
     Rotor,
     RotorGeometry,
     VehicleDefaultWarning,
@@ -50,6 +51,7 @@ __all__ = [
     "preset_names",
     "vehicle_from_dict",
     "Allocation",
+    "HoverWarning",
     "VehicleDefaultWarning",
     "VehicleParams",
     "allocate",

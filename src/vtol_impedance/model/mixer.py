@@ -29,6 +29,14 @@ def mix(f: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w[..., 0], w[..., 1:]  # eq. (4)
 
 
+def moment_reach(E: np.ndarray, f_min: np.ndarray, f_max: np.ndarray) -> np.ndarray:
+    """The largest body moment (N m, FRD) the rotors can give about each axis, either way: ``max |E_i f|`` over
+    forces within their limits, for rows 1-3 of eq. (4)'s ``E (..., 4, n)``; ``(..., 3)``."""
+    lo, hi = E[..., 1:, :] * f_min[..., None, :], E[..., 1:, :] * f_max[..., None, :]
+    up, down = np.maximum(lo, hi).sum(-1), np.minimum(lo, hi).sum(-1)
+    return np.maximum(up, -down)
+
+
 def unmix(thrust: np.ndarray, tau_B: np.ndarray, E_pinv: np.ndarray) -> np.ndarray:
     """Inverse of eq. (4) without limits: ``(u, tau_B)`` to the least-squares rotor forces ``(..., n)``."""
     w = np.concatenate([batched("thrust", thrust)[..., None], batched("tau_B", tau_B, (3,))], -1)

@@ -44,6 +44,24 @@ class VehicleDefaultWarning(UserWarning):
     """A vehicle file left out a key and the Pelican's value was filled in (see :data:`FILE_DEFAULTS`)."""
 
 
+class HoverWarning(UserWarning):
+    """A vehicle's rotors cannot lift its weight (:func:`warn_if_cannot_hover`)."""
+
+
+def warn_if_cannot_hover(vehicle: VehicleParams, stacklevel: int = 2) -> None:
+    """Warn (:class:`HoverWarning`) when the vehicle's rotors at full thrust cannot lift its own weight: a controller
+    built for it can only let it fall (a heavy vehicle left with the default ``f_max`` of 7 N per rotor is the
+    usual cause)."""
+    if vehicle.thrust_to_weight < 1.0:
+        warnings.warn(
+            f"vehicle {vehicle.name or '(unnamed)'}: its rotors give at most {vehicle.geometry.f_max.sum():.4g} N "
+            f"together, less than its weight {vehicle.mass * G:.4g} N (thrust-to-weight "
+            f"{vehicle.thrust_to_weight:.2f}): it cannot hover; set f_max (f_max_from_motor) or check the mass",
+            HoverWarning,
+            stacklevel=stacklevel + 1,
+        )
+
+
 def check_inertia(inertia: Any) -> np.ndarray:
     """A nominal inertia ``(3, 3)`` from 3 values or a matrix: finite, symmetric, positive definite and
     physical (principal moments obey the triangle inequality)."""
@@ -316,7 +334,14 @@ class VehicleParams:
             rotor_drag=self.rotor_drag, inflow_damping=self.inflow_damping, body_drag=self.body_drag,
         )  # fmt: skip
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, memo: dict[int, dict[str, Any]] | None = None) -> dict[str, Any]:
+        """The vehicle as plain data. ``memo``: dictionaries already made, by ``id`` of their vehicle (a batch
+        flies one vehicle thousands of times: its entries then share one dictionary)."""
+        if memo is not None:
+            made = memo.get(id(self))
+            if made is None:
+                made = memo[id(self)] = self.to_dict()
+            return made
         g = self.geometry
         return {
             "name": self.name,

@@ -208,8 +208,9 @@ class SinusoidWrench(ConstantWrench):
         return float(np.sin(2 * np.pi * self.freq_hz * (t - self.t_on) + self.phase)) if t >= self.t_on else 0.0
 
     def prepare(self, t_end: float, dt: float, rng: np.random.Generator) -> SinusoidWrench:
-        """Refuse a frequency the plant's steps cannot carry: at or above a quarter of the plant rate the
-        held samples alias it (at 1 kHz a 1 kHz sinusoid is zero at every step)."""
+        """Refuse a frequency the plant's steps cannot carry: above a quarter of the plant rate the held
+        samples alias it (at 1 kHz a 1 kHz sinusoid is zero at every step); a quarter itself, four samples a
+        period, is the last carried."""
         if self.freq_hz > 0.25 / dt:
             raise InputError(
                 f"sinusoid freq_hz = {self.freq_hz:g} Hz is above a quarter of the plant rate ({1.0 / dt:g} Hz): "

