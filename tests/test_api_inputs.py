@@ -825,7 +825,7 @@ EXEMPT = {
     "robust.LoopSizeError": "an exception class", "live.LiveError": "an exception class",
     "estimator.EstimatorBandwidthWarning": "a warning class", "runtime.ControllerWarning": "a warning class",
     "sim.LatencyWarning": "a warning class", "robust.DesignWarning": "a warning class",
-    "model.VehicleDefaultWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
+    "model.VehicleDefaultWarning": "a warning class", "model.HoverWarning": "a warning class", "logs.LogRefused": "an exception class (its verdict)",
     "sweeps.ClusterError": "an exception class", "sweeps.ChunkError": "an exception class",
     "model.aero_force_B": "the plant's inner force law, called at every RK4 stage with the plant's checked arrays",
     "model.preset_names": "no parameters", "sweeps.builtin_names": "no parameters",

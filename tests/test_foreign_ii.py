@@ -37,7 +37,7 @@ def test_parameters_cannot_be_reassigned_and_then_ignored():
         with pytest.raises(AttributeError):
             setattr(ctrl, name, None)
     est = Estimator(1.0, [0.01, 0.01, 0.02], 0.01)
-    for name in ("mass", "params", "backend"):
+    for name in ("mass", "params", "backend", "design"):
         with pytest.raises(AttributeError):
             setattr(est, name, None)
     with pytest.raises(ValueError):  # the inertia the compiled step took at construction
@@ -74,10 +74,14 @@ def test_an_estimator_copy_is_independent_too(backend):
     assert dup.step(z, z, 9.81 - 3.0, z, omega_B=z).f_hat_W[2] < -1.0
 
 
-def test_a_vehicle_whose_rotors_cannot_lift_it_is_warned_about():
+def test_a_vehicle_whose_rotors_cannot_lift_it_is_warned_about_at_the_users_line():
     heavy = VehicleParams(20.0, [0.5, 0.5, 0.9], layout="hex", arm_length=0.5, f_max=7.0)  # 42 N for 196 N
-    with pytest.warns(HoverWarning, match="cannot hover"):
-        Controller(ControllerParams.paper("pd", vehicle=heavy))
+    with pytest.warns(HoverWarning, match="cannot hover") as seen:
+        ctrl = Controller(ControllerParams.paper("pd", vehicle=heavy))
+    assert seen[0].filename == __file__
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", HoverWarning)  # its copies do not say it again
+        copy.deepcopy(ctrl)
     able = VehicleParams(20.0, [0.5, 0.5, 0.9], layout="hex", arm_length=0.5, f_max=60.0)  # 360 N
     with warnings.catch_warnings():
         warnings.simplefilter("error", HoverWarning)
@@ -89,9 +93,10 @@ def test_the_simulator_warns_of_it_too():
     from vtol_impedance.sim import PlantParams, run_closed_loop
 
     heavy = VehicleParams(20.0, [0.5, 0.5, 0.9], layout="hex", arm_length=0.5, f_max=7.0)
-    with pytest.warns(HoverWarning):
+    with pytest.warns(HoverWarning) as seen:
         r = run_closed_loop(PlantParams(heavy), [ControllerParams.paper("pd", vehicle=heavy)],
                             Trajectory([Hold(np.array([0.0, 0.0, -5.0]), 1.0)]), 1.0)  # fmt: skip
+    assert seen[0].filename == __file__
     z = np.asarray(r["p_W"]).reshape(-1, 3)[:, 2]  # one vehicle
     assert z[-1] > -4.0 or r.failures[0] is not None  # and it falls, as the warning said
 
@@ -103,8 +108,19 @@ def test_a_heading_step_is_warned_about_and_a_wrapped_one_is_not():
         ctrl.step(HOVER, Reference(REF.p_W, psi=0.4))  # within the gap
         eta = np.array([0.0, 0.0, -3.1])  # measured just past -pi, asked just before +pi: 0.08 rad apart
         ctrl.step(Measurement(HOVER.p_W, HOVER.v_W, eta, omega_B=np.zeros(3)), Reference(REF.p_W, psi=3.1))
-    with pytest.warns(ControllerWarning, match="yaw reference is 0.60 rad"):
-        ctrl.step(HOVER, Reference(REF.p_W, psi=-0.6))
+    with pytest.warns(ControllerWarning, match="yaw reference is 0.60 rad") as seen:
+        ctrl.step(HOVER, Reference(REF.p_W, psi=-0.6), t=1.0)  # timed: the warning still names this line
+    assert seen[0].filename == __file__
+
+
+def test_a_batch_controller_is_a_snapshot_of_its_list():
+    ps = [ControllerParams.paper("pdc"), ControllerParams.paper("pd")]
+    ctrl = Controller(ps)
+    ps.append(ControllerParams.paper("pid"))  # changed after construction: neither the controller nor a copy sees it
+    meas = Measurement(np.tile(HOVER.p_W, (2, 1)), np.zeros((2, 3)), np.zeros((2, 3)), omega_B=np.zeros((2, 3)))
+    for c in (ctrl, copy.deepcopy(ctrl)):
+        assert len(c.params) == 2
+        assert c.step(meas, REF).f_rotor.shape == (2, 4)
 
 
 def test_the_rotors_moment_reach_by_hand():
@@ -116,9 +132,28 @@ def test_the_rotors_moment_reach_by_hand():
     np.testing.assert_allclose(moment_reach(g.E, g.f_min, g.f_max), [1.47, 1.47, 0.224], rtol=1e-12)
 
 
+def test_a_knock_is_not_a_frame_mistake():
+    """A yaw rate that jumps by 40 rad/s over three steps and then stays (a knock): the moment estimate peaks far
+    beyond the rotors' reach for a moment and decays; held less than MOMENT_PERSIST_S, it is not warned of."""
+    ctrl = Controller(ControllerParams.paper("pdc"))
+    peak = 0.0
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        psi = 0.0
+        for k in range(150):
+            rate = min(k, 3) * 40.0 / 3
+            psi = math.remainder(psi + 0.01 * rate, 2 * math.pi)
+            out = ctrl.step(Measurement(HOVER.p_W, HOVER.v_W, np.array([0.0, 0.0, psi]), omega_B=np.array([0, 0, rate])),
+                            Reference(REF.p_W, psi=psi))  # fmt: skip
+            peak = max(peak, abs(out.tau_hat_B[2]))
+    assert peak > 2 * 1.5 * 0.224  # the knock itself read far beyond the reach, for a moment
+    assert not [w for w in seen if "moment" in str(w.message)]
+
+
 def test_an_estimated_moment_beyond_the_rotors_reach_is_warned_about():
     """Yaw accelerating at 50 rad/s^2 with no yaw command: the estimator reads I_zz x 50 = 1.1 N m about z,
-    five times what the Pelican's rotors can give (0.22 N m); a still hover reads nothing."""
+    five times what the Pelican's rotors can give (0.22 N m), for as long as it lasts; a still hover reads
+    nothing."""
     params = ControllerParams.paper("pdc")
     quiet = Controller(params)
     with warnings.catch_warnings():

@@ -91,6 +91,39 @@ def test_more_vehicles_than_a_block_with_a_failure_mid_flight(monkeypatch, prese
     np.testing.assert_allclose(thrust[ok], m[ok] * 9.81, rtol=0.02)
 
 
+def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metrics_alone(monkeypatch):
+    """The lanes hold the states between ticks and write the records only at a chunk's end, on a failure and
+    before a logged tick: with chunks of 50 ticks, a log every third tick, the metrics alone, disturbances that
+    read the state (a wall, a push, a sinusoid), two blocks and a vehicle that falls with a payload it cannot
+    lift, the lanes give the vehicle engine's log, metrics and failures to the last bit."""
+    from vtol_impedance.control.reference import MinJerk
+    from vtol_impedance.model.vehicle import HoverWarning
+    from vtol_impedance.sim import SensorParams
+    from vtol_impedance.sim.disturbances import Push, SinusoidWrench, Wall
+
+    monkeypatch.setattr(loop, "BLOCK_BYTES", 1)  # chunks of 50 ticks
+    veh = load_preset("pelican")
+    n = W + 3
+    plants = [PlantParams(veh, payload_mass=3.0 if i == 7 else 0.03 * (i % 4), rotor_tau_up=0.02 * (i % 2),
+                          rotor_drag=0.1) for i in range(n)]  # fmt: skip
+    ctrls = [ControllerParams.paper("pdc")] * n
+    start = np.array([0.0, 0.0, -1.0])
+    traj = Trajectory((Hold(start, 0.3), MinJerk(start, (0.45, 0.0, -1.0), 1.0), Hold((0.45, 0.0, -1.0), 0.7)))
+    dists = [Wall(position_W=(0.5, 0.0, 0.0), normal_W=(-1.0, 0.0, 0.0), radius=0.1),
+             Push(force_W=(0.0, 2.0, 0.0), t_on=1.0, duration=0.3),
+             SinusoidWrench(force_W=(0.0, 0.0, 0.5), torque_B=(0.0, 0.0, 0.02), freq_hz=2.0)]  # fmt: skip
+    for log in (3, "metrics"):
+        kw = {"seed": list(range(n)), "log": log, "window": (0.5, 1.8), "start_W": start}
+        with pytest.warns(HoverWarning, match="3 kg of payload"):
+            lanes = _fly(monkeypatch, True, plants, ctrls, traj, 2.0, dists, SensorParams(), **kw)
+            vehicles = _fly(monkeypatch, False, plants, ctrls, traj, 2.0, dists, SensorParams(), **kw)
+        assert lanes.failures[7] is not None and lanes.failures == vehicles.failures
+        assert sum(f is not None for f in lanes.failures) == 1
+        assert lanes.metrics == vehicles.metrics
+        for k in lanes.data:
+            np.testing.assert_array_equal(lanes[k], vehicles[k], err_msg=f"{k} (log={log})")
+
+
 def test_the_plant_loop_is_vector_code():
     """The lanes' RK4 step compiles to packed double-precision FMAs (a call, a gather or a memory-dependent
     branch in the loop would leave it scalar): counted in the machine code of a block's step."""

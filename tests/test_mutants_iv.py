@@ -342,16 +342,18 @@ def test_a_push_is_a_half_sine():
 
 
 def test_a_sinusoid_above_a_quarter_of_the_plant_rate_is_refused():
-    """'Refuse a frequency the plant's steps cannot carry: at or above a quarter of the plant rate the held
-    samples alias it': at 1 kHz, 300 Hz and 400 Hz are refused, 200 Hz is flown."""
+    """'Refuse a frequency the plant's steps cannot carry: above a quarter of the plant rate the held samples
+    alias it; a quarter itself, four samples a period, is the last carried': at 1 kHz, 300 Hz, 400 Hz and
+    just above 250 Hz are refused, 250 Hz and 200 Hz are flown."""
     from vtol_impedance.errors import InputError
     from vtol_impedance.sim.disturbances import SinusoidWrench
 
     rng = np.random.default_rng(0)
-    for f in (300.0, 400.0):
+    for f in (300.0, 400.0, 250.001):
         with pytest.raises(InputError, match="quarter of the plant rate"):
             SinusoidWrench(force_W=(1.0, 0.0, 0.0), freq_hz=f).prepare(1.0, 1e-3, rng)
-    SinusoidWrench(force_W=(1.0, 0.0, 0.0), freq_hz=200.0).prepare(1.0, 1e-3, rng)
+    for f in (200.0, 250.0):
+        SinusoidWrench(force_W=(1.0, 0.0, 0.0), freq_hz=f).prepare(1.0, 1e-3, rng)
 
 
 def test_a_wall_pushes_never_pulls_and_its_friction_opposes_sliding():

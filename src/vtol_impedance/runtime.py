@@ -8,6 +8,7 @@ and the compiled kernels (:mod:`vtol_impedance.compiled`), so that neither impor
 from __future__ import annotations
 
 import math
+import sys
 import warnings
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, TypeVar
@@ -24,13 +25,13 @@ from .control.impedance import (
 from .control.signals import ControlOutput, Measurement, Reference, comply6
 from .conventions import MAX_PITCH_RAD, G
 from .errors import InputError, SingularityError, as_finite, scalar
-from .estimator.momentum import EstimatorParams, estimator_step
+from .estimator.momentum import EstimatorDesign, EstimatorParams, estimator_step
 from .estimator.momentum import design as design_estimator
 from .estimator.momentum import initial_state as estimator_initial_state
 from .model.dynamics import body_moment_from_euler
 from .model.kinematics import check_euler_regular, euler_rate_matrix_Q
 from .model.mixer import moment_reach
-from .model.vehicle import warn_if_cannot_hover
+from .model.vehicle import HoverWarning, warn_if_cannot_hover
 
 _T = TypeVar("_T")
 _F8 = np.dtype(np.float64)
@@ -47,6 +48,9 @@ IMPLAUSIBLE_ESTIMATE = 1.5
 #: that axis: a vehicle that flies holds its moments within its rotors' reach, while rotors with the wrong spins
 #: or positions in FLU read as FRD (a foreign simulator, twelfth stop) gave a yaw estimate of 1.7 times it.
 IMPLAUSIBLE_MOMENT = 1.5
+#: ... held that long (s): a hard landing or a knock gives a moment estimate beyond the rotors' reach for a
+#: moment (the estimator's filter spreads an impulse over about 1/wn = 0.1 s); a wrong spin or position holds it.
+MOMENT_PERSIST_S = 0.5
 #: :meth:`Controller.step` warns once when the yaw reference is further than this (rad) from the measured yaw.
 #: Eq. (20) turns the desired roll and pitch with the *desired* yaw, so while the heading catches up, the tilt
 #: that holds a steady horizontal force (wind, a push, a payload's offset) points the wrong way: with 2 N held
@@ -160,10 +164,22 @@ class ControllerWarning(UserWarning):
     """Something the controller did that a user should know of (once per cause and :class:`Controller`)."""
 
 
+def _caller() -> int:
+    """The ``stacklevel`` of the first frame outside this module: a warning raised here points at the user's
+    line whichever path (timed, untimed, single, batch) led to it."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and frame.f_code.co_filename == __file__:
+        frame, level = frame.f_back, level + 1
+    return level
+
+
 def _rebuilt(cls: type, args: tuple, kwargs: dict, learnt: dict) -> object:
     """A :class:`Controller` or :class:`Estimator` built afresh, then given what another learnt (a copy, an
-    unpickling): arrays are filled in place, since the compiled step holds them."""
-    obj = cls(*args, **kwargs)
+    unpickling): arrays are filled in place, since the compiled step holds them. The original warned of its
+    vehicle already."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HoverWarning)
+        obj = cls(*args, **kwargs)
     for name, value in learnt.items():
         old = getattr(obj, name, None)
         if isinstance(old, np.ndarray) and isinstance(value, np.ndarray) and old.shape == value.shape:
@@ -291,7 +307,7 @@ class Controller(_Learns):
     independent controller with what this one learnt so far.
     """
 
-    _LEARNT = ("state", "_warned", "_clock", "_s", "_h")
+    _LEARNT = ("state", "_warned", "_moment_high", "_clock", "_s", "_h")
 
     def __init__(self, params: ControllerParams | Sequence[ControllerParams], backend: str = "compiled") -> None:
         if backend not in ("compiled", "numpy"):
@@ -303,11 +319,13 @@ class Controller(_Learns):
             or not all(isinstance(p, ControllerParams) for p in params)  # type: ignore[union-attr]
         ):
             raise InputError(f"params must be a ControllerParams or a sequence of them, got {params!r:.80}")
-        self._params = params
+        # a snapshot: a list changed later changes neither this controller nor its copies
+        self._params = params if single else tuple(params)  # type: ignore[arg-type]
         self._backend = backend
-        self._arrays = compile_controllers(params)
-        for vehicle in {id(p.vehicle): p.vehicle for p in ([params] if single else params)}.values():  # type: ignore[union-attr]
-            warn_if_cannot_hover(vehicle, stacklevel=3)
+        self._arrays = compile_controllers(self._params)
+        each = (self._params,) if single else self._params
+        for vehicle in {id(p.vehicle): p.vehicle for p in each}.values():  # type: ignore[union-attr]
+            warn_if_cannot_hover(vehicle, stacklevel=2)
         if backend == "compiled":
             from .compiled import controller as kernels
 
@@ -352,6 +370,7 @@ class Controller(_Learns):
         """
         self.state = initial_controller_state(self.arrays)
         self._warned: set[str] = set()
+        self._moment_high = 0  # steps in a row with an implausible moment estimate
         self._clock = _Clock(self.arrays.Ts)
         if self.backend == "compiled":
             self._s, self._h = self._k.initial_state(self._p, self._d)
@@ -504,7 +523,7 @@ class Controller(_Learns):
         for field_name, text in causes:
             if field_name not in self._warned and np.any(getattr(out, field_name)):
                 self._warned.add(field_name)
-                warnings.warn(f"{text}; warned once per cause until reset()", ControllerWarning, stacklevel=3)
+                warnings.warn(f"{text}; warned once per cause until reset()", ControllerWarning, stacklevel=_caller())
         # an estimate beyond the vehicle's weight is rare in flight and common with a frame mistake
         ratio = np.linalg.norm(out.f_hat_W, axis=-1) / self._weight
         if "f_hat_W" not in self._warned and np.any(ratio > IMPLAUSIBLE_ESTIMATE):
@@ -515,18 +534,21 @@ class Controller(_Learns):
                 "angles in rad of the NED/FRD attitude; omega_B in body FRD; Measurement.from_frames converts "
                 "ENU/FLU and quaternions) and the mass; warned once until reset()",
                 ControllerWarning,
-                stacklevel=3,
+                stacklevel=_caller(),
             )
-        ratio_m = np.abs(out.tau_hat_B) / self._reach_B
-        if "tau_hat_B" not in self._warned and np.any(ratio_m > IMPLAUSIBLE_MOMENT):
+        reach = self._reach_B  # an axis the rotors cannot turn (no reach) is not judged
+        ratio_m = np.divide(np.abs(out.tau_hat_B), reach, out=np.zeros(np.shape(reach)), where=reach > 0)
+        self._moment_high = self._moment_high + 1 if np.any(ratio_m > IMPLAUSIBLE_MOMENT) else 0
+        if "tau_hat_B" not in self._warned and self._moment_high * self.arrays.Ts >= MOMENT_PERSIST_S:
             self._warned.add("tau_hat_B")
             axis = "xyz"[int(np.argmax(np.max(ratio_m.reshape(-1, 3), axis=0)))]
             warnings.warn(
-                f"the estimated external moment about body {axis} is {np.max(ratio_m):.2g} times what the rotors can "
-                "give about it: unless something that strong turns the vehicle, check the rotors' spin directions and "
-                "positions (body FRD: x forward, y right, z down) and omega_B's frame; warned once until reset()",
+                f"the estimated external moment about body {axis} has been {np.max(ratio_m):.2g} times what the rotors "
+                f"can give about it for {MOMENT_PERSIST_S:g} s: unless something that strong turns the vehicle, check "
+                "the rotors' spin directions and positions (body FRD: x forward, y right, z down) and omega_B's frame; "
+                "warned once until reset()",
                 ControllerWarning,
-                stacklevel=3,
+                stacklevel=_caller(),
             )
 
     def _warn_yaw(self, eta: object, psi_d: object) -> None:
@@ -542,7 +564,7 @@ class Controller(_Learns):
                 "the wrong direction and the vehicle is pushed off (with 2 N sideways, pi/2 moved a 1 kg quadrotor "
                 "30 cm); ramp heading changes (Reference.psi_dot) by about 1 rad/s; warned once until reset()",
                 ControllerWarning,
-                stacklevel=4,
+                stacklevel=_caller(),
             )
 
     def _step_single(self, meas: Measurement, ref: Reference) -> ControlOutput | None:
@@ -652,7 +674,7 @@ class Estimator(_Learns):
         self._params = params or EstimatorParams()
         if not isinstance(self._params, EstimatorParams):
             raise InputError(f"params must be an EstimatorParams, got {type(params).__name__}")
-        self.design = design_estimator(self._params, Ts)
+        self._design = design_estimator(self._params, Ts)
         self._backend = backend
         if backend == "compiled":
             from .compiled import estimator as kernels
@@ -666,6 +688,11 @@ class Estimator(_Learns):
     @property
     def Ts(self) -> float:  # noqa: N802
         return float(self.design.Ts)
+
+    @property
+    def design(self) -> EstimatorDesign:
+        """The discretised estimator (eqs. (10)-(12)), read-only."""
+        return self._design
 
     @property
     def mass(self) -> float:

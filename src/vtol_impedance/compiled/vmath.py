@@ -2,24 +2,26 @@
 
 numba's LLVM has no vector math library here (no SVML), so a loop over SIMD lanes that calls ``math.sin`` or
 ``math.atan2`` stays scalar. These are the same functions as polynomials, selects, ``floor``, ``sqrt`` and
-divisions only (no calls, no branches), so a lane loop that uses them compiles to packed instructions. Every
-compiled kernel uses them, whether it flies one vehicle or a block of lanes, so both engines keep the same
-numbers to the last bit where they use them. One at a time the C library is faster (its arc tangent is a
-table and a short polynomial, not a series), so code that stays scalar (the sensors, the controller) keeps
-it: :func:`sin_cos`, :func:`arctan2` and :func:`arcsin` take a literal ``vector`` that picks which.
+divisions only (no calls, no branches), so a lane loop that uses them compiles to packed instructions. The
+truth a control tick reads (:func:`~.plant.observed`) uses them in every engine (the lanes, a vehicle per
+thread, MuJoCo's ticks), so the engines agree to the last bit. One at a time the C library is faster (its arc
+tangent is a table and a short polynomial, not a series), so code that stays scalar (the sensors, the
+controller, the estimator) keeps it: :func:`sin_cos`, :func:`arctan2` and :func:`arcsin` take a literal
+``vector`` that picks which.
 
 Accuracy (``tests/test_vmath.py``, against the C library over a million arguments and the special
-values): within 3 units in the last place (``sincos`` for ``|x| <= 1e6`` rad); NaN gives NaN. The NumPy
-definition uses NumPy's own functions: the two backends part by these last bits, as they already did
-between two libraries.
+values): within 3 units in the last place (``sincos`` for ``|x| <= 1e6`` rad: beyond, the reduction loses
+bits, and beyond about 1e22 the result is meaningless; the callers pass angles); NaN gives NaN;
+``sincos(-0.0)`` gives ``+0.0`` for the sine. The NumPy definition uses NumPy's own functions: the two
+backends part by these last bits, as they already did between two libraries.
 
 How: ``sincos`` reduces ``x`` by the nearest multiple ``k`` of pi/2 with pi/2 split in three parts (Cody and
 Waite's reduction: the first two parts have 33 significant bits, so ``k`` times them is exact for ``|k| < 2^20``),
 then sums the Taylor series of sine to ``r^17`` and of cosine to ``r^18`` on ``|r| <= pi/4`` (the first term left
-out is below 1e-19) and picks the quadrant by selects. ``atan2`` reduces ``min/max`` of ``|x|, |y|`` (in
-[0, 1]) above tan(pi/8) by ``atan(a) = pi/4 + atan((a - 1)/(a + 1))`` to ``|z| <= tan(pi/8)``, where the Taylor
-series to ``z^43`` leaves less than 1e-18, then unfolds the octant. The parts of pi/2 were computed here from
-pi's digits with exact rational arithmetic.
+out is below 1e-19) and picks the quadrant by selects. ``atan2`` reduces ``a = min/max`` of ``|x|, |y|`` (in [0, 1]) by
+``atan(a) = j pi/8 + atan((a - c)/(1 + a c))``, ``c = tan(j pi/8)`` with ``j`` in 0, 1, 2 the nearest, to
+``|z| <= tan(pi/16)``, where the Taylor series to ``z^25`` leaves less than 1e-20, then unfolds the octant. The
+parts of pi/2 were computed here from pi's digits with exact rational arithmetic.
 """
 
 from __future__ import annotations

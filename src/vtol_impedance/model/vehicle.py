@@ -48,15 +48,18 @@ class HoverWarning(UserWarning):
     """A vehicle's rotors cannot lift its weight (:func:`warn_if_cannot_hover`)."""
 
 
-def warn_if_cannot_hover(vehicle: VehicleParams, stacklevel: int = 2) -> None:
-    """Warn (:class:`HoverWarning`) when the vehicle's rotors at full thrust cannot lift its own weight: a controller
-    built for it can only let it fall (a heavy vehicle left with the default ``f_max`` of 7 N per rotor is the
-    usual cause)."""
-    if vehicle.thrust_to_weight < 1.0:
+def warn_if_cannot_hover(vehicle: VehicleParams, stacklevel: int = 2, mass: float | None = None,
+                         carrying: str = "") -> None:  # fmt: skip
+    """Warn (:class:`HoverWarning`) when the vehicle's rotors at full thrust cannot lift its own weight, or
+    ``mass`` (kg) when given (``carrying``: what it adds, for the message): a controller built for it can only let
+    it fall (a heavy vehicle left with the default ``f_max`` of 7 N per rotor is the usual cause)."""
+    weight = (vehicle.mass if mass is None else mass) * G
+    lift = float(vehicle.geometry.f_max.sum())
+    if lift < weight:
         warnings.warn(
-            f"vehicle {vehicle.name or '(unnamed)'}: its rotors give at most {vehicle.geometry.f_max.sum():.4g} N "
-            f"together, less than its weight {vehicle.mass * G:.4g} N (thrust-to-weight "
-            f"{vehicle.thrust_to_weight:.2f}): it cannot hover; set f_max (f_max_from_motor) or check the mass",
+            f"vehicle {vehicle.name or '(unnamed)'}{carrying}: its rotors give at most {lift:.4g} N together, less "
+            f"than its weight {weight:.4g} N (thrust-to-weight {lift / weight:.2f}): it cannot hover; set f_max "
+            "(f_max_from_motor) or check the mass",
             HoverWarning,
             stacklevel=stacklevel + 1,
         )

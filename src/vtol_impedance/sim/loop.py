@@ -379,7 +379,11 @@ def _checked_inputs(
             f"plant must be one PlantParams or one per controller: {len(plants)} plants for {B} controllers"
         )
     for vehicle in {id(c.vehicle): c.vehicle for c in controllers}.values():
-        warn_if_cannot_hover(vehicle, stacklevel=4)
+        warn_if_cannot_hover(vehicle, stacklevel=3)
+    for p in {id(p): p for p in plants}.values():  # the true vehicle with its payload and pendulum
+        if p.payload_mass > 0 or p.pendulum_mass > 0:
+            carrying = f" with {p.payload_mass:g} kg of payload and a {p.pendulum_mass:g} kg pendulum"
+            warn_if_cannot_hover(p.vehicle, stacklevel=3, mass=p.total_mass + p.pendulum_mass, carrying=carrying)
     if not isinstance(trajectory, Trajectory):
         raise InputError(f"trajectory must be a Trajectory, got {type(trajectory).__name__}")
     disturbances = list(disturbances)
