@@ -49,7 +49,8 @@ IMPLAUSIBLE_ESTIMATE = 1.5
 #: or positions in FLU read as FRD (a foreign simulator, twelfth stop) gave a yaw estimate of 1.7 times it.
 IMPLAUSIBLE_MOMENT = 1.5
 #: ... held that long (s): a hard landing or a knock gives a moment estimate beyond the rotors' reach for a
-#: moment (the estimator's filter spreads an impulse over about 1/wn = 0.1 s); a wrong spin or position holds it.
+#: moment (the estimator's filter spreads an impulse over a few 1/wn, 0.1-0.25 s at the paper's and the designed
+#: bandwidths); a wrong spin or position holds it as long as the vehicle flies.
 MOMENT_PERSIST_S = 0.5
 #: :meth:`Controller.step` warns once when the yaw reference is further than this (rad) from the measured yaw.
 #: Eq. (20) turns the desired roll and pitch with the *desired* yaw, so while the heading catches up, the tilt

@@ -28,7 +28,7 @@ from ..control.impedance import (
 )
 from ..control.reference import Trajectory
 from ..control.signals import Reference
-from ..conventions import E3, GRAVITY_W
+from ..conventions import E3, GRAVITY_W, G
 from ..errors import InputError, as_finite, scalar
 from ..model.dynamics import coriolis_matrix_C, inertia_matrix_M, matvec, transpose
 from ..model.kinematics import (
@@ -380,10 +380,16 @@ def _checked_inputs(
         )
     for vehicle in {id(c.vehicle): c.vehicle for c in controllers}.values():
         warn_if_cannot_hover(vehicle, stacklevel=3)
-    for p in {id(p): p for p in plants}.values():  # the true vehicle with its payload and pendulum
-        if p.payload_mass > 0 or p.pendulum_mass > 0:
-            carrying = f" with {p.payload_mass:g} kg of payload and a {p.pendulum_mass:g} kg pendulum"
-            warn_if_cannot_hover(p.vehicle, stacklevel=3, mass=p.total_mass + p.pendulum_mass, carrying=carrying)
+    grounded = [  # true vehicles their payload and pendulum keep down: one warning for the lot
+        p for p in {id(p): p for p in plants}.values()
+        if (p.payload_mass > 0 or p.pendulum_mass > 0)
+        and p.vehicle.geometry.f_max.sum() < (p.total_mass + p.pendulum_mass) * G
+    ]  # fmt: skip
+    if grounded:
+        p = max(grounded, key=lambda q: q.total_mass + q.pendulum_mass)
+        carrying = (f" with {p.payload_mass:g} kg of payload and a {p.pendulum_mass:g} kg pendulum (the heaviest of "
+                    f"{len(grounded)} plant(s) of the flight that cannot hover)")  # fmt: skip
+        warn_if_cannot_hover(p.vehicle, stacklevel=3, mass=p.total_mass + p.pendulum_mass, carrying=carrying)
     if not isinstance(trajectory, Trajectory):
         raise InputError(f"trajectory must be a Trajectory, got {type(trajectory).__name__}")
     disturbances = list(disturbances)
