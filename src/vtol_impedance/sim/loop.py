@@ -354,6 +354,23 @@ def run_closed_loop(
     return Result(t_log, labels, data, cfg, failures, metrics if setup.dec != 1 else None)
 
 
+def _warn_if_grounded(controllers: list[ControllerParams], plants: list[PlantParams]) -> None:
+    """A :class:`~vtol_impedance.model.HoverWarning` for each nominal vehicle whose rotors cannot lift it, and one
+    for the plants their payload and pendulum keep down (the heaviest named, with the count)."""
+    for vehicle in {id(c.vehicle): c.vehicle for c in controllers}.values():
+        warn_if_cannot_hover(vehicle, stacklevel=4)
+    grounded = [
+        p for p in {id(p): p for p in plants}.values()
+        if (p.payload_mass > 0 or p.pendulum_mass > 0)
+        and p.vehicle.geometry.f_max.sum() < (p.total_mass + p.pendulum_mass) * G
+    ]  # fmt: skip
+    if grounded:
+        p = max(grounded, key=lambda q: q.total_mass + q.pendulum_mass)
+        carrying = (f" with {p.payload_mass:g} kg of payload and a {p.pendulum_mass:g} kg pendulum (the heaviest of "
+                    f"{len(grounded)} plant(s) of the flight that cannot hover)")  # fmt: skip
+        warn_if_cannot_hover(p.vehicle, stacklevel=4, mass=p.total_mass + p.pendulum_mass, carrying=carrying)
+
+
 def _checked_inputs(
     plant: Any, controllers: Any, trajectory: Any, duration: Any, disturbances: Any, sensors: Any, plant_rate: Any,
     seed: Any, labels: Any, window: Any, backend: Any,
@@ -378,18 +395,7 @@ def _checked_inputs(
         raise InputError(
             f"plant must be one PlantParams or one per controller: {len(plants)} plants for {B} controllers"
         )
-    for vehicle in {id(c.vehicle): c.vehicle for c in controllers}.values():
-        warn_if_cannot_hover(vehicle, stacklevel=3)
-    grounded = [  # true vehicles their payload and pendulum keep down: one warning for the lot
-        p for p in {id(p): p for p in plants}.values()
-        if (p.payload_mass > 0 or p.pendulum_mass > 0)
-        and p.vehicle.geometry.f_max.sum() < (p.total_mass + p.pendulum_mass) * G
-    ]  # fmt: skip
-    if grounded:
-        p = max(grounded, key=lambda q: q.total_mass + q.pendulum_mass)
-        carrying = (f" with {p.payload_mass:g} kg of payload and a {p.pendulum_mass:g} kg pendulum (the heaviest of "
-                    f"{len(grounded)} plant(s) of the flight that cannot hover)")  # fmt: skip
-        warn_if_cannot_hover(p.vehicle, stacklevel=3, mass=p.total_mass + p.pendulum_mass, carrying=carrying)
+    _warn_if_grounded(controllers, plants)
     if not isinstance(trajectory, Trajectory):
         raise InputError(f"trajectory must be a Trajectory, got {type(trajectory).__name__}")
     disturbances = list(disturbances)
