@@ -26,6 +26,20 @@ def mod_2pi(w):
 
 
 @kernel(inline="always")
+def turn(w, vector):
+    """:func:`mod_2pi`; where ``vector`` (a literal: code in lanes) as selects, with ``w - 2 pi floor(w / 2 pi)``
+    (``fmod``'s value to rounding) in place of the call beyond one turn either side, which is never reached
+    there (a difference of two wrapped angles)."""
+    if not vector:
+        return mod_2pi(w)
+    two_pi = 2.0 * math.pi
+    far = w - two_pi * np.floor(w / two_pi)
+    up = w - two_pi if w < 2.0 * two_pi else far
+    down = w + two_pi if w >= -two_pi else far
+    return up if w >= two_pi else (down if w < 0.0 else w)
+
+
+@kernel(inline="always")
 def _Q9(f, t, vector):
     (sf, cf), (st, ct) = sin_cos(f, vector), sin_cos(t, vector)
     return (1.0, 0.0, -st, 0.0, cf, sf * ct, 0.0, -sf, cf * ct)  # eq. (1c)
@@ -138,9 +152,9 @@ def _beta_ang(Q, C, t0, t1, t2, d0, d1, d2):
 
 
 @kernel(inline="always")
-def _beta_lin(e0, e1, e2, u, m):
+def _beta_lin(e0, e1, e2, u, m, vector):
     """Linear part of eq. (8): ``-u R(eta) e3 + m g``."""
-    (sf, cf), (st, ct), (sp, cp) = sin_cos(e0, False), sin_cos(e1, False), sin_cos(e2, False)
+    (sf, cf), (st, ct), (sp, cp) = sin_cos(e0, vector), sin_cos(e1, vector), sin_cos(e2, vector)
     return -u * (cp * st * cf + sp * sf), -u * (sp * st * cf - cp * sf), -u * (ct * cf) + m * G  # eq. (8), linear part
 
 

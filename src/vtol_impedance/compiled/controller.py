@@ -177,12 +177,12 @@ def _impedance_axis(p, s, r, i, m, e, ev, fh, fl, fdot, lead):
 
 
 @kernel(inline="always")
-def _attitude_axis(p, d, s, r, i, tb, eta_d_ddot, de, ee, th, la):
+def _attitude_axis(p, d, r, i, tb, eta_d_ddot, de, ee, th, la, th_dot):
     """``tau_bar`` on Euler angle ``i`` blended with ``M_o e'' + D_o e' + K_o e = tau_ext_eta``, and the
-    moment (14) cancels; both use the estimate advanced by G's delay and the attitude latency ``la``, as
-    :func:`vtol_impedance.control.impedance.controller_step`."""
+    moment (14) cancels; both use the estimate ``th`` advanced (at its rate ``th_dot``) by G's delay and the
+    attitude latency ``la``, as :func:`vtol_impedance.control.impedance.controller_step`."""
     lam = min(max(r[15 + i], 0.0), 1.0)
-    lead = th + (d.lag[3 + i] + la) * s.r_dot[3 + i]
+    lead = th + (d.lag[3 + i] + la) * th_dot
     comply = eta_d_ddot - (p.Do_d[i] * de + p.Ko_d[i] * ee - lead) / p.Mo_d[i]
     return (1.0 - lam) * tb + lam * comply, th + lam * (lead - th)
 
@@ -190,30 +190,35 @@ def _attitude_axis(p, d, s, r, i, tb, eta_d_ddot, de, ee, th, la):
 @kernel()
 def controller_step(p, d, s, h, y, r, o):
     """One control period for one vehicle; updates ``s``, ``h`` in place and writes ``o``. Mirrors
-    :func:`vtol_impedance.control.impedance.controller_step`, with no heap allocation."""
+    :func:`vtol_impedance.control.impedance.controller_step`, with no heap allocation: the estimator's
+    sample (eqs. (6)-(13)), then :func:`control_law`."""
+    Q, M, C, w = estimator_update(d, s, h, p.mass, nominal_inertia(p), y[3], y[4], y[5], y[6], y[7], y[8], y[9], y[10],
+                                  y[11])  # fmt: skip
+    rd = s.r_dot
+    control_law(p, d, s, y, r, o, Q, M, C, w, (rd[0], rd[1], rd[2], rd[3], rd[4], rd[5]))
+
+
+@kernel(inline="always")
+def nominal_inertia(p):
+    """The controller's nominal inertia ``p.I_B`` as a row-major 9-tuple."""
+    I = p.I_B  # noqa: E741
+    return (I[0, 0], I[0, 1], I[0, 2], I[1, 0], I[1, 1], I[1, 2], I[2, 0], I[2, 1], I[2, 2])
+
+
+@kernel(inline="always")
+def control_law(p, d, s, y, r, o, Q, M, C, w, rd):
+    """Eqs. (14)-(20) of one period given the estimator's sample: ``Q``, ``M``, ``C`` at the measured attitude
+    (9-tuples), the estimate ``w = [f_hat_ext_W; tau_hat_ext_eta]`` and its rate ``rd`` (6-tuples). Updates the
+    controller's part of ``s`` (attitude filter, integral, held command) and writes ``o``."""
     Ts, fwn, fz = d.Ts, d.filt_wn, d.filt_zeta
     m = p.mass
-    I = (
-        p.I_B[0, 0],
-        p.I_B[0, 1],
-        p.I_B[0, 2],
-        p.I_B[1, 0],
-        p.I_B[1, 1],
-        p.I_B[1, 2],
-        p.I_B[2, 0],
-        p.I_B[2, 1],
-        p.I_B[2, 2],
-    )  # noqa: E501, E741
+    I = nominal_inertia(p)  # noqa: E741
     comp = p.compensate
     p0, p1, p2, v0, v1, v2 = y[0], y[1], y[2], y[3], y[4], y[5]
     e0, e1, e2, d0, d1, d2 = y[6], y[7], y[8], y[9], y[10], y[11]
-
-    # estimator, eqs. (6)-(13)
-    Q, M, C, w = estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, d0, d1, d2)
     fh0, fh1, fh2, th0, th1, th2 = w
     # the force estimate with G's low-frequency delay taken out (used by "comply"): f_hat + lag f_hat_dot
     lv, la = Ts * d.dv, Ts * d.da  # the latencies the force and moment channels see
-    rd = s.r_dot
     fl0 = fh0 + (d.lag[0] + lv) * rd[0]
     fl1 = fh1 + (d.lag[1] + lv) * rd[1]
     fl2 = fh2 + (d.lag[2] + lv) * rd[2]
@@ -253,9 +258,9 @@ def controller_step(p, d, s, h, y, r, o):
     tb0, tb1, tb2 = eddd0 - s0, eddd1 - s1, r[11] - s2  # eq. (18b)
     tc0, tc1, tc2 = th0, th1, th2  # the moment (14) cancels
     if p.comply_enable > 0.5 and r.shape[0] >= 18:  # per Euler angle, "comply" blends in its own law
-        tb0, tc0 = _attitude_axis(p, d, s, r, 0, tb0, eddd0, de0, ee0, th0, la)
-        tb1, tc1 = _attitude_axis(p, d, s, r, 1, tb1, eddd1, de1, ee1, th1, la)
-        tb2, tc2 = _attitude_axis(p, d, s, r, 2, tb2, r[11], de2, ee2, th2, la)
+        tb0, tc0 = _attitude_axis(p, d, r, 0, tb0, eddd0, de0, ee0, th0, la, rd[3])
+        tb1, tc1 = _attitude_axis(p, d, r, 1, tb1, eddd1, de1, ee1, th1, la, rd[4])
+        tb2, tc2 = _attitude_axis(p, d, r, 2, tb2, r[11], de2, ee2, th2, la, rd[5])
     QT = _t9(Q)
     cd = _mv9(C, d0, d1, d2)
     g0, g1, g2 = _solve9(QT, cd[0] - comp * tc0, cd[1] - comp * tc1, cd[2] - comp * tc2)  # eq. (14)

@@ -21,7 +21,7 @@ from numba.core.errors import NumbaPendingDeprecationWarning
 from numba.typed import List
 
 from .algebra import _Q9, _solve9
-from .controller import controller_step
+from .controller import control_law, controller_step, nominal_inertia
 from .jit import kernel
 from .lanes import (
     W,
@@ -40,6 +40,15 @@ from .lanes import (
     put_state,
     state_view,
     step_lanes,
+)
+from .lanes_estimator import (
+    estimate_lanes,
+    get_estimator,
+    new_estimator_buffer,
+    put_command_held,
+    put_estimator,
+    put_measured,
+    sample_at,
 )
 from .layouts import OUTPUT
 from .plant import (
@@ -161,28 +170,47 @@ def _observed(pp_b, p_b, s_b, x, a_o, w_dot):
     """:func:`~.plant.observed` for the records of one vehicle (before its controller steps: the command held
     over the last period)."""
     tau = (s_b.tau_B_prev[0], s_b.tau_B_prev[1], s_b.tau_B_prev[2])
-    return observed(_v3(pp_b.c_B), _body_of(x), a_o, w_dot, s_b.thrust_prev, tau, p_b.mass, _nominal_inertia(p_b))
+    return observed(_v3(pp_b.c_B), _body_of(x), a_o, w_dot, s_b.thrust_prev, tau, p_b.mass, nominal_inertia(p_b))
 
 
 @kernel(inline="always")
 def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, gen, r, logs_b, dec, acc_b, win, o, y,
                   noise, rc):  # fmt: skip
-    """Control tick ``k`` (time ``t``) of one vehicle, whichever plant flies it: its sensors (the states
-    ``xm``, ``xi`` they read, and twelve normals from ``gen`` in the order of ``NoiseSource.block``), the
-    controller step (the rotor command in ``o``), and where :func:`_truth_needed` the window metrics and the log
-    row from the truth at ``t``: ``obs = (eta, f_l, t_l, p_o, v_o)`` of :func:`~.plant.observed` (taken before
-    the controller steps), ``env = [f_ext_W, tau_ext_B]`` and the state ``x``. ``r`` is the reference row
-    ``[p_d, v_d, a_d, psi, psi_dot, psi_ddot, comply (6), p_d, v_d at the measurement's time (6)]``
-    (:func:`vtol_impedance.sim.loop.reference_rows`): the controller is given the last six in place of the
-    first, the metrics and log the first. ``y``, ``noise``, ``rc`` (18) are scratch."""
+    """Control tick ``k`` (time ``t``) of one vehicle, whichever plant flies it: its sensors (:func:`_sense`), the
+    controller step (the rotor command in ``o``) given the reference of :func:`_reference`, and the window metrics
+    and log row of :func:`_record`. ``y``, ``noise``, ``rc`` (18) are scratch."""
+    _sense(pp_b, xm, xi, sigma, gen, noise, y)
+    controller_step(p_b, des, s_b, h_b, y, _reference(r, rc), o)
+    _record(k, t, pp_b, x, obs, env, r, y, o, logs_b, dec, acc_b, win)
+
+
+@kernel(inline="always")
+def _sense(pp_b, xm, xi, sigma, gen, noise, y):
+    """The measurement ``y`` of the sensors reading the states ``xm`` (motion capture), ``xi`` (IMU), with twelve
+    normals from ``gen`` in the order of ``NoiseSource.block`` (``noise``: scratch)."""
     for i in range(12):  # [position, velocity, attitude, gyro]
         noise[i] = gen.standard_normal()
     _measure(pp_b, xm, xi, sigma, noise, y)
+
+
+@kernel(inline="always")
+def _reference(r, rc):
+    """What the controller is given of the reference row ``r = [p_d, v_d, a_d, psi, psi_dot, psi_ddot, comply (6),
+    p_d, v_d at the measurement's time (6)]`` (:func:`vtol_impedance.sim.loop.reference_rows`): its first 18
+    with the last six in place of the first six, in ``rc`` (the metrics and log read the first six)."""
     for i in range(18):
         rc[i] = r[i]
     for i in range(6):
         rc[i] = r[18 + i]
-    controller_step(p_b, des, s_b, h_b, y, rc, o)
+    return rc
+
+
+@kernel(inline="always")
+def _record(k, t, pp_b, x, obs, env, r, y, o, logs_b, dec, acc_b, win):
+    """Where :func:`_truth_needed`, the window metrics and the log row of tick ``k`` from the truth at ``t``:
+    ``obs = (eta, f_l, t_l, p_o, v_o)`` of :func:`~.plant.observed` (taken before the controller stepped),
+    ``env = [f_ext_W, tau_ext_B]``, the state ``x``, the reference row ``r``, the measurement ``y`` and the
+    controller's output ``o``."""
     if not _truth_needed(k, t, dec, win):
         return
     eta, f_l, t_l, p_o, v_o = obs
@@ -275,10 +303,12 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
 @kernel(parallel=True)
 def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
                     series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
-    """:func:`run_block` with the plants in SIMD lanes (:mod:`.lanes`): one ``prange`` iteration per block of
-    :data:`~.lanes.W` vehicles. Per control tick each vehicle of a block has its sensors, controller, metrics
-    and log as in :func:`run_block` (the same :func:`_control_tick`), then the block's plants take their
-    ``n_sub`` RK4 steps together. Same arguments, same results to the last bit (``tests/test_lanes.py``)."""
+    """:func:`run_block` with the plants and estimators in SIMD lanes (:mod:`.lanes`, :mod:`.lanes_estimator`):
+    one ``prange`` iteration per block of :data:`~.lanes.W` vehicles. Per control tick the block's truth is
+    taken in lanes, each vehicle's sensors read, the block's estimators sample in lanes, each vehicle's control
+    law, metrics and log run as in :func:`run_block` (the same functions), then the block's plants take their
+    ``n_sub`` RK4 steps together. Same arguments; the same results to 1e-11 (the estimators in lanes take their
+    sines from :mod:`.vmath`, ``tests/test_lanes.py``)."""
     B = X.shape[0]
     for blk in prange((B + W - 1) // W):
         _fly_lanes(blk * W, min(W, B - blk * W), k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu,
@@ -291,19 +321,25 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicles ``b0 .. b0 + n - 1`` of :func:`run_block_lanes` from tick ``k0`` to ``k1``; lanes past ``n``
     repeat the block's first vehicle and are never read back. The lanes hold the states between ticks: the
-    records ``X`` are written at the end (or when a vehicle stops), and before a logged tick."""
+    records ``X`` are written at the end (or when a vehicle stops), and before a logged tick; the estimators'
+    records ``S``, ``EH`` at the end and when a vehicle stops. Until every estimator of the block has taken
+    its first sample (which fills its history) the block's controllers step vehicle by vehicle."""
     buf = new_buffer()
+    eb = new_estimator_buffer(EH.shape[1])
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
-    y, noise, dist, rc = np.empty(12), np.empty(12), np.empty(6), np.empty(18)
+    Y = np.empty((W, 12))  # noqa: N806
+    noise, dist, rc = np.empty(12), np.empty(6), np.empty(18)
     nr = 0
     for i in range(W):
         b = b0 + (i if i < n else 0)
         put_plant(buf, i, pp[b], lane_of(pp[b]))
         put_state(buf, i, X[b])
-        put_nominal(buf, i, p[b].mass, _nominal_inertia(p[b]))
+        put_nominal(buf, i, p[b].mass, nominal_inertia(p[b]))
         put_held(buf, i, S[b].thrust_prev, S[b].tau_B_prev)
         nr = max(nr, pp[b].n_rotors)
+    head = 0  # the estimators' history ring: its newest slot, the same in every lane
+    ready = _put_estimators(eb, b0, n, S, EH, p, head)
     for i in range(6):
         dist[i] = 0.0
     for i in range(W):
@@ -332,26 +368,39 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 observe_lanes(buf, 4)
             else:
                 observe_lanes(buf, nr)
+        for i in range(n):  # the sensors
+            b = b0 + i
+            if alive[b]:
+                xm, xi = _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu)
+                _sense(pp[b], xm, xi, sigma, gens[np.int64(b)], noise, Y[i])
+                put_measured(eb, i, Y[i])
+        if ready:  # the estimators, in lanes
+            head = estimate_lanes(eb, d[0], head)
         logged = dec > 0 and k % dec == 0
         for i in range(n):
             b = b0 + i
             if not alive[b]:
                 continue
             pp_b, s_b = pp[b], S[b]
-            obs, env = _NO_OBS, _NO_ENV
+            rc = _reference(refs[k], rc)
+            if ready:
+                Q, M, C, w, rd = sample_at(eb, i)
+                control_law(p[b], d[0], s_b, Y[i], rc, o, Q, M, C, w, rd)
+            else:  # a first sample fills the history: vehicle by vehicle
+                controller_step(p[b], d[0], s_b, EH[b], Y[i], rc, o)
             if truth:
                 obs, env = observed_at(buf, i)
-            if logged:  # the log reads the rates and rotor forces of the record
-                get_state(buf, i, X[b])
-            head, count = hhead[b], hcount[b]
-            xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
-            _control_tick(k, t, pp_b, p[b], d[0], s_b, EH[b], xm, xi, X[b], obs, env, sigma, gens[np.int64(b)],
-                          refs[k], logs[b], dec, acc[b], win, o, y, noise, rc)  # fmt: skip
+                if logged:  # the log reads the rates and rotor forces of the record
+                    get_state(buf, i, X[b])
+                _record(k, t, pp_b, X[b], obs, env, refs[k], Y[i], o, logs[b], dec, acc[b], win)
             up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0
             if up_now or down_now:  # as _instant_rotors, on the lane's rotors
                 instant_rotors_lane(buf, i, up_now, down_now, o.f_rotor, pp_b.f_min, pp_b.f_max, pp_b.n_rotors)
             put_command(buf, i, o.f_rotor, pp_b.n_rotors)
             put_held(buf, i, s_b.thrust_prev, s_b.tau_B_prev)
+            put_command_held(eb, i, s_b.thrust_prev, s_b.tau_B_prev)
+        if not ready:
+            ready = _put_estimators(eb, b0, n, S, EH, p, head)
         for js in range(n_sub):
             if has_dists:
                 for i in range(n):
@@ -363,13 +412,15 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 step_lanes(buf, 4, dt)
             else:
                 step_lanes(buf, nr, dt)
-            for i in range(n):
-                b = b0 + i
-                if alive[b]:
-                    head = hhead[b] + 1 if hhead[b] + 1 < H else 0
-                    hhead[b], hcount[b] = head, min(hcount[b] + 1, H)
-                    if keep[js]:
-                        get_state(buf, i, hist[b, head])
+            if keep[js]:  # a state a sensor will read, into each ring's slot for this step
+                for i in range(n):
+                    b = b0 + i
+                    if alive[b]:
+                        get_state(buf, i, hist[b, (hhead[b] + js + 1) % H])
+        for i in range(n):  # the rings advanced by the period's steps
+            b = b0 + i
+            if alive[b]:
+                hhead[b], hcount[b] = (hhead[b] + n_sub) % H, min(hcount[b] + n_sub, H)
         if nr == 4:
             failure_lanes(buf, 4)
         else:
@@ -382,10 +433,28 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 fail_code[b] = code
                 fail_time[b] = t + Ts
                 X[b] = x_park[b]
+                if ready:
+                    get_estimator(eb, i, S[b], EH[b], head)
                 live -= 1
     for i in range(n):
-        if alive[b0 + i]:
-            get_state(buf, i, X[b0 + i])
+        b = b0 + i
+        if alive[b]:
+            get_state(buf, i, X[b])
+            if ready:
+                get_estimator(eb, i, S[b], EH[b], head)
+
+
+@kernel(inline="always")
+def _put_estimators(eb, b0, n, S, EH, p, head):  # noqa: N803
+    """Whether every estimator of the block ``b0 .. b0 + n - 1`` has started (the lanes past ``n`` repeat the
+    first); if so the lanes take them (:func:`~.lanes_estimator.put_estimator`), the ring's newest slot ``head``."""
+    for i in range(n):
+        if not S[b0 + i].started:
+            return False
+    for i in range(W):
+        b = b0 + (i if i < n else 0)
+        put_estimator(eb, i, S[b], EH[b], head, p[b].mass, nominal_inertia(p[b]))
+    return True
 
 
 @kernel(inline="always")
@@ -454,12 +523,6 @@ def _typed_list(gens):
 def _scratch():
     """A zeroed output record (in an array of one)."""
     return np.zeros(1, dtype=OUTPUT)
-
-
-@kernel(inline="always")
-def _nominal_inertia(p):
-    I = p.I_B  # noqa: E741
-    return (I[0, 0], I[0, 1], I[0, 2], I[1, 0], I[1, 1], I[1, 2], I[2, 0], I[2, 1], I[2, 2])
 
 
 @kernel()

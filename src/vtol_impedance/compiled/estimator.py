@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..estimator.momentum import EstimatorDesign
-from .algebra import _QMC, _beta_ang, _beta_lin, _mv9, _solve9, _t9, mod_2pi
+from .algebra import _QMC, _beta_ang, _beta_lin, _mv9, _solve9, _t9, turn
 from .jit import kernel
 from .layouts import CONTROLLER_STATE, DESIGN, HISTORY, MAX_ORDER, fill
 
@@ -44,22 +44,65 @@ def initial_state(d: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @kernel(inline="always")
+def history_split(d):
+    """Where ``d`` periods back falls in a history kept most recent first: between rows ``i`` and ``i + 1``,
+    at the fraction ``g`` (:func:`vtol_impedance.estimator.momentum.history_at`)."""
+    i = int(math.floor(d + 1e-9))
+    return i, d - i
+
+
+@kernel(inline="always")
+def lerp(a, b, g):
+    """``a`` moved the fraction ``g`` towards ``b``."""
+    return a + g * (b - a)
+
+
+@kernel(inline="always")
+def lerp_angle(a, b, g, vector):
+    """:func:`lerp` of two angles across the +-pi wrap (``vector``: a literal, code in lanes)."""
+    return a + g * (turn(b - a + math.pi, vector) - math.pi)
+
+
+@kernel(inline="always")
+def rotor_model(cmd, act, alpha, gamma):
+    """The held command ``cmd`` through the rotor model from its output ``act`` at the period's start:
+    ``(its mean over the period, its output at the end)``."""
+    return cmd + (act - cmd) * gamma, cmd + (act - cmd) * alpha
+
+
+@kernel(inline="always")
+def residual(q, q_prev, Ts, ea, eb, u_w, t, m, Q_prev, C_prev, dp, Q, C, de, vector):  # noqa: N803
+    """The estimator's input ``w_bar`` (6) over the period that ends now: the momentum's change (eq. (6))
+    less eq. (8)'s known rate at the period's two ends (the trapezoid). ``ea``, ``eb``: the attitude a period
+    apart for the thrust's direction, ``u_w`` the thrust, ``t`` the body moments, ``Q_prev``, ``C_prev``,
+    ``dp`` at the previous sample and ``Q``, ``C``, ``de`` now."""
+    la = _beta_lin(ea[0], ea[1], ea[2], u_w, m, vector)
+    lb = _beta_lin(eb[0], eb[1], eb[2], u_w, m, vector)
+    aa = _beta_ang(Q_prev, C_prev, t[0], t[1], t[2], dp[0], dp[1], dp[2])
+    ab = _beta_ang(Q, C, t[0], t[1], t[2], de[0], de[1], de[2])
+    return (
+        (q[0] - q_prev[0]) / Ts - 0.5 * (la[0] + lb[0]),
+        (q[1] - q_prev[1]) / Ts - 0.5 * (la[1] + lb[1]),
+        (q[2] - q_prev[2]) / Ts - 0.5 * (la[2] + lb[2]),
+        (q[3] - q_prev[3]) / Ts - 0.5 * (aa[0] + ab[0]),
+        (q[4] - q_prev[4]) / Ts - 0.5 * (aa[1] + ab[1]),
+        (q[5] - q_prev[5]) / Ts - 0.5 * (aa[2] + ab[2]),
+    )  # eq. (8) over the period
+
+
+@kernel(inline="always")
 def _hist_at(h, col, d):
     """Column ``col`` of the command history ``d`` periods back, linearly interpolated, as
     :func:`vtol_impedance.estimator.momentum.history_at`."""
-    i = int(math.floor(d + 1e-9))
-    g = d - i
-    a = h[i].act[col]
-    return a + g * (h[i + 1].act[col] - a)
+    i, g = history_split(d)
+    return lerp(h[i].act[col], h[i + 1].act[col], g)
 
 
 @kernel(inline="always")
 def _angle_at(h, col, d):
     """The same for the attitude history, across the +-pi wrap."""
-    i = int(math.floor(d + 1e-9))
-    g = d - i
-    a = h[i].eta[col]
-    return a + g * (mod_2pi(h[i + 1].eta[col] - a + math.pi) - math.pi)
+    i, g = history_split(d)
+    return lerp_angle(h[i].eta[col], h[i + 1].eta[col], g, False)
 
 
 @kernel(inline="always")
@@ -70,7 +113,7 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
     ZYX Euler angles and ``de`` their rates; the command held over the period that just ended is
     ``s.thrust_prev``, ``s.tau_B_prev``. Returns ``Q, M, C`` at this sample (9-tuples) and the estimate
     ``[f_hat_ext_W; tau_hat_ext_eta]`` (zero at the first sample), also left in ``s.w_hat`` with its rate
-    of change in ``s.r_dot``.
+    of change in ``s.r_dot``. :mod:`.lanes_estimator` runs the same sample for a block of vehicles in SIMD lanes.
     """
     n = d.order
     Q, M, C = _QMC(e0, e1, de0, de1, de2, I, False)
@@ -84,30 +127,25 @@ def estimator_update(d, s, h, m, I, v0, v1, v2, e0, e1, e2, de0, de1, de2):  # n
         for j in range(d.H - 1, 0, -1):  # shift the histories by one period
             h[j] = h[j - 1]
         for c in range(4):  # the held command through the rotor model: its mean over the period, and now
-            h[0].act[c] = cmd[c] + (s.act[c] - cmd[c]) * d.gamma
-            s.act[c] = cmd[c] + (s.act[c] - cmd[c]) * d.alpha
+            h[0].act[c], s.act[c] = rotor_model(cmd[c], s.act[c], d.alpha, d.gamma)
         h[0].eta[0], h[0].eta[1], h[0].eta[2] = e0, e1, e2
         # moment channel on the attitude's window, force channel on the velocity's
         u_w = _hist_at(h, 0, d.dv)
-        t0, t1, t2 = _hist_at(h, 1, d.da), _hist_at(h, 2, d.da), _hist_at(h, 3, d.da)
+        t = (_hist_at(h, 1, d.da), _hist_at(h, 2, d.da), _hist_at(h, 3, d.da))
         da = d.d_att
-        # eq. (8) at both ends of the period
-        la = _beta_lin(_angle_at(h, 0, da + 1.0), _angle_at(h, 1, da + 1.0), _angle_at(h, 2, da + 1.0), u_w, m)
-        lb = _beta_lin(_angle_at(h, 0, da), _angle_at(h, 1, da), _angle_at(h, 2, da), u_w, m)
+        ea = (_angle_at(h, 0, da + 1.0), _angle_at(h, 1, da + 1.0), _angle_at(h, 2, da + 1.0))
+        eb = (_angle_at(h, 0, da), _angle_at(h, 1, da), _angle_at(h, 2, da))
         dp = s.eta_dot_prev
-        aa = _beta_ang(s.Q_prev, s.C_prev, t0, t1, t2, dp[0], dp[1], dp[2])
-        ab = _beta_ang(Q, C, t0, t1, t2, de0, de1, de2)
-        beta = (la[0] + lb[0], la[1] + lb[1], la[2] + lb[2], aa[0] + ab[0], aa[1] + ab[1], aa[2] + ab[2])
+        w_bar = residual(q, s.q_prev, d.Ts, ea, eb, u_w, t, m, s.Q_prev, s.C_prev, dp, Q, C, (de0, de1, de2), False)
         for ch in range(6):  # eq. (11), discretised: the filter G driven by the momentum residual
-            w_bar = (q[ch] - s.q_prev[ch]) / d.Ts - 0.5 * beta[ch]  # eq. (8) over the period
             x = s.x[ch]
             for i in range(n):
-                acc = d.Bd[ch, i] * w_bar
+                acc = d.Bd[ch, i] * w_bar[ch]
                 for j in range(n):
                     acc += d.Ad[ch, i, j] * x[j]  # eqs. (11), (12): G(s), exact ZOH
                 s.x_new[i] = acc
             r = 0.0
-            rate = d.CB[ch] * w_bar
+            rate = d.CB[ch] * w_bar[ch]
             for i in range(n):
                 x[i] = s.x_new[i]
                 r += d.C[ch, i] * x[i]

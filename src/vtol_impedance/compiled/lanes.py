@@ -263,8 +263,8 @@ def put_held(buf, i, u, tau):
 @kernel(inline="always")
 def _sum_rotors(buf, n_rotors):
     """``E f`` of every lane's rotor forces into rows ``_U .. _U + 3``, summed in rotor order (as
-    :func:`~.plant.truth_at` sums them), and the forces' plain sum into row ``_U + 4``."""
-    for j in range(5):
+    :func:`~.plant.truth_at` sums them)."""
+    for j in range(4):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
     for r in range(n_rotors):
@@ -272,7 +272,6 @@ def _sum_rotors(buf, n_rotors):
             f = buf[(_F + r) * W + i]
             for c in range(4):
                 buf[(_U + c) * W + i] += buf[(_E + 4 * r + c) * W + i] * f
-            buf[(_U + 4) * W + i] += f
 
 
 @kernel(inline="always")

@@ -4,10 +4,11 @@ numba's LLVM has no vector math library here (no SVML), so a loop over SIMD lane
 ``math.atan2`` stays scalar. These are the same functions as polynomials, selects, ``floor``, ``sqrt`` and
 divisions only (no calls, no branches), so a lane loop that uses them compiles to packed instructions. The
 truth a control tick reads (:func:`~.plant.observed`) uses them in every engine (the lanes, a vehicle per
-thread, MuJoCo's ticks), so the engines agree to the last bit. One at a time the C library is faster (its arc
-tangent is a table and a short polynomial, not a series), so code that stays scalar (the sensors, the
-controller, the estimator) keeps it: :func:`sin_cos`, :func:`arctan2` and :func:`arcsin` take a literal
-``vector`` that picks which.
+thread, MuJoCo's ticks), so there the engines agree to the last bit; the estimators of a block in lanes
+(:mod:`.lanes_estimator`) use them too. One at a time the C library is faster (its arc tangent is a table and
+a short polynomial, not a series), so code that stays scalar (the sensors, the controller, the estimator of
+one vehicle) keeps it: :func:`sin_cos`, :func:`arctan2` and :func:`arcsin` take a literal ``vector`` that
+picks which.
 
 Accuracy (``tests/test_vmath.py``, against the C library over a million arguments and the special
 values): within 3 units in the last place (``sincos`` for ``|x| <= 1e6`` rad: beyond, the reduction loses
