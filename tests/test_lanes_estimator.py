@@ -39,7 +39,17 @@ def _in_lanes(d, S, EH, mass, I, V, E, DE, U, TAU, out):  # noqa: E741, N803
     head = 3  # any slot: the ring is the history read from its newest
     y = np.zeros(12)
     for i in range(W):
-        I9 = (I[i, 0, 0], I[i, 0, 1], I[i, 0, 2], I[i, 1, 0], I[i, 1, 1], I[i, 1, 2], I[i, 2, 0], I[i, 2, 1], I[i, 2, 2])  # noqa: N806
+        I9 = (
+            I[i, 0, 0],
+            I[i, 0, 1],
+            I[i, 0, 2],
+            I[i, 1, 0],
+            I[i, 1, 1],
+            I[i, 1, 2],
+            I[i, 2, 0],
+            I[i, 2, 1],
+            I[i, 2, 2],
+        )  # noqa: N806
         put_estimator(eb, i, S[i], EH[i], head % EH.shape[1], mass[i], I9)
     head = head % EH.shape[1]
     for k in range(1, V.shape[0]):
@@ -64,10 +74,14 @@ def _flights(rng, K):
     (not the angles' differences: a gyro's noise), thrusts and moments."""
     t = np.arange(K)[:, None] * TS
     ph = rng.uniform(0, 2 * np.pi, (1, W))
-    V = np.stack([np.sin(3 * t + ph), np.cos(2 * t + ph), 0.3 * np.sin(5 * t + 0 * ph)], -1) + 0.01 * rng.standard_normal((K, W, 3))  # noqa: N806
+    V = np.stack(
+        [np.sin(3 * t + ph), np.cos(2 * t + ph), 0.3 * np.sin(5 * t + 0 * ph)], -1
+    ) + 0.01 * rng.standard_normal((K, W, 3))  # noqa: N806
     psi = np.mod(rng.uniform(-np.pi, np.pi, (1, W)) + 4.0 * t + np.pi, 2 * np.pi) - np.pi
     E = np.stack([0.3 * np.sin(4 * t + ph), 0.25 * np.cos(3 * t + ph), psi], -1)  # noqa: N806
-    DE = np.stack([1.2 * np.cos(4 * t + ph), -0.75 * np.sin(3 * t + ph), 4.0 + 0 * t + 0 * ph], -1) + 0.05 * rng.standard_normal((K, W, 3))  # noqa: N806
+    DE = np.stack(
+        [1.2 * np.cos(4 * t + ph), -0.75 * np.sin(3 * t + ph), 4.0 + 0 * t + 0 * ph], -1
+    ) + 0.05 * rng.standard_normal((K, W, 3))  # noqa: N806
     U = 15.0 + 3.0 * np.sin(7 * t + ph) + rng.standard_normal((K, W))  # noqa: N806
     TAU = 0.2 * rng.standard_normal((K, W, 3))  # noqa: N806
     return V, E, DE, U, TAU
@@ -78,7 +92,9 @@ def _flights(rng, K):
     [
         EstimatorParams(wn=8.0, order=1, prototype="binomial"),
         EstimatorParams(wn=12.0, order=2, velocity_delay=0.02, attitude_delay=0.0137, rotor_tau=0.03),
-        EstimatorParams(wn=15.0, order=3, prototype="butterworth", velocity_delay=0.045, attitude_delay=0.003, rotor_tau=0.01),
+        EstimatorParams(
+            wn=15.0, order=3, prototype="butterworth", velocity_delay=0.045, attitude_delay=0.003, rotor_tau=0.01
+        ),
     ],
     ids=["order1", "order2-delays-rotor", "order3-delays"],
 )

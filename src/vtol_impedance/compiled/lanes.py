@@ -255,9 +255,15 @@ def put_nominal(buf, i, mass, I9):
 @kernel(inline="always")
 def put_held(buf, i, u, tau):
     """Lane ``i``'s command held over the period that starts: thrust ``u`` and body moments ``tau``."""
-    buf[(_N + 10) * W + i] = u
+    put_command_rows(buf, _N + 10, i, u, tau)
+
+
+@kernel(inline="always")
+def put_command_rows(buf, row, i, u, tau):
+    """Rows ``row .. row + 3`` of lane ``i`` of a buffer of rows :data:`W` wide: thrust ``u``, body moments ``tau``."""
+    buf[row * W + i] = u
     for j in range(3):
-        buf[(_N + 11 + j) * W + i] = tau[j]
+        buf[(row + 1 + j) * W + i] = tau[j]
 
 
 @kernel(inline="always")

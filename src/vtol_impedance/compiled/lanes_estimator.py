@@ -27,7 +27,7 @@ import numpy as np
 from .algebra import _QMC, _mv9
 from .estimator import history_split, lerp, lerp_angle, residual, rotor_model
 from .jit import kernel
-from .lanes import W
+from .lanes import W, put_command_rows
 from .layouts import MAX_ORDER
 
 _Y = 0  # v_W (3), eta (3), eta_dot (3)
@@ -109,8 +109,7 @@ def put_estimator(eb, i, s, h, head, mass, I9):  # noqa: N803
     H = h.shape[0]
     eb[_NOM * W + i] = mass
     _put_rows(eb, _NOM + 1, i, I9)
-    _put_rows(eb, _CMD + 1, i, s.tau_B_prev)
-    eb[_CMD * W + i] = s.thrust_prev
+    put_command_rows(eb, _CMD, i, s.thrust_prev, s.tau_B_prev)
     _put_rows(eb, _ACT, i, s.act)
     _put_rows(eb, _QP, i, s.q_prev)
     _put_rows(eb, _QQ, i, s.Q_prev)
@@ -161,9 +160,7 @@ def put_measured(eb, i, y):
 @kernel(inline="always")
 def put_command_held(eb, i, u, tau):
     """Lane ``i``'s command held over the period that starts: thrust ``u`` and body moments ``tau``."""
-    eb[_CMD * W + i] = u
-    for j in range(3):
-        eb[(_CMD + 1 + j) * W + i] = tau[j]
+    put_command_rows(eb, _CMD, i, u, tau)
 
 
 @kernel(inline="always")
