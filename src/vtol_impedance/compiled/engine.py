@@ -322,8 +322,9 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
     """Vehicles ``b0 .. b0 + n - 1`` of :func:`run_block_lanes` from tick ``k0`` to ``k1``; lanes past ``n``
     repeat the block's first vehicle and are never read back. The lanes hold the states between ticks: the
     records ``X`` are written at the end (or when a vehicle stops), and before a logged tick; the estimators'
-    records ``S``, ``EH`` at the end and when a vehicle stops. Until every estimator of the block has taken
-    its first sample (which fills its history) the block's controllers step vehicle by vehicle."""
+    records ``S``, ``EH`` of the vehicles flying at the end (a stopped vehicle's are never read again). Until
+    every estimator of the block has taken its first sample (which fills its history) the block's controllers
+    step vehicle by vehicle."""
     buf = new_buffer()
     eb = new_estimator_buffer(EH.shape[1])
     o_ = _scratch()  # kept: the record below points into it
@@ -338,7 +339,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         put_nominal(buf, i, p[b].mass, nominal_inertia(p[b]))
         put_held(buf, i, S[b].thrust_prev, S[b].tau_B_prev)
         nr = max(nr, pp[b].n_rotors)
-    head = 0  # the estimators' history ring: its newest slot, the same in every lane
+    head = np.int64(0)  # the estimators' history ring: its newest slot, the same in every lane (a typed zero: one signature)
     ready = _put_estimators(eb, b0, n, S, EH, p, head)
     for i in range(6):
         dist[i] = 0.0
@@ -384,8 +385,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
             pp_b, s_b = pp[b], S[b]
             rc = _reference(refs[k], rc)
             if ready:
-                Q, M, C, w, rd = sample_at(eb, i)
-                control_law(p[b], d[0], s_b, Y[i], rc, o, Q, M, C, w, rd)
+                _control_lane(p[b], d[0], s_b, Y[i], rc, o, eb, i)
             else:  # a first sample fills the history: vehicle by vehicle
                 controller_step(p[b], d[0], s_b, EH[b], Y[i], rc, o)
             if truth:
@@ -433,8 +433,6 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 fail_code[b] = code
                 fail_time[b] = t + Ts
                 X[b] = x_park[b]
-                if ready:
-                    get_estimator(eb, i, S[b], EH[b], head)
                 live -= 1
     for i in range(n):
         b = b0 + i
@@ -444,7 +442,15 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 get_estimator(eb, i, S[b], EH[b], head)
 
 
-@kernel(inline="always")
+@kernel()
+def _control_lane(p_b, des, s_b, y, rc, o, eb, i):
+    """:func:`~.controller.control_law` of one vehicle given lane ``i``'s estimator sample (a function of its own:
+    compiled once, not inlined into the block's loop)."""
+    Q, M, C, w, rd = sample_at(eb, i)  # noqa: N806
+    control_law(p_b, des, s_b, y, rc, o, Q, M, C, w, rd)
+
+
+@kernel()
 def _put_estimators(eb, b0, n, S, EH, p, head):  # noqa: N803
     """Whether every estimator of the block ``b0 .. b0 + n - 1`` has started (the lanes past ``n`` repeat the
     first); if so the lanes take them (:func:`~.lanes_estimator.put_estimator`), the ring's newest slot ``head``."""

@@ -101,7 +101,7 @@ def _put_rows(eb, row, i, v):
         eb[(row + j) * W + i] = v[j]
 
 
-@kernel(inline="always")
+@kernel()
 def put_estimator(eb, i, s, h, head, mass, I9):  # noqa: N803
     """Lane ``i`` takes the estimator of the state record ``s`` and history ``h`` (most recent first) of a
     vehicle whose estimator has started, and its controller's nominal ``mass`` and inertia ``I9``; the ring's
@@ -125,7 +125,7 @@ def put_estimator(eb, i, s, h, head, mass, I9):  # noqa: N803
         _put_rows(eb, slot + 4, i, h[j].eta)
 
 
-@kernel(inline="always")
+@kernel()
 def get_estimator(eb, i, s, h, head):
     """The records ``s``, ``h`` take lane ``i``'s estimator (the inverse of :func:`put_estimator`)."""
     H = h.shape[0]
@@ -182,7 +182,7 @@ def _gather(eb, dst, head, H, d, col, angle):
             eb[dst * W + i] = lerp(eb[a + i], eb[b + i], g)
 
 
-@kernel(inline="always")
+@kernel()
 def estimate_lanes(eb, d, head):
     """One estimator sample of every lane, as :func:`~.estimator.estimator_update` of each (a vehicle that has
     started): reads the measurement and held command rows, leaves ``Q, M, C``, the estimate and its rate in the
