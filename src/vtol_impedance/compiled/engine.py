@@ -339,7 +339,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         put_nominal(buf, i, p[b].mass, nominal_inertia(p[b]))
         put_held(buf, i, S[b].thrust_prev, S[b].tau_B_prev)
         nr = max(nr, pp[b].n_rotors)
-    head = np.int64(0)  # the estimators' history ring: its newest slot, the same in every lane (a typed zero: one signature)
+    head = np.int64(0)  # the estimators' ring: its newest slot, the same in every lane (typed: one signature)
     ready = _put_estimators(eb, b0, n, S, EH, p, head)
     for i in range(6):
         dist[i] = 0.0
