@@ -106,7 +106,7 @@ def test_the_estimators_in_lanes_sample_as_each_vehicle_does(rng, params):
     V, E, DE, U, TAU = _flights(rng, K)  # noqa: N806
     mass = rng.uniform(0.5, 3.0, W)
     I = np.array([np.diag(rng.uniform(0.005, 0.05, 3)) + 1e-4 * (np.ones((3, 3)) - np.eye(3)) for _ in range(W)])  # noqa: E741
-    # the vehicle-by-vehicle estimator: every sample; the lanes take over from its first
+    # the vehicle-by-vehicle estimator at every sample; the lanes take over after sample K0
     S, EH = np.zeros(W, dtype=CONTROLLER_STATE), np.zeros((W, des.H), dtype=HISTORY)  # noqa: N806
     ref = np.zeros((K, W, 12))
     out9 = np.zeros(9)
