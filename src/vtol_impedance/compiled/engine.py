@@ -378,12 +378,12 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         if ready:  # the estimators, in lanes
             head = estimate_lanes(eb, d[0], head)
         logged = dec > 0 and k % dec == 0
+        rc = _reference(refs[k], rc)  # the same for every vehicle of the tick
         for i in range(n):
             b = b0 + i
             if not alive[b]:
                 continue
             pp_b, s_b = pp[b], S[b]
-            rc = _reference(refs[k], rc)
             if ready:
                 _control_lane(p[b], d[0], s_b, Y[i], rc, o, eb, i)
             else:  # a first sample fills the history: vehicle by vehicle
