@@ -67,6 +67,18 @@ def _mm9(A, B):
 
 
 @kernel(inline="always")
+def _m9(M):
+    """A 3x3 array as a row-major 9-tuple."""
+    return (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
+
+
+@kernel(inline="always")
+def _v3(v):
+    """The first three entries of ``v`` as a tuple."""
+    return (v[0], v[1], v[2])
+
+
+@kernel(inline="always")
 def _t9(A):
     return (A[0], A[3], A[6], A[1], A[4], A[7], A[2], A[5], A[8])
 

@@ -20,8 +20,8 @@ from numba import prange
 from numba.core.errors import NumbaPendingDeprecationWarning
 from numba.typed import List
 
-from .algebra import _Q9, _solve9
-from .controller import control_law, controller_step, nominal_inertia
+from .algebra import _Q9, _solve9, _v3
+from .controller import controller_step, law_lane_of, nominal_inertia
 from .jit import kernel
 from .lanes import (
     W,
@@ -41,6 +41,18 @@ from .lanes import (
     state_view,
     step_lanes,
 )
+from .lanes_controller import (
+    allocation_held,
+    finish_lanes,
+    fix_allocation,
+    get_law_state,
+    get_output,
+    law_lanes,
+    new_law_buffer,
+    put_law,
+    put_law_state,
+    put_measurement,
+)
 from .lanes_estimator import (
     estimate_lanes,
     get_estimator,
@@ -48,14 +60,12 @@ from .lanes_estimator import (
     put_command_held,
     put_estimator,
     put_measured,
-    sample_at,
 )
 from .layouts import OUTPUT
 from .plant import (
     _body_of,
     _origin,
     _R_of,
-    _v3,
     clip_command,
     disturbance_at,
     euler_of,
@@ -90,7 +100,9 @@ def _measure(pp, xm, xi, sigma, noise, y):
     y[7] = theta + sigma[2] * noise[7]
     y[8] = psi + sigma[2] * noise[8]
     w = xi.omega_B
-    ed = _solve9(_Q9(y[6], y[7], False), w[0] + sigma[3] * noise[9], w[1] + sigma[3] * noise[10], w[2] + sigma[3] * noise[11])
+    ed = _solve9(
+        _Q9(y[6], y[7], False), w[0] + sigma[3] * noise[9], w[1] + sigma[3] * noise[10], w[2] + sigma[3] * noise[11]
+    )
     for i in range(3):
         y[i] = o[i] + sigma[0] * noise[i]
         y[3 + i] = o[3 + i] + sigma[1] * noise[3 + i]
@@ -327,6 +339,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
     step vehicle by vehicle."""
     buf = new_buffer()
     eb = new_estimator_buffer(EH.shape[1])
+    cb = new_law_buffer()
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
     Y = np.empty((W, 12))  # noqa: N806
@@ -338,9 +351,11 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         put_state(buf, i, X[b])
         put_nominal(buf, i, p[b].mass, nominal_inertia(p[b]))
         put_held(buf, i, S[b].thrust_prev, S[b].tau_B_prev)
+        put_law(cb, i, law_lane_of(p[b]), p[b])
         nr = max(nr, pp[b].n_rotors)
+    ncr = p[b0].n_rotors  # the same for every controller of a batch
     head = np.int64(0)  # the estimators' ring: its newest slot, the same in every lane (typed: one signature)
-    ready = _put_estimators(eb, b0, n, S, EH, p, head)
+    ready = _put_lanes(eb, cb, b0, n, S, EH, p, head)
     for i in range(6):
         dist[i] = 0.0
     for i in range(W):
@@ -375,32 +390,38 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 xm, xi = _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu)
                 _sense(pp[b], xm, xi, sigma, gens[np.int64(b)], noise, Y[i])
                 put_measured(eb, i, Y[i])
-        if ready:  # the estimators, in lanes
-            head = estimate_lanes(eb, d[0], head)
+                put_measurement(cb, i, Y[i])
         logged = dec > 0 and k % dec == 0
         rc = _reference(refs[k], rc)  # the same for every vehicle of the tick
+        if ready:  # the estimators and control laws, in lanes; the commands into the plants' rows
+            head = estimate_lanes(eb, d[0], head)
+            if not law_lanes(cb, eb, d[0], rc, ncr):  # a lane whose allocation needs more than its first step
+                for i in range(n):
+                    if alive[b0 + i] and not allocation_held(cb, i):
+                        fix_allocation(cb, i, p[b0 + i], o.f_rotor)
+            finish_lanes(cb, eb, buf, d[0], ncr)
         for i in range(n):
             b = b0 + i
             if not alive[b]:
                 continue
             pp_b, s_b = pp[b], S[b]
-            if ready:
-                _control_lane(p[b], d[0], s_b, Y[i], rc, o, eb, i)
-            else:  # a first sample fills the history: vehicle by vehicle
+            up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0
+            if not ready:  # a first sample fills the history: vehicle by vehicle
                 controller_step(p[b], d[0], s_b, EH[b], Y[i], rc, o)
+                put_command(buf, i, o.f_rotor, pp_b.n_rotors)
+                put_held(buf, i, s_b.thrust_prev, s_b.tau_B_prev)
+                put_command_held(eb, i, s_b.thrust_prev, s_b.tau_B_prev)
+            elif truth or up_now or down_now:  # the record the metrics, log and lagless rotors read
+                get_output(cb, eb, i, rc, o)
             if truth:
                 obs, env = observed_at(buf, i)
                 if logged:  # the log reads the rates and rotor forces of the record
                     get_state(buf, i, X[b])
                 _record(k, t, pp_b, X[b], obs, env, refs[k], Y[i], o, logs[b], dec, acc[b], win)
-            up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0
             if up_now or down_now:  # as _instant_rotors, on the lane's rotors
                 instant_rotors_lane(buf, i, up_now, down_now, o.f_rotor, pp_b.f_min, pp_b.f_max, pp_b.n_rotors)
-            put_command(buf, i, o.f_rotor, pp_b.n_rotors)
-            put_held(buf, i, s_b.thrust_prev, s_b.tau_B_prev)
-            put_command_held(eb, i, s_b.thrust_prev, s_b.tau_B_prev)
         if not ready:
-            ready = _put_estimators(eb, b0, n, S, EH, p, head)
+            ready = _put_lanes(eb, cb, b0, n, S, EH, p, head)
         for js in range(n_sub):
             if has_dists:
                 for i in range(n):
@@ -440,26 +461,21 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
             get_state(buf, i, X[b])
             if ready:
                 get_estimator(eb, i, S[b], EH[b], head)
+                get_law_state(cb, i, S[b])
 
 
 @kernel()
-def _control_lane(p_b, des, s_b, y, rc, o, eb, i):
-    """:func:`~.controller.control_law` of one vehicle given lane ``i``'s estimator sample (a function of its own:
-    compiled once, not inlined into the block's loop)."""
-    Q, M, C, w, rd = sample_at(eb, i)  # noqa: N806
-    control_law(p_b, des, s_b, y, rc, o, Q, M, C, w, rd)
-
-
-@kernel()
-def _put_estimators(eb, b0, n, S, EH, p, head):  # noqa: N803
+def _put_lanes(eb, cb, b0, n, S, EH, p, head):  # noqa: N803
     """Whether every estimator of the block ``b0 .. b0 + n - 1`` has started (the lanes past ``n`` repeat the
-    first); if so the lanes take them (:func:`~.lanes_estimator.put_estimator`), the ring's newest slot ``head``."""
+    first); if so the lanes take them (:func:`~.lanes_estimator.put_estimator`, the ring's newest slot ``head``)
+    and what their control laws carry (:func:`~.lanes_controller.put_law_state`)."""
     for i in range(n):
         if not S[b0 + i].started:
             return False
     for i in range(W):
         b = b0 + (i if i < n else 0)
         put_estimator(eb, i, S[b], EH[b], head, p[b].mass, nominal_inertia(p[b]))
+        put_law_state(cb, i, S[b])
     return True
 
 

@@ -201,6 +201,12 @@ def put_command(buf, i, f_cmd, n):
 
 
 @kernel(inline="always")
+def put_command_row(buf, r, i, f):
+    """Lane ``i``'s command ``f`` of rotor ``r``."""
+    buf[(_FC + r) * W + i] = f
+
+
+@kernel(inline="always")
 def put_disturbance(buf, i, dist):
     """Lane ``i``'s disturbance ``[f_W, tau_B]`` held over the next step."""
     for j in range(6):

@@ -17,7 +17,7 @@ from collections import namedtuple
 
 from ..conventions import G
 from ..records import CRASH_DEPTH_M, FAIL_CRASH, FAIL_FAR, FAIL_NAN, FAIL_TILT, MAX_DISTANCE_M, MAX_TILT_RAD
-from .algebra import _Q9, _QMC, _mv9, _Qd9, _solve9, _t9
+from .algebra import _Q9, _QMC, _m9, _mv9, _Qd9, _solve9, _t9, _v3
 from .jit import kernel
 from .layouts import KIND, PUSH
 from .vmath import arcsin, arctan2
@@ -60,17 +60,6 @@ def euler_of(R, vector):
     functions of :mod:`.vmath`, for code in lanes)."""
     phi, psi = arctan2(R[7], R[8], vector), arctan2(R[3], R[0], vector)
     return phi, -arcsin(min(max(R[6], -1.0), 1.0), vector), psi
-
-
-@kernel(inline="always")
-def _m9(M):
-    """A 3x3 array as a row-major 9-tuple."""
-    return (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
-
-
-@kernel(inline="always")
-def _v3(v):
-    return (v[0], v[1], v[2])
 
 
 @kernel(inline="always")

@@ -1,0 +1,263 @@
+"""The control law, eqs. (14)-(20), of a block of vehicles in SIMD lanes.
+
+After a block's estimators sample in lanes (:mod:`.lanes_estimator`), :func:`law_lanes` runs each lane's
+:func:`~.controller.law_request` (a :data:`~.controller.LawLane` read from the rows), then the allocation's
+first step for every lane (:func:`~.controller.yaw_room`, :func:`~.controller.yaw_fits`,
+:func:`~.controller.with_yaw`: full roll and pitch with the largest yaw that fits); the rare lane where that
+step does not hold takes the whole allocation vehicle by vehicle (:func:`fix_allocation`). :func:`finish_lanes`
+then sums ``E f`` (eq. (4)), updates the PID integral (:func:`~.controller.law_integral`) and hands the rotor
+commands and the held thrust and moments to the plant's and the estimators' rows. The arithmetic is that of
+:func:`~.controller.control_law`, not a copy of it; the sines come from :mod:`.vmath`, so a lane's command parts
+from the vehicle-by-vehicle one by their last bits (``tests/test_lanes_controller.py``). A vehicle's record
+(:data:`~.layouts.OUTPUT`, for its metrics and log) is read back by :func:`get_output`.
+
+Rows (:data:`~.lanes.W` doubles each) of the buffer ``cb`` (:func:`new_law_buffer`): the :data:`LawLane` (48),
+the allocation's ``E_pinv`` (four per rotor), ``E`` (four per rotor), the rotor limits; the state the law
+carries (the attitude filter (5), the integral (3)); the measurement (12); the law's request (thrust, moments,
+whether a limit acted, ``mu_bar``, the position error, the filter's next state, the attitude command, the
+estimated moment in body axes: 22); the allocation's step (``a_lo``, ``a_hi``, ``flat``, whether it held,
+saturation and scales: 7), each rotor's force before yaw and its command; the thrust and moments given (4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.vehicle import MAX_ROTORS
+from .controller import (
+    LawLane,
+    _allocate,
+    law_design,
+    law_integral,
+    law_request,
+    put_output,
+    with_yaw,
+    yaw_fits,
+    yaw_room,
+)
+from .jit import kernel
+from .lanes import W, put_command_row, put_held
+from .lanes_estimator import put_command_held, sample_at
+
+_R = MAX_ROTORS
+_LP = 0  # LawLane: mass, I9 (9), tan_tilt, min_lift, compensate, comply, integral_limit, 11 gains (3 each)
+_EP = _LP + 48  # E_pinv[r, c] at row _EP + 4 r + c
+_EE = _EP + 4 * _R  # E[c, r] at row _EE + 4 r + c
+_FMIN = _EE + 4 * _R
+_FMAX = _FMIN + _R
+_ST = _FMAX + _R  # filter: started, phi, theta, phi_dot, theta_dot; integral (3)
+_YY = _ST + 8  # the measurement y (12)
+_RQ = _YY + 12  # thrust, moments (3), limited, mu_bar (3), position error (3), next filter (4), command (4), hb (3)
+_AL = _RQ + 22  # a_lo, a_hi, flat, held, saturated, rp_scale, yaw_scale
+_BASE = _AL + 7  # each rotor's force before yaw
+_F = _BASE + _R  # each rotor's command
+_U = _F + _R  # thrust and moments given (E f)
+ROWS = _U + 4
+
+
+@kernel()
+def new_law_buffer():
+    """A zeroed control-law buffer (``ROWS * W`` doubles)."""
+    return np.zeros(ROWS * W)
+
+
+@kernel(inline="always")
+def _at(cb, row, i):
+    return cb[row * W + i]
+
+
+@kernel(inline="always")
+def _three(cb, row, i):
+    k = row * W + i
+    return cb[k], cb[k + W], cb[k + 2 * W]
+
+
+@kernel(inline="always")
+def _put(cb, row, i, v):
+    """Rows ``row ..`` of lane ``i`` take the tuple ``v`` (unrolled: the lane loops stay vector code)."""
+    for j in range(len(v)):
+        cb[(row + j) * W + i] = v[j]
+
+
+@kernel(inline="always")
+def _law_at(cb, i):
+    """Lane ``i``'s :data:`LawLane` (the order of :func:`put_law`)."""
+    k = _LP * W + i
+
+    def at(j):
+        return cb[k + j * W]
+
+    def g(j):
+        return (at(j), at(j + 1), at(j + 2))
+
+    return LawLane(
+        at(0), (at(1), at(2), at(3), at(4), at(5), at(6), at(7), at(8), at(9)), at(10), at(11), at(12), at(13),
+        at(14), g(15), g(18), g(21), g(24), g(27), g(30), g(33), g(36), g(39), g(42), g(45),
+    )  # fmt: skip
+
+
+@kernel()
+def put_law(cb, i, c, p):
+    """Lane ``i`` takes the controller of the record ``p`` (its :data:`LawLane` ``c``, rotor layout and limits)."""
+    k = _LP * W + i
+    cb[k] = c.mass
+    for j in range(9):
+        cb[k + (1 + j) * W] = c.I9[j]
+    head = (c.tan_tilt, c.min_lift_accel, c.compensate, c.comply_enable, c.integral_limit)
+    for j in range(5):
+        cb[k + (10 + j) * W] = head[j]
+    gains = (c.Kp, c.Dp, c.Ki, c.Do, c.Ko, c.Md, c.Dd, c.Kd, c.Mo_d, c.Do_d, c.Ko_d)
+    for g in range(11):
+        for j in range(3):
+            cb[k + (15 + 3 * g + j) * W] = gains[g][j]
+    for r in range(p.n_rotors):
+        for c4 in range(4):
+            cb[(_EP + 4 * r + c4) * W + i] = p.E_pinv[r, c4]
+            cb[(_EE + 4 * r + c4) * W + i] = p.E[c4, r]
+        cb[(_FMIN + r) * W + i] = p.f_min[r]
+        cb[(_FMAX + r) * W + i] = p.f_max[r]
+
+
+@kernel()
+def put_law_state(cb, i, s):
+    """Lane ``i`` takes what the law carries of the state record ``s`` (attitude filter, PID integral, the
+    thrust and moments held)."""
+    _put(cb, _ST, i, (1.0 if s.filt_started else 0.0, s.filt_x[0], s.filt_x[1], s.filt_xd[0], s.filt_xd[1]))
+    _put(cb, _ST + 5, i, (s.integral[0], s.integral[1], s.integral[2]))
+    _put(cb, _U, i, (s.thrust_prev, s.tau_B_prev[0], s.tau_B_prev[1], s.tau_B_prev[2]))
+
+
+@kernel()
+def get_law_state(cb, i, s):
+    """The record ``s`` takes lane ``i``'s law state and the thrust and moments it holds (inverse of
+    :func:`put_law_state`)."""
+    s.filt_started = cb[_ST * W + i] > 0.5
+    s.filt_x[0], s.filt_x[1] = _at(cb, _ST + 1, i), _at(cb, _ST + 2, i)
+    s.filt_xd[0], s.filt_xd[1] = _at(cb, _ST + 3, i), _at(cb, _ST + 4, i)
+    for j in range(3):
+        s.integral[j] = _at(cb, _ST + 5 + j, i)
+        s.tau_B_prev[j] = _at(cb, _U + 1 + j, i)
+    s.thrust_prev = _at(cb, _U, i)
+
+
+@kernel(inline="always")
+def put_measurement(cb, i, y):
+    """Lane ``i``'s measurement ``y = [p_W, v_W, eta, eta_dot]``."""
+    for j in range(12):
+        cb[(_YY + j) * W + i] = y[j]
+
+
+@kernel(inline="always")
+def _row18(r):
+    """The reference row (18: with every comply fraction) as a tuple."""
+    return (r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], r[12], r[13], r[14], r[15], r[16],
+            r[17])  # fmt: skip
+
+
+@kernel()
+def law_lanes(cb, eb, d, r, n_rotors):
+    """Every lane's :func:`~.controller.law_request` given its estimator's sample (``eb``, after
+    :func:`~.lanes_estimator.estimate_lanes`) and the reference row ``r`` (the same for all), then the
+    allocation's first step over ``n_rotors`` rotors; returns whether it held in every lane (else
+    :func:`fix_allocation` the lanes where :func:`allocation_held` is false)."""
+    g = law_design(d)  # read before the lane loop: values, not loads that might alias the rows
+    rt = _row18(r)
+    for i in range(W):  # vectorised: one lane per vehicle
+        c = _law_at(cb, i)
+        y = (_at(cb, _YY, i), _at(cb, _YY + 1, i), _at(cb, _YY + 2, i), _at(cb, _YY + 3, i), _at(cb, _YY + 4, i),
+             _at(cb, _YY + 5, i), _at(cb, _YY + 6, i), _at(cb, _YY + 7, i), _at(cb, _YY + 8, i),
+             _at(cb, _YY + 9, i), _at(cb, _YY + 10, i), _at(cb, _YY + 11, i))  # fmt: skip
+        Q, M, C, w, rd = sample_at(eb, i)  # noqa: N806
+        filt = (_at(cb, _ST, i) > 0.5, _at(cb, _ST + 1, i), _at(cb, _ST + 2, i), _at(cb, _ST + 3, i),
+                _at(cb, _ST + 4, i))  # fmt: skip
+        req, tr, lim, mb, ep, fx, ed, hb = law_request(c, g, y, rt, Q, M, C, w, rd, _three(cb, _ST + 5, i), filt,
+                                                       True)  # fmt: skip
+        _put(cb, _RQ, i, (req, tr[0], tr[1], tr[2], 1.0 if lim else 0.0))
+        _put(cb, _RQ + 5, i, mb)
+        _put(cb, _RQ + 8, i, ep)
+        _put(cb, _RQ + 11, i, fx)
+        _put(cb, _RQ + 15, i, ed)
+        _put(cb, _RQ + 19, i, hb)
+        _put(cb, _AL, i, (0.0, 1.0, 0.0))  # a_lo, a_hi, flat
+    for k in range(n_rotors):  # 0. full roll/pitch at the requested thrust, with the largest yaw that fits
+        for i in range(W):  # vectorised: one lane per vehicle
+            e = (_at(cb, _EP + 4 * k, i), _at(cb, _EP + 4 * k + 1, i), _at(cb, _EP + 4 * k + 2, i),
+                 _at(cb, _EP + 4 * k + 3, i))  # fmt: skip
+            u, t0, t1, t2 = _at(cb, _RQ, i), _at(cb, _RQ + 1, i), _at(cb, _RQ + 2, i), _at(cb, _RQ + 3, i)
+            a_lo, a_hi, flat = _at(cb, _AL, i), _at(cb, _AL + 1, i), _at(cb, _AL + 2, i) > 0.5
+            lo, hi = _at(cb, _FMIN + k, i), _at(cb, _FMAX + k, i)
+            base, a_lo, a_hi, flat = yaw_room(e, lo, hi, u, t0, t1, t2, a_lo, a_hi, flat)
+            _put(cb, _AL, i, (a_lo, a_hi, 1.0 if flat else 0.0))
+            cb[(_BASE + k) * W + i] = base
+    held = 0.0
+    for i in range(W):  # vectorised: one lane per vehicle
+        fits, ys = yaw_fits(_at(cb, _AL, i), _at(cb, _AL + 1, i), _at(cb, _AL + 2, i) > 0.5)
+        _put(cb, _AL + 3, i, (1.0 if fits else 0.0, 1.0 if ys < 1.0 - 1e-9 else 0.0, 1.0, ys))
+        held += 1.0 if fits else 0.0
+    for k in range(n_rotors):
+        for i in range(W):  # vectorised: one lane per vehicle
+            e3, t2 = _at(cb, _EP + 4 * k + 3, i), _at(cb, _RQ + 3, i)
+            f = with_yaw(
+                _at(cb, _BASE + k, i), _at(cb, _AL + 6, i), e3, t2, _at(cb, _FMIN + k, i), _at(cb, _FMAX + k, i)
+            )
+            cb[(_F + k) * W + i] = f
+    return held == W
+
+
+@kernel(inline="always")
+def allocation_held(cb, i):
+    """Whether the allocation's first step held in lane ``i`` (:func:`law_lanes`)."""
+    return cb[(_AL + 3) * W + i] > 0.5
+
+
+@kernel()
+def fix_allocation(cb, i, p, f):
+    """Lane ``i``'s whole allocation (:func:`~.controller._allocate` with the controller record ``p``, ``f``
+    scratch of its rotor count), where its first step did not hold."""
+    sat, rp_scale, yaw_scale = _allocate(p, _at(cb, _RQ, i), _at(cb, _RQ + 1, i), _at(cb, _RQ + 2, i),
+                                         _at(cb, _RQ + 3, i), f)  # fmt: skip
+    for k in range(p.n_rotors):
+        cb[(_F + k) * W + i] = f[k]
+    _put(cb, _AL + 4, i, (1.0 if sat else 0.0, rp_scale, yaw_scale))
+
+
+@kernel()
+def finish_lanes(cb, eb, buf, d, n_rotors):
+    """Every lane after its allocation: ``E f`` (eq. (4): the thrust and moments given), the PID integral
+    (:func:`~.controller.law_integral`), the attitude filter's next state; the rotor commands into the plant's
+    rows ``buf``, the thrust and moments held over the period into ``buf``'s and the estimators' ``eb``."""
+    Ts = d.Ts
+    for j in range(4):
+        for i in range(W):
+            cb[(_U + j) * W + i] = 0.0
+    for k in range(n_rotors):  # eq. (4), summed in rotor order as controller._mix_row
+        for i in range(W):  # vectorised: one lane per vehicle
+            f = _at(cb, _F + k, i)
+            for j in range(4):
+                cb[(_U + j) * W + i] += cb[(_EE + 4 * k + j) * W + i] * f
+    for i in range(W):  # vectorised: one lane per vehicle
+        c = _law_at(cb, i)
+        freeze = _at(cb, _AL + 4, i) > 0.5 or _at(cb, _RQ + 4, i) > 0.5
+        _put(cb, _ST + 5, i, law_integral(c, Ts, _three(cb, _ST + 5, i), _three(cb, _RQ + 8, i), freeze))
+        _put(cb, _ST, i, (1.0, _at(cb, _RQ + 11, i), _at(cb, _RQ + 12, i), _at(cb, _RQ + 13, i),
+                          _at(cb, _RQ + 14, i)))  # fmt: skip
+        u, to = _at(cb, _U, i), _three(cb, _U + 1, i)
+        put_held(buf, i, u, to)
+        put_command_held(eb, i, u, to)
+    for k in range(n_rotors):
+        for i in range(W):
+            put_command_row(buf, k, i, cb[(_F + k) * W + i])
+
+
+@kernel()
+def get_output(cb, eb, i, r, o):
+    """The :data:`~.layouts.OUTPUT` record ``o`` of lane ``i`` after :func:`finish_lanes` (``r``: the reference
+    row the law was given), as :func:`~.controller.control_law` writes it."""
+    for k in range(_R):
+        o.f_rotor[k] = _at(cb, _F + k, i)
+    _, _, _, w, _ = sample_at(eb, i)
+    tr = _three(cb, _RQ + 1, i)
+    ed = (_at(cb, _RQ + 15, i), _at(cb, _RQ + 16, i), _at(cb, _RQ + 17, i), _at(cb, _RQ + 18, i))
+    put_output(o, _at(cb, _U, i), _three(cb, _U + 1, i), _at(cb, _AL + 4, i) > 0.5, _at(cb, _RQ, i), tr, w,
+               _three(cb, _RQ + 19, i), ed, r, _three(cb, _RQ + 5, i), _at(cb, _RQ + 4, i) > 0.5,
+               _at(cb, _AL + 5, i), _at(cb, _AL + 6, i))  # fmt: skip
