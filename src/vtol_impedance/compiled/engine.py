@@ -20,23 +20,31 @@ from numba import prange
 from numba.core.errors import NumbaPendingDeprecationWarning
 from numba.typed import List
 
-from .algebra import _Q9, _solve9, _v3
+from .algebra import _Q9, _v3
 from .controller import controller_step, law_lane_of, nominal_inertia
 from .jit import kernel
 from .lanes import (
+    SENSED,
     W,
     failure_at,
     failure_lanes,
+    get_sensors,
     get_state,
     instant_rotors_lane,
+    keep_state,
+    measure_lanes,
+    measurement_at,
     new_buffer,
+    new_sensor_buffer,
     observe_lanes,
     observed_at,
     put_command,
     put_disturbance,
     put_held,
+    put_noise,
     put_nominal,
     put_plant,
+    put_sensors,
     put_state,
     state_view,
     step_lanes,
@@ -51,7 +59,7 @@ from .lanes_controller import (
     new_law_buffer,
     put_law,
     put_law_state,
-    put_measurement,
+    put_measurement_rows,
 )
 from .lanes_estimator import (
     estimate_lanes,
@@ -59,19 +67,17 @@ from .lanes_estimator import (
     new_estimator_buffer,
     put_command_held,
     put_estimator,
-    put_measured,
+    put_measured_rows,
 )
 from .layouts import OUTPUT
 from .plant import (
     _body_of,
-    _origin,
-    _R_of,
     clip_command,
     disturbance_at,
-    euler_of,
     failure_of,
     instant_force,
     lane_of,
+    measured,
     observed,
     rk4_step,
     truth_at,
@@ -91,22 +97,11 @@ def _ago(hist, count, head, k):
 
 @kernel(inline="always")
 def _measure(pp, xm, xi, sigma, noise, y):
-    """Sensors, as :class:`vtol_impedance.sim.sensors.SensorSuite`: the body origin's position and velocity
-    from the motion-capture state ``xm``, attitude and gyro from the IMU state ``xi``, with noise; Euler
-    rates from the noisy gyro. Euler angles are computed here, once per control period."""
-    o = _origin(pp, xm, _R_of(xm.q_WB))
-    phi, theta, psi = euler_of(_R_of(xi.q_WB), False)
-    y[6] = phi + sigma[2] * noise[6]
-    y[7] = theta + sigma[2] * noise[7]
-    y[8] = psi + sigma[2] * noise[8]
-    w = xi.omega_B
-    ed = _solve9(
-        _Q9(y[6], y[7], False), w[0] + sigma[3] * noise[9], w[1] + sigma[3] * noise[10], w[2] + sigma[3] * noise[11]
-    )
-    for i in range(3):
-        y[i] = o[i] + sigma[0] * noise[i]
-        y[3 + i] = o[3 + i] + sigma[1] * noise[3 + i]
-        y[9 + i] = ed[i]
+    """Sensors (:func:`~.plant.measured`) reading the motion-capture state record ``xm`` and the IMU's ``xi``, into
+    ``y``. Euler angles are computed here, once per control period."""
+    v = measured(pp.c_B, xm.p_com_W, xm.v_com_W, xm.q_WB, xm.omega_B, xi.q_WB, xi.omega_B, sigma, noise, False)
+    for i in range(12):
+        y[i] = v[i]
 
 
 @kernel(inline="always")
@@ -343,7 +338,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
     o_ = _scratch()  # kept: the record below points into it
     o = o_[0]
     Y = np.empty((W, 12))  # noqa: N806
-    noise, dist, rc = np.empty(12), np.empty(6), np.empty(18)
+    dist, rc = np.empty(6), np.empty(18)
     nr = 0
     for i in range(W):
         b = b0 + (i if i < n else 0)
@@ -362,6 +357,14 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         put_disturbance(buf, i, dist)
     has_dists = dists.shape[0] > 0
     H = hist.shape[1]
+    sb = new_sensor_buffer(H)  # the sensors' rings of past states, in lanes
+    for i in range(W):
+        b = b0 + (i if i < n else 0)
+        put_sensors(sb, i, pp[b], hist[b])
+    head_s, count_s = 0, 1  # the rings' newest slot and length: the same for every vehicle flying in a block
+    for i in range(n - 1, -1, -1):
+        if alive[b0 + i]:
+            head_s, count_s = hhead[b0 + i], hcount[b0 + i]
     keep = np.empty(n_sub, dtype=np.bool_)  # as _fly
     for js in range(n_sub):
         ahead = n_sub - 1 - js
@@ -384,18 +387,24 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 observe_lanes(buf, 4)
             else:
                 observe_lanes(buf, nr)
-        for i in range(n):  # the sensors
-            b = b0 + i
-            if alive[b]:
-                xm, xi = _ago(hist[b], hcount[b], hhead[b], k_mocap), _ago(hist[b], hcount[b], hhead[b], k_imu)
-                _sense(pp[b], xm, xi, sigma, gens[np.int64(b)], noise, Y[i])
-                put_measured(eb, i, Y[i])
-                put_measurement(cb, i, Y[i])
+        for i in range(n):  # the sensors: each vehicle's noise from its own generator, then in lanes
+            if alive[b0 + i]:
+                put_noise(sb, i, gens[np.int64(b0 + i)])
+        ago_m, ago_i = min(k_mocap, count_s - 1), min(k_imu, count_s - 1)  # as _ago
+        measure_lanes(sb, (head_s - ago_m) % H, (head_s - ago_i) % H, sigma)
+        put_measured_rows(eb, sb, SENSED)
+        put_measurement_rows(cb, sb, SENSED)
         logged = dec > 0 and k % dec == 0
         rc = _reference(refs[k], rc)  # the same for every vehicle of the tick
         if ready:  # the estimators and control laws, in lanes; the commands into the plants' rows
             head = estimate_lanes(eb, d[0], head)
-            if not law_lanes(cb, eb, d[0], rc, ncr):  # a lane whose allocation needs more than its first step
+            if ncr == 4:  # a literal rotor count keeps the law's loop vector code
+                held = law_lanes(cb, eb, d[0], rc, 4)
+            elif ncr == 6:
+                held = law_lanes(cb, eb, d[0], rc, 6)
+            else:
+                held = law_lanes(cb, eb, d[0], rc, ncr)
+            if not held:  # a lane whose allocation needs more than its first step
                 for i in range(n):
                     if alive[b0 + i] and not allocation_held(cb, i):
                         fix_allocation(cb, i, p[b0 + i], o.f_rotor)
@@ -406,6 +415,8 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 continue
             pp_b, s_b = pp[b], S[b]
             up_now, down_now = pp_b.tau_up <= 0, pp_b.tau_down <= 0
+            if not ready or logged:
+                measurement_at(sb, i, Y[i])
             if not ready:  # a first sample fills the history: vehicle by vehicle
                 controller_step(p[b], d[0], s_b, EH[b], Y[i], rc, o)
                 put_command(buf, i, o.f_rotor, pp_b.n_rotors)
@@ -433,15 +444,9 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 step_lanes(buf, 4, dt)
             else:
                 step_lanes(buf, nr, dt)
-            if keep[js]:  # a state a sensor will read, into each ring's slot for this step
-                for i in range(n):
-                    b = b0 + i
-                    if alive[b]:
-                        get_state(buf, i, hist[b, (hhead[b] + js + 1) % H])
-        for i in range(n):  # the rings advanced by the period's steps
-            b = b0 + i
-            if alive[b]:
-                hhead[b], hcount[b] = (hhead[b] + n_sub) % H, min(hcount[b] + n_sub, H)
+            if keep[js]:  # a state a sensor will read, into the rings' slot for this step
+                keep_state(sb, buf, (head_s + js + 1) % H)
+        head_s, count_s = (head_s + n_sub) % H, min(count_s + n_sub, H)  # the rings advanced by the period
         if nr == 4:
             failure_lanes(buf, 4)
         else:
@@ -459,6 +464,8 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         b = b0 + i
         if alive[b]:
             get_state(buf, i, X[b])
+            get_sensors(sb, i, hist[b])
+            hhead[b], hcount[b] = head_s, count_s
             if ready:
                 get_estimator(eb, i, S[b], EH[b], head)
                 get_law_state(cb, i, S[b])

@@ -30,7 +30,17 @@ import numpy as np
 
 from ..model.vehicle import MAX_ROTORS
 from .jit import kernel
-from .plant import PlantLane, body_rk4, clip_command, failure_of, instant_force, observed, rotor_rk4, truth_of
+from .plant import (
+    PlantLane,
+    body_rk4,
+    clip_command,
+    failure_of,
+    instant_force,
+    measured,
+    observed,
+    rotor_rk4,
+    truth_of,
+)
 
 #: Vehicles per block. 16 doubles are two AVX-512 or four AVX2 registers per row; a block's buffer
 #: (:data:`ROWS` x 16 x 8 bytes, 23 kB) stays in a core's L1 cache through its plant steps.
@@ -348,3 +358,107 @@ def instant_rotors_lane(buf, i, up_now, down_now, f_cmd, f_min, f_max, n):
     for r in range(n):
         k = (_F + r) * W + i
         buf[k] = instant_force(up_now, down_now, clip_command(f_cmd[r], f_min[r], f_max[r]), buf[k])
+
+
+# The sensors of a block (:func:`measure_lanes`): rows of W in the buffer ``sb`` (:func:`new_sensor_buffer`).
+_SN = 0  # the tick's noise draws (12, in the order of y)
+_SC = _SN + 12  # the CoM in the body, c_B (3)
+_SX = _SC + 3  # the states read: motion capture p, v, q, w (13), IMU q, w (7)
+_SY = _SX + 20  # the measurement y (12)
+_SR = _SY + 12  # the ring of past states: slot s at rows _SR + 13 s .. (p, v, q, w)
+SENSED = _SY  #: the first of the sensor buffer's rows holding the measurement
+
+
+@kernel()
+def new_sensor_buffer(H):
+    """A zeroed sensor buffer with a ring of ``H`` past states."""
+    return np.zeros((_SR + 13 * H) * W)
+
+
+@kernel()
+def put_sensors(sb, i, pp, hist_b):
+    """Lane ``i`` takes the sensors of a vehicle: its CoM offset (plant record ``pp``) and its ring of past
+    states ``hist_b`` (records, the slots as they are)."""
+    for j in range(3):
+        sb[(_SC + j) * W + i] = pp.c_B[j]
+    for s in range(hist_b.shape[0]):
+        k = (_SR + 13 * s) * W + i
+        x = hist_b[s]
+        for j in range(3):
+            sb[k + j * W] = x.p_com_W[j]
+            sb[k + (3 + j) * W] = x.v_com_W[j]
+            sb[k + (10 + j) * W] = x.omega_B[j]
+        for j in range(4):
+            sb[k + (6 + j) * W] = x.q_WB[j]
+
+
+@kernel()
+def get_sensors(sb, i, hist_b):
+    """The ring of records ``hist_b`` takes lane ``i``'s past states (what :func:`put_sensors` put, as the plant
+    went on: the states the sensors read; the other fields are not read)."""
+    for s in range(hist_b.shape[0]):
+        k = (_SR + 13 * s) * W + i
+        x = hist_b[s]
+        for j in range(3):
+            x.p_com_W[j] = sb[k + j * W]
+            x.v_com_W[j] = sb[k + (3 + j) * W]
+            x.omega_B[j] = sb[k + (10 + j) * W]
+        for j in range(4):
+            x.q_WB[j] = sb[k + (6 + j) * W]
+
+
+@kernel(inline="always")
+def keep_state(sb, buf, slot):
+    """Every lane's position, velocity, attitude and rate (13 rows) into the ring's ``slot``."""
+    for j in range(13):
+        for i in range(W):
+            sb[(_SR + 13 * slot + j) * W + i] = buf[(_S + j) * W + i]
+
+
+@kernel(inline="always")
+def put_noise(sb, i, gen):
+    """Lane ``i``'s twelve standard normals of the tick from its generator, in the order of ``y``."""
+    for j in range(12):
+        sb[(_SN + j) * W + i] = gen.standard_normal()
+
+
+@kernel()
+def measure_lanes(sb, slot_mocap, slot_imu, sigma):
+    """Every lane's measurement (:func:`~.plant.measured`, with the sines of :mod:`.vmath`) from the ring's
+    slots the motion capture and the IMU read and the tick's noise; ``sigma = [pos, vel, att, gyro]``."""
+    for j in range(13):  # the states read into fixed rows: the lane loop then reads at fixed distances only
+        for i in range(W):
+            sb[(_SX + j) * W + i] = sb[(_SR + 13 * slot_mocap + j) * W + i]
+    for j in range(7):
+        for i in range(W):
+            sb[(_SX + 13 + j) * W + i] = sb[(_SR + 13 * slot_imu + 6 + j) * W + i]
+    sg = (sigma[0], sigma[1], sigma[2], sigma[3])
+    for i in range(W):  # vectorised: one lane per vehicle
+        c, p, v, q, w, qi, wi, noise = _sensed_at(sb, i)
+        y = measured(c, p, v, q, w, qi, wi, sg, noise, True)
+        for j in range(12):
+            sb[(_SY + j) * W + i] = y[j]
+
+
+@kernel(inline="always")
+def _sensed_at(sb, i):
+    """Lane ``i``'s ``c_B``, the motion-capture state read ``(p, v, q, w)``, the IMU's ``(q, w)`` and the noise."""
+    k = i
+
+    def at(row):
+        return sb[row * W + k]
+
+    def three(row):
+        return (at(row), at(row + 1), at(row + 2))
+
+    q = (at(_SX + 6), at(_SX + 7), at(_SX + 8), at(_SX + 9))
+    qi = (at(_SX + 13), at(_SX + 14), at(_SX + 15), at(_SX + 16))
+    noise = three(_SN) + three(_SN + 3) + three(_SN + 6) + three(_SN + 9)
+    return three(_SC), three(_SX), three(_SX + 3), q, three(_SX + 10), qi, three(_SX + 17), noise
+
+
+@kernel(inline="always")
+def measurement_at(sb, i, y):
+    """Lane ``i``'s measurement of the last :func:`measure_lanes` into ``y`` (12)."""
+    for j in range(12):
+        y[j] = sb[(_SY + j) * W + i]

@@ -15,8 +15,8 @@ Rows (:data:`~.lanes.W` doubles each) of the buffer ``cb`` (:func:`new_law_buffe
 the allocation's ``E_pinv`` (four per rotor), ``E`` (four per rotor), the rotor limits; the state the law
 carries (the attitude filter (5), the integral (3)); the measurement (12); the law's request (thrust, moments,
 whether a limit acted, ``mu_bar``, the position error, the filter's next state, the attitude command, the
-estimated moment in body axes: 22); the allocation's step (``a_lo``, ``a_hi``, ``flat``, whether it held,
-saturation and scales: 7), each rotor's force before yaw and its command; the thrust and moments given (4).
+estimated moment in body axes: 22); the allocation's first step (whether it held,
+saturation and scales: 4), each rotor's force before yaw and its command; the thrust and moments given (4).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from .controller import (
 )
 from .jit import kernel
 from .lanes import W, put_command_row, put_held
-from .lanes_estimator import put_command_held, sample_at
+from .lanes_estimator import _CC, _MM, _QQ, _RD, _WH, put_command_held, sample_at
 
 _R = MAX_ROTORS
 _LP = 0  # LawLane: mass, I9 (9), tan_tilt, min_lift, compensate, comply, integral_limit, 11 gains (3 each)
@@ -48,11 +48,12 @@ _FMAX = _FMIN + _R
 _ST = _FMAX + _R  # filter: started, phi, theta, phi_dot, theta_dot; integral (3)
 _YY = _ST + 8  # the measurement y (12)
 _RQ = _YY + 12  # thrust, moments (3), limited, mu_bar (3), position error (3), next filter (4), command (4), hb (3)
-_AL = _RQ + 22  # a_lo, a_hi, flat, held, saturated, rp_scale, yaw_scale
-_BASE = _AL + 7  # each rotor's force before yaw
+_AL = _RQ + 22  # whether the allocation's first step held, saturated, rp_scale, yaw_scale
+_BASE = _AL + 4  # each rotor's force before yaw
 _F = _BASE + _R  # each rotor's command
 _U = _F + _R  # thrust and moments given (E f)
-ROWS = _U + 4
+_SM = _U + 4  # the estimator's sample: Q, M, C (9 each), the estimate and its rate (6 each)
+ROWS = _SM + 39
 
 
 @kernel()
@@ -70,6 +71,23 @@ def _at(cb, row, i):
 def _three(cb, row, i):
     k = row * W + i
     return cb[k], cb[k + W], cb[k + 2 * W]
+
+
+@kernel(inline="always")
+def _six(cb, row, i):
+    return _three(cb, row, i) + _three(cb, row + 3, i)
+
+
+@kernel(inline="always")
+def _nine(cb, row, i):
+    return _three(cb, row, i) + _three(cb, row + 3, i) + _three(cb, row + 6, i)
+
+
+@kernel(inline="always")
+def _copy_rows(dst, at, src, row, n):
+    """Rows ``at .. at + n - 1`` of ``dst`` take rows ``row ..`` of ``src``."""
+    for j in range(n * W):
+        dst[at * W + j] = src[row * W + j]
 
 
 @kernel(inline="always")
@@ -154,20 +172,42 @@ def _row18(r):
             r[17])  # fmt: skip
 
 
+@kernel(inline="always")
+def put_measurement_rows(cb, src, row):
+    """Every lane's measurement from rows ``row .. row + 11`` (``y``) of another buffer of rows."""
+    for j in range(12 * W):
+        cb[_YY * W + j] = src[row * W + j]
+
+
 @kernel()
 def law_lanes(cb, eb, d, r, n_rotors):
     """Every lane's :func:`~.controller.law_request` given its estimator's sample (``eb``, after
     :func:`~.lanes_estimator.estimate_lanes`) and the reference row ``r`` (the same for all), then the
-    allocation's first step over ``n_rotors`` rotors; returns whether it held in every lane (else
-    :func:`fix_allocation` the lanes where :func:`allocation_held` is false)."""
+    allocation's first step over ``n_rotors`` rotors (a literal count keeps the loop vector code); returns
+    whether it held in every lane (else :func:`fix_allocation` the lanes where :func:`allocation_held` is
+    false)."""
     g = law_design(d)  # read before the lane loop: values, not loads that might alias the rows
     rt = _row18(r)
+    # the sample into rows of cb: the lane loop then reads and writes one buffer at fixed distances, with no
+    # run-time check that two buffers do not overlap (too many for the vectoriser)
+    _copy_rows(cb, _SM, eb, _QQ, 9)
+    _copy_rows(cb, _SM + 9, eb, _MM, 9)
+    _copy_rows(cb, _SM + 18, eb, _CC, 9)
+    _copy_rows(cb, _SM + 27, eb, _WH, 6)
+    _copy_rows(cb, _SM + 33, eb, _RD, 6)
+    held = 0
     for i in range(W):  # vectorised: one lane per vehicle
         c = _law_at(cb, i)
         y = (_at(cb, _YY, i), _at(cb, _YY + 1, i), _at(cb, _YY + 2, i), _at(cb, _YY + 3, i), _at(cb, _YY + 4, i),
              _at(cb, _YY + 5, i), _at(cb, _YY + 6, i), _at(cb, _YY + 7, i), _at(cb, _YY + 8, i),
              _at(cb, _YY + 9, i), _at(cb, _YY + 10, i), _at(cb, _YY + 11, i))  # fmt: skip
-        Q, M, C, w, rd = sample_at(eb, i)  # noqa: N806
+        Q, M, C, w, rd = (
+            _nine(cb, _SM, i),
+            _nine(cb, _SM + 9, i),
+            _nine(cb, _SM + 18, i),
+            _six(cb, _SM + 27, i),
+            _six(cb, _SM + 33, i),
+        )  # noqa: N806
         filt = (_at(cb, _ST, i) > 0.5, _at(cb, _ST + 1, i), _at(cb, _ST + 2, i), _at(cb, _ST + 3, i),
                 _at(cb, _ST + 4, i))  # fmt: skip
         req, tr, lim, mb, ep, fx, ed, hb = law_request(c, g, y, rt, Q, M, C, w, rd, _three(cb, _ST + 5, i), filt,
@@ -178,36 +218,27 @@ def law_lanes(cb, eb, d, r, n_rotors):
         _put(cb, _RQ + 11, i, fx)
         _put(cb, _RQ + 15, i, ed)
         _put(cb, _RQ + 19, i, hb)
-        _put(cb, _AL, i, (0.0, 1.0, 0.0))  # a_lo, a_hi, flat
-    for k in range(n_rotors):  # 0. full roll/pitch at the requested thrust, with the largest yaw that fits
-        for i in range(W):  # vectorised: one lane per vehicle
+        # the allocation's first step: full roll/pitch at the requested thrust, with the largest yaw that fits
+        a_lo, a_hi, flat = 0.0, 1.0, False
+        for k in range(n_rotors):  # unrolled where the count is a literal: the lane loop stays vector code
             e = (_at(cb, _EP + 4 * k, i), _at(cb, _EP + 4 * k + 1, i), _at(cb, _EP + 4 * k + 2, i),
                  _at(cb, _EP + 4 * k + 3, i))  # fmt: skip
-            u, t0, t1, t2 = _at(cb, _RQ, i), _at(cb, _RQ + 1, i), _at(cb, _RQ + 2, i), _at(cb, _RQ + 3, i)
-            a_lo, a_hi, flat = _at(cb, _AL, i), _at(cb, _AL + 1, i), _at(cb, _AL + 2, i) > 0.5
             lo, hi = _at(cb, _FMIN + k, i), _at(cb, _FMAX + k, i)
-            base, a_lo, a_hi, flat = yaw_room(e, lo, hi, u, t0, t1, t2, a_lo, a_hi, flat)
-            _put(cb, _AL, i, (a_lo, a_hi, 1.0 if flat else 0.0))
+            base, a_lo, a_hi, flat = yaw_room(e, lo, hi, req, tr[0], tr[1], tr[2], a_lo, a_hi, flat)
             cb[(_BASE + k) * W + i] = base
-    held = 0.0
-    for i in range(W):  # vectorised: one lane per vehicle
-        fits, ys = yaw_fits(_at(cb, _AL, i), _at(cb, _AL + 1, i), _at(cb, _AL + 2, i) > 0.5)
-        _put(cb, _AL + 3, i, (1.0 if fits else 0.0, 1.0 if ys < 1.0 - 1e-9 else 0.0, 1.0, ys))
-        held += 1.0 if fits else 0.0
-    for k in range(n_rotors):
-        for i in range(W):  # vectorised: one lane per vehicle
-            e3, t2 = _at(cb, _EP + 4 * k + 3, i), _at(cb, _RQ + 3, i)
-            f = with_yaw(
-                _at(cb, _BASE + k, i), _at(cb, _AL + 6, i), e3, t2, _at(cb, _FMIN + k, i), _at(cb, _FMAX + k, i)
-            )
-            cb[(_F + k) * W + i] = f
+        fits, ys = yaw_fits(a_lo, a_hi, flat)
+        for k in range(n_rotors):
+            e3, lo, hi = _at(cb, _EP + 4 * k + 3, i), _at(cb, _FMIN + k, i), _at(cb, _FMAX + k, i)
+            cb[(_F + k) * W + i] = with_yaw(_at(cb, _BASE + k, i), ys, e3, tr[2], lo, hi)
+        _put(cb, _AL, i, (1.0 if fits else 0.0, 1.0 if ys < 1.0 - 1e-9 else 0.0, 1.0, ys))
+        held += 1 if fits else 0
     return held == W
 
 
 @kernel(inline="always")
 def allocation_held(cb, i):
     """Whether the allocation's first step held in lane ``i`` (:func:`law_lanes`)."""
-    return cb[(_AL + 3) * W + i] > 0.5
+    return cb[_AL * W + i] > 0.5
 
 
 @kernel()
@@ -218,7 +249,7 @@ def fix_allocation(cb, i, p, f):
                                          _at(cb, _RQ + 3, i), f)  # fmt: skip
     for k in range(p.n_rotors):
         cb[(_F + k) * W + i] = f[k]
-    _put(cb, _AL + 4, i, (1.0 if sat else 0.0, rp_scale, yaw_scale))
+    _put(cb, _AL + 1, i, (1.0 if sat else 0.0, rp_scale, yaw_scale))
 
 
 @kernel()
@@ -237,7 +268,7 @@ def finish_lanes(cb, eb, buf, d, n_rotors):
                 cb[(_U + j) * W + i] += cb[(_EE + 4 * k + j) * W + i] * f
     for i in range(W):  # vectorised: one lane per vehicle
         c = _law_at(cb, i)
-        freeze = _at(cb, _AL + 4, i) > 0.5 or _at(cb, _RQ + 4, i) > 0.5
+        freeze = _at(cb, _AL + 1, i) > 0.5 or _at(cb, _RQ + 4, i) > 0.5
         _put(cb, _ST + 5, i, law_integral(c, Ts, _three(cb, _ST + 5, i), _three(cb, _RQ + 8, i), freeze))
         _put(cb, _ST, i, (1.0, _at(cb, _RQ + 11, i), _at(cb, _RQ + 12, i), _at(cb, _RQ + 13, i),
                           _at(cb, _RQ + 14, i)))  # fmt: skip
@@ -258,6 +289,6 @@ def get_output(cb, eb, i, r, o):
     _, _, _, w, _ = sample_at(eb, i)
     tr = _three(cb, _RQ + 1, i)
     ed = (_at(cb, _RQ + 15, i), _at(cb, _RQ + 16, i), _at(cb, _RQ + 17, i), _at(cb, _RQ + 18, i))
-    put_output(o, _at(cb, _U, i), _three(cb, _U + 1, i), _at(cb, _AL + 4, i) > 0.5, _at(cb, _RQ, i), tr, w,
+    put_output(o, _at(cb, _U, i), _three(cb, _U + 1, i), _at(cb, _AL + 1, i) > 0.5, _at(cb, _RQ, i), tr, w,
                _three(cb, _RQ + 19, i), ed, r, _three(cb, _RQ + 5, i), _at(cb, _RQ + 4, i) > 0.5,
-               _at(cb, _AL + 5, i), _at(cb, _AL + 6, i))  # fmt: skip
+               _at(cb, _AL + 2, i), _at(cb, _AL + 3, i))  # fmt: skip

@@ -158,6 +158,13 @@ def put_measured(eb, i, y):
 
 
 @kernel(inline="always")
+def put_measured_rows(eb, src, row):
+    """Every lane's measurement from rows ``row .. row + 11`` (``y``) of another buffer of rows (the last nine)."""
+    for j in range(9 * W):
+        eb[_Y * W + j] = src[(row + 3) * W + j]
+
+
+@kernel(inline="always")
 def put_command_held(eb, i, u, tau):
     """Lane ``i``'s command held over the period that starts: thrust ``u`` and body moments ``tau``."""
     put_command_rows(eb, _CMD, i, u, tau)

@@ -88,6 +88,25 @@ def origin_of(c, p, v, w, R):
 
 
 @kernel(inline="always")
+def measured(c_B, p, v, q, w, q_imu, w_imu, sigma, noise, vector):
+    """What the sensors report, ``y = [p_W, v_W, eta, eta_dot]`` (12), as
+    :func:`vtol_impedance.sim.sensors.measurement`: the body origin's position and velocity (world) of the
+    motion-capture state (the CoM's position ``p`` and velocity ``v``, world; attitude quaternion ``q``; body
+    rates ``w``; the CoM at ``c_B`` in the body), the ZYX Euler angles of the IMU's attitude ``q_imu`` and the
+    Euler rates ``Q(eta)^-1 w_imu`` at the noisy angles, each plus ``sigma[group] * noise`` (``sigma = [pos,
+    vel, att, gyro]``, ``noise`` 12 standard normals in the order of ``y``). ``vector`` (a literal): the sines
+    of :mod:`.vmath`, for code in lanes."""
+    o = origin_of(c_B, p, v, w, _R_of(q))
+    phi, theta, psi = euler_of(_R_of(q_imu), vector)
+    e0, e1, e2 = phi + sigma[2] * noise[6], theta + sigma[2] * noise[7], psi + sigma[2] * noise[8]
+    g0, g1, g2 = w_imu[0] + sigma[3] * noise[9], w_imu[1] + sigma[3] * noise[10], w_imu[2] + sigma[3] * noise[11]
+    ed = _solve9(_Q9(e0, e1, vector), g0, g1, g2)
+    return (o[0] + sigma[0] * noise[0], o[1] + sigma[0] * noise[1], o[2] + sigma[0] * noise[2],
+            o[3] + sigma[1] * noise[3], o[4] + sigma[1] * noise[4], o[5] + sigma[1] * noise[5], e0, e1, e2, ed[0],
+            ed[1], ed[2])  # fmt: skip
+
+
+@kernel(inline="always")
 def _origin(pp, x, R):
     """:func:`origin_of` for the plant record ``pp`` in the state ``x`` (a record or a lane's view)."""
     return origin_of(pp.c_B, x.p_com_W, x.v_com_W, x.omega_B, R)
