@@ -310,12 +310,13 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
 @kernel(parallel=True)
 def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
                     series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
-    """:func:`run_block` with the plants and estimators in SIMD lanes (:mod:`.lanes`, :mod:`.lanes_estimator`):
-    one ``prange`` iteration per block of :data:`~.lanes.W` vehicles. Per control tick the block's truth is
-    taken in lanes, each vehicle's sensors read, the block's estimators sample in lanes, each vehicle's control
-    law, metrics and log run as in :func:`run_block` (the same functions), then the block's plants take their
-    ``n_sub`` RK4 steps together. Same arguments; the same results to 1e-11 (the estimators in lanes take their
-    sines from :mod:`.vmath`, ``tests/test_lanes.py``)."""
+    """:func:`run_block` with the plants, sensors, estimators and control laws in SIMD lanes (:mod:`.lanes`,
+    :mod:`.lanes_estimator`, :mod:`.lanes_controller`): one ``prange`` iteration per block of :data:`~.lanes.W`
+    vehicles. Per control tick the block's truth is taken in lanes, each vehicle draws its sensor noise from its
+    own generator, the block's sensors, estimators and control laws run in lanes, each vehicle's metrics and
+    log as in :func:`run_block` (the same functions), then the block's plants take their ``n_sub`` RK4 steps
+    together. Same arguments; the same results to 1e-11 (the lanes take their sines from :mod:`.vmath`,
+    ``tests/test_lanes.py``)."""
     B = X.shape[0]
     for blk in prange((B + W - 1) // W):
         _fly_lanes(blk * W, min(W, B - blk * W), k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu,
@@ -328,7 +329,8 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicles ``b0 .. b0 + n - 1`` of :func:`run_block_lanes` from tick ``k0`` to ``k1``; lanes past ``n``
     repeat the block's first vehicle and are never read back. The lanes hold the states between ticks: the
-    records ``X`` are written at the end (or when a vehicle stops), and before a logged tick; the estimators'
+    records ``X`` are written at the end (or when a vehicle stops), and before a logged tick; the sensors' rings
+    ``hist`` (one newest slot ``hhead``, length ``hcount`` for the block), the estimators' and control laws'
     records ``S``, ``EH`` of the vehicles flying at the end (a stopped vehicle's are never read again). Until
     every estimator of the block has taken its first sample (which fills its history) the block's controllers
     step vehicle by vehicle."""
@@ -398,10 +400,8 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         rc = _reference(refs[k], rc)  # the same for every vehicle of the tick
         if ready:  # the estimators and control laws, in lanes; the commands into the plants' rows
             head = estimate_lanes(eb, d[0], head)
-            if ncr == 4:  # a literal rotor count keeps the law's loop vector code
+            if ncr == 4:  # a literal rotor count keeps the law's loop vector code (others: scalar, compiled once)
                 held = law_lanes(cb, eb, d[0], rc, 4)
-            elif ncr == 6:
-                held = law_lanes(cb, eb, d[0], rc, 6)
             else:
                 held = law_lanes(cb, eb, d[0], rc, ncr)
             if not held:  # a lane whose allocation needs more than its first step

@@ -15,8 +15,9 @@ Rows (:data:`~.lanes.W` doubles each) of the buffer ``cb`` (:func:`new_law_buffe
 the allocation's ``E_pinv`` (four per rotor), ``E`` (four per rotor), the rotor limits; the state the law
 carries (the attitude filter (5), the integral (3)); the measurement (12); the law's request (thrust, moments,
 whether a limit acted, ``mu_bar``, the position error, the filter's next state, the attitude command, the
-estimated moment in body axes: 22); the allocation's first step (whether it held,
-saturation and scales: 4), each rotor's force before yaw and its command; the thrust and moments given (4).
+estimated moment in body axes: 22); the allocation's first step (whether it held, saturation and scales: 4),
+each rotor's force before yaw and its command; the thrust and moments given (4); a copy of the estimator's
+sample (``Q``, ``M``, ``C``, the estimate and its rate: 39), so that the law's loop reads one buffer.
 """
 
 from __future__ import annotations
