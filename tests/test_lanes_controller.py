@@ -155,6 +155,8 @@ def test_the_laws_in_lanes_command_as_each_vehicle_does(rng, layout):
     p, d = pack_controller(arrays)
     Y, S, R = _inputs(rng, p)  # noqa: N806
     s_each, _ = ctrl_initial_state(p, d)
+    # a filter that has not started holds whatever it held: the law must not read it (it starts at its command)
+    s_each["filt_x"], s_each["filt_xd"] = rng.uniform(-1, 1, (W, 2)), rng.uniform(-5, 5, (W, 2))
     s_lanes = s_each.copy()
     ref, got = new_output(K * W).reshape(K, W), new_output(K * W).reshape(K, W)
     _each(p, d, s_each, Y, S, R, ref, new_output(1))
@@ -174,6 +176,21 @@ def test_the_laws_in_lanes_command_as_each_vehicle_does(rng, layout):
         scale = max(np.abs(s_each[name]).max(), 1e-300)
         assert np.abs(s_lanes[name] - s_each[name]).max() <= 1e-11 * scale, name
     assert s_lanes["filt_started"].all()
+    # independently: the attitude filter starts at rest at its first command ...
+    np.testing.assert_array_equal(got["eta_d_dot"][0, :, :2], 0.0)
+    # ... and the PID integral sums Ts times the position error, frozen on a tick that saturated or hit the tilt
+    # or lift limit (anti-windup), within integral_limit / Ki
+    Ts, lim, Ki = ctrls[0].Ts, ctrls[0].integral_limit, p["Ki"]  # noqa: N806
+    frozen = ref["saturated"] | ref["tilt_limited"]
+    assert frozen[:, Ki[:, 0] > 0].any() and not frozen[:, Ki[:, 0] > 0].all()
+    acc = np.zeros((W, 3))
+    for k in range(K):
+        acc = np.where(frozen[k][:, None], acc, acc + Ts * (Y[k, :, 0:3] - R[k, 0:3]))
+        bound = lim / np.maximum(Ki, 1e-12)
+        acc = np.clip(acc, -bound, bound)
+    pid = Ki[:, 0] > 0
+    assert pid.sum() >= 4
+    np.testing.assert_allclose(s_lanes["integral"][pid], acc[pid], rtol=1e-12, atol=1e-15)
     # eq. (4): where nothing saturated, the rotor forces give exactly what was asked (an independent check of the
     # allocation: E from the vehicles' own geometry)
     n = ctrls[0].vehicle.n_rotors
