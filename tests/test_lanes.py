@@ -114,6 +114,35 @@ def test_more_vehicles_than_a_block_with_a_failure_mid_flight(monkeypatch, prese
     np.testing.assert_allclose(thrust[ok], m[ok] * 9.81, rtol=0.02)
 
 
+def test_a_block_with_quadratic_drag_steps_it_and_a_block_without_leaves_it_out(monkeypatch):
+    """A block whose plants have neither a pendulum nor quadratic drag takes the plant step without their
+    arithmetic (``full`` false); a block where one lane has quadratic drag takes the whole step. Two blocks,
+    the second with one vehicle given body drag, fly a 2 m move in a second (3.75 m/s at its middle): the
+    lanes give the vehicle engine's log and the NumPy definition's, and the dragged vehicle parts from its
+    twin (same plant but for the drag, same seed) by more than a millimetre: the drag acts in lanes."""
+    from vtol_impedance.control.reference import MinJerk
+
+    veh = load_preset("pelican")
+    n = W + 3
+    dragged = W + 1
+    plants = [PlantParams(replace(veh, body_drag=(0.2, 0.2, 0.4)) if i == dragged else veh,
+                          payload_mass=0.02 * (i % 3), rotor_tau_up=0.02) for i in range(n)]  # fmt: skip
+    ctrls = [ControllerParams.paper("pdc", vehicle=veh)] * n
+    start = np.array([0.0, 0.0, -1.0])
+    traj = Trajectory((Hold(start, 0.2), MinJerk(start, (2.0, 0.0, -1.0), 1.0), Hold((2.0, 0.0, -1.0), 0.3)))
+    seeds = [i if i != dragged else dragged - 1 for i in range(n)]  # the dragged vehicle's twin: its neighbour
+    plants[dragged - 1] = replace(plants[dragged], vehicle=veh)
+    kw = {"seed": seeds, "log": "full", "start_W": start}
+    lanes = _fly(monkeypatch, True, plants, ctrls, traj, 1.5, **kw)
+    vehicles = _fly(monkeypatch, False, plants, ctrls, traj, 1.5, **kw)
+    ref = run_closed_loop(plants, ctrls, traj, 1.5, **kw, backend="numpy")
+    _same_flight(lanes, vehicles)
+    for k in ("p_W", "v_W", "f_rotor", "f_lumped_W"):
+        assert _rel(lanes[k], ref[k]) <= 1e-9, k
+    apart = np.abs(lanes["p_W"][dragged] - lanes["p_W"][dragged - 1]).max()
+    assert apart > 1e-3, apart
+
+
 def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metrics_alone(monkeypatch):
     """The lanes hold the states between ticks and write the records only at a chunk's end, on a failure and
     before a logged tick: with chunks of 50 ticks, a log every third tick, the metrics alone, disturbances that
@@ -145,9 +174,12 @@ def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metric
         _same_flight(lanes, vehicles, f"(log={log})")
 
 
-def test_the_plant_loop_is_vector_code():
+@pytest.mark.parametrize("full", [False, True])
+def test_the_plant_loop_is_vector_code(full):
     """The lanes' RK4 step compiles to packed double-precision FMAs (a call, a gather or a memory-dependent
-    branch in the loop would leave it scalar): counted in the machine code of a block's step."""
+    branch in the loop would leave it scalar): counted in the machine code of a block's step, with and
+    without the pendulum and the quadratic drag (``full``); without them, no square root or division
+    is left but the quaternion's norm (one of each per lane)."""
     flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
     if not re.search(r"\bavx2\b", flags):
         pytest.skip("no AVX2 on this machine")
@@ -158,13 +190,18 @@ def test_the_plant_loop_is_vector_code():
 
     @njit(**{**FLAGS, "cache": False})
     def one_step(buf, dt):
-        step_lanes(buf, 4, dt)
+        step_lanes(buf, 4, dt, full)
 
     one_step(new_buffer(), 1e-3)
     asm = one_step.inspect_asm(one_step.signatures[0])
     packed = len(re.findall(r"vfn?m(?:add|sub)\w*pd\s+%[yz]mm", asm))
     scalar = len(re.findall(r"vfn?m(?:add|sub)\w*sd\s", asm))
     assert packed > 100 and packed > 5 * scalar, (packed, scalar)
+    slow = len(re.findall(r"v(?:sqrt|div)pd\s", asm))  # one vector's square roots and divisions
+    if full:  # the drag's speed at four stages, the pendulum's length and tension, its projection
+        assert slow >= 20, slow
+    else:  # the quaternion's norm alone (its loop over the lanes perhaps unrolled once)
+        assert 0 < slow <= 4, slow
 
 
 def test_the_truth_and_the_failure_checks_at_a_tick_are_vector_code():

@@ -17,6 +17,7 @@ import os
 from pathlib import Path
 
 from ..io import source_digest
+from . import jit  # noqa: F401  first: numba's vector width is set before anything defines a kernel (jit._wide_vectors)
 
 _HERE = Path(__file__).resolve().parent
 _SOURCES = (
@@ -60,7 +61,8 @@ _refresh_cache()
 
 
 def kernels_cached() -> bool:
-    """Whether the closed-loop kernel is in the on-disk cache (else the first run compiles, up to a minute)."""
+    """Whether the closed-loop kernel is in the on-disk cache (else the first run compiles: about a minute and a
+    half on two cores, the README says how it was measured)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return True  # unknown layout: assume the user manages it
     return any((_HERE / "__pycache__").glob("engine.run_block-*.nbi"))

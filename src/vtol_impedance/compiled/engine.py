@@ -26,6 +26,7 @@ from .jit import kernel
 from .lanes import (
     SENSED,
     W,
+    block_is_plain,
     failure_at,
     failure_lanes,
     get_sensors,
@@ -351,6 +352,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         put_law(cb, i, law_lane_of(p[b]), p[b])
         nr = max(nr, pp[b].n_rotors)
     ncr = p[b0].n_rotors  # the same for every controller of a batch
+    plain = block_is_plain(buf)
     head = np.int64(0)  # the estimators' ring: its newest slot, the same in every lane (typed: one signature)
     ready = _put_lanes(eb, cb, b0, n, S, EH, p, head)
     for i in range(6):
@@ -374,6 +376,16 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
     live = 0
     for i in range(n):
         live += 1 if alive[b0 + i] else 0
+    # each flying vehicle's noise of the chunk's ticks, drawn in the order the ticks would draw it: its generator
+    # is taken from the typed list once a chunk, not once a tick (a vehicle that stops leaves draws unused, as
+    # the NumPy backend's blocks do)
+    nz = np.empty((n, k1 - k0, 12))
+    for i in range(n):
+        if alive[b0 + i]:
+            g = gens[np.int64(b0 + i)]
+            for kk in range(k1 - k0):
+                for j in range(12):
+                    nz[i, kk, j] = g.standard_normal()
     for k in range(k0, k1):
         if live == 0:
             break
@@ -389,9 +401,9 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 observe_lanes(buf, 4)
             else:
                 observe_lanes(buf, nr)
-        for i in range(n):  # the sensors: each vehicle's noise from its own generator, then in lanes
+        for i in range(n):  # the sensors: each vehicle's noise (drawn above), then in lanes
             if alive[b0 + i]:
-                put_noise(sb, i, gens[np.int64(b0 + i)])
+                put_noise(sb, i, nz[i, k - k0])
         ago_m, ago_i = min(k_mocap, count_s - 1), min(k_imu, count_s - 1)  # as _ago
         measure_lanes(sb, (head_s - ago_m) % H, (head_s - ago_i) % H, sigma)
         put_measured_rows(eb, sb, SENSED)
@@ -440,10 +452,12 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                     if alive[b]:
                         disturbance_at(pp[b], state_view(buf, i), t + js * dt, dists, series, dist)
                         put_disturbance(buf, i, dist)
-            if nr == 4:
-                step_lanes(buf, 4, dt)
+            if nr == 4 and plain:  # literals: the quadrotor's rotors unrolled, no pendulum or quadratic drag
+                step_lanes(buf, 4, dt, False)
+            elif nr == 4:
+                step_lanes(buf, 4, dt, True)
             else:
-                step_lanes(buf, nr, dt)
+                step_lanes(buf, nr, dt, True)
             if keep[js]:  # a state a sensor will read, into the rings' slot for this step
                 keep_state(sb, buf, (head_s + js + 1) % H)
         head_s, count_s = (head_s + n_sub) % H, min(count_s + n_sub, H)  # the rings advanced by the period

@@ -38,6 +38,7 @@ from .plant import (
     instant_force,
     measured,
     observed,
+    plant_is_plain,
     rotor_rk4,
     truth_of,
 )
@@ -224,10 +225,11 @@ def put_disturbance(buf, i, dist):
 
 
 @kernel(inline="always")
-def step_lanes(buf, n_rotors, dt):
+def step_lanes(buf, n_rotors, dt, full):
     """One RK4 step of every lane of ``buf`` with its command and disturbance held (as
     :func:`~.plant.rk4_step` of each): the rotors one at a time across the lanes, their stages' ``E f``
-    summed in rotor order, then the body."""
+    summed in rotor order, then the body. ``full`` false (a literal) where no lane has a pendulum or
+    quadratic drag (:func:`~.plant.plant_is_plain`): the same states, without their arithmetic."""
     for j in range(16):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
@@ -249,9 +251,19 @@ def step_lanes(buf, n_rotors, dt):
         s = body_rk4(
             _plant_at(buf, i), _body_at(buf, i), _four(buf, u), _four(buf, u + 4 * W), _four(buf, u + 8 * W),
             _four(buf, u + 12 * W), (buf[dd], buf[dd + W], buf[dd + 2 * W], buf[dd + 3 * W], buf[dd + 4 * W],
-            buf[dd + 5 * W]), dt,
+            buf[dd + 5 * W]), dt, full,
         )  # fmt: skip
         _put_body(buf, i, s)
+
+
+@kernel(inline="always")
+def block_is_plain(buf):
+    """Whether no lane of ``buf`` has a pendulum or quadratic drag (:func:`~.plant.plant_is_plain`): then
+    :func:`step_lanes` may take ``full`` false."""
+    for i in range(W):
+        if not plant_is_plain(_plant_at(buf, i)):
+            return False
+    return True
 
 
 @kernel(inline="always")
@@ -416,10 +428,10 @@ def keep_state(sb, buf, slot):
 
 
 @kernel(inline="always")
-def put_noise(sb, i, gen):
-    """Lane ``i``'s twelve standard normals of the tick from its generator, in the order of ``y``."""
+def put_noise(sb, i, z):
+    """Lane ``i``'s twelve standard normals ``z`` of the tick, in the order of ``y``."""
     for j in range(12):
-        sb[(_SN + j) * W + i] = gen.standard_normal()
+        sb[(_SN + j) * W + i] = z[j]
 
 
 @kernel()

@@ -73,6 +73,14 @@ def lane_of(pp):
 
 
 @kernel(inline="always")
+def plant_is_plain(pl):
+    """Whether the :data:`PlantLane` ``pl`` has neither a pendulum nor quadratic drag: its derivative is then
+    the same with :func:`body_derivative`'s ``full`` false."""
+    q = pl.quad_drag_B
+    return not pl.pend_m > 0.0 and q[0] == 0.0 and q[1] == 0.0 and q[2] == 0.0
+
+
+@kernel(inline="always")
 def origin_of(c, p, v, w, R):
     """Body-origin position and velocity (6-tuple, world) of a body whose CoM (at ``c``, body) is at ``p`` moving
     at ``v`` (world) and turning at ``w`` (body), as :func:`vtol_impedance.sim.plant.origin_kinematics`."""
@@ -279,22 +287,26 @@ def _set_body(x, s):
 
 
 @kernel(inline="always")
-def _aero_W(pp, R, v0, v1, v2):
+def _aero_W(pp, R, v0, v1, v2, full):
     """The aerodynamic force (world) at the body origin moving at ``v`` (world), as
-    :func:`vtol_impedance.sim.plant.aero_force_W`: ``R (-D v_B - |v_B| C v_B)`` with ``v_B = Rᵀ v``."""
+    :func:`vtol_impedance.sim.plant.aero_force_W`: ``R (-D v_B - |v_B| C v_B)`` with ``v_B = Rᵀ v``; with
+    ``full`` false the quadratic term is left out (it is zero: see :func:`body_derivative`)."""
     b0 = R[0] * v0 + R[3] * v1 + R[6] * v2
     b1 = R[1] * v0 + R[4] * v1 + R[7] * v2
     b2 = R[2] * v0 + R[5] * v1 + R[8] * v2
-    speed = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
     D, C = pp.lin_drag_B, pp.quad_drag_B
-    f0 = -(D[0] + speed * C[0]) * b0
-    f1 = -(D[1] + speed * C[1]) * b1
-    f2 = -(D[2] + speed * C[2]) * b2
+    k0, k1, k2 = D[0], D[1], D[2]
+    if full:
+        speed = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        k0, k1, k2 = D[0] + speed * C[0], D[1] + speed * C[1], D[2] + speed * C[2]
+    f0 = -k0 * b0
+    f1 = -k1 * b1
+    f2 = -k2 * b2
     return R[0] * f0 + R[1] * f1 + R[2] * f2, R[3] * f0 + R[4] * f1 + R[5] * f2, R[6] * f0 + R[7] * f1 + R[8] * f2
 
 
 @kernel(inline="always")
-def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
+def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full):
     """``x_dot`` of the true plant's body and pendulum (the tuple of :func:`_body_of`) for the plant ``pp`` (a
     :data:`PlantLane`), as :func:`vtol_impedance.sim.plant.plant_derivative`, with the rotors' thrust ``u`` and
     body moments ``tm`` (eq. (4), the true ``E``); and the external wrench ``[f_ext_W (at the body origin),
@@ -304,6 +316,11 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     ``dist = [f_W, tau_B]`` are the explicit disturbances, evaluated by the caller (once per plant step,
     :func:`disturbance_at`). Newton-Euler about the CoM: ``m a = m g - u R e3 + f_env``,
     ``I w_dot = tau - c x F_B - w x I w``; the quaternion ``q_dot = q (0, w) / 2``. Pure: no memory written.
+
+    ``full`` false leaves out the pendulum and the quadratic drag, for plants that have neither
+    (``pend_m = 0``, ``quad_drag_B = 0``: their terms are exact zeros, so the result is the same). A block of
+    lanes passes it as a literal where none of its plants has them (:func:`plant_is_plain`), and the compiler
+    drops their square roots and divisions, which SIMD lanes would otherwise compute and discard.
     """
     p2, v0, v1, v2 = s[2], s[3], s[4], s[5]
     qw, qx, qy, qz = s[6], s[7], s[8], s[9]
@@ -317,7 +334,7 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     vo2 = v2 - (R[6] * a0 + R[7] * a1 + R[8] * a2)
     zo = p2 - (R[6] * c[0] + R[7] * c[1] + R[8] * c[2])
     # environment: disturbances, aerodynamic force (sim.plant.aero_force_W), ground under the origin
-    ae0, ae1, ae2 = _aero_W(pp, R, vo0, vo1, vo2)
+    ae0, ae1, ae2 = _aero_W(pp, R, vo0, vo1, vo2, full)
     g0, g1, g2 = _ground(pp, zo, vo0, vo1, vo2)
     fe0 = dist[0] + ae0 + g0
     fe1 = dist[1] + ae1 + g1
@@ -347,7 +364,7 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist):
     # the pendulum, jointed at the CoM (sim.plant.link_force): tension from the link constraint
     ml = pp.pend_m
     lk0 = lk1 = lk2 = rdd0 = rdd1 = rdd2 = 0.0
-    if ml > 0.0:
+    if full and ml > 0.0:
         q0, q1, q2, s0, s1, s2 = s[13], s[14], s[15], s[16], s[17], s[18]
         L = max(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2), 1e-9)
         n0, n1, n2 = q0 / L, q1 / L, q2 / L
@@ -398,7 +415,7 @@ def truth_at(pp, x, dist):
 def truth_of(pl, s, u, tm0, tm1, tm2, dist):
     """:func:`truth_at` of the plant ``pl`` (a :data:`PlantLane`) in the body states ``s`` with the rotors'
     thrust ``u`` and moments ``tm`` (the true ``E f``): pure, for one vehicle or a lane."""
-    s_dot, env = body_derivative(pl, s, u, tm0, tm1, tm2, dist)
+    s_dot, env = body_derivative(pl, s, u, tm0, tm1, tm2, dist, True)
     w_dot = (s_dot[10], s_dot[11], s_dot[12])
     R = _R_of((s[6], s[7], s[8], s[9]))
     return origin_acceleration(pl.c_B, s, (s_dot[3], s_dot[4], s_dot[5]), w_dot, R), w_dot, env
@@ -479,21 +496,22 @@ def _rotor_stages(pp, f, f_cmd, dt, n):
 
 
 @kernel(inline="always")
-def body_rk4(pl, s, a, b, c, d, dist, dt):
+def body_rk4(pl, s, a, b, c, d, dist, dt, full):
     """One RK4 step of the body's 19 states ``s`` (the tuple of :func:`_body_of`) of the plant ``pl``
     (:data:`PlantLane`), with the rotors' ``E f`` at the four stages ``a``, ``b``, ``c``, ``d``
     (:func:`_rotor_stages`) and the disturbances ``dist`` held: the new states, with the quaternion
     renormalised (RK4 keeps its norm to the method's order only) and the pendulum put back on its sphere,
-    as :func:`vtol_impedance.sim.plant.rk4_step`. Pure: one vehicle's step or one lane's, alike."""
+    as :func:`vtol_impedance.sim.plant.rk4_step`. Pure: one vehicle's step or one lane's, alike. ``full``: as
+    :func:`body_derivative`."""
     h2 = 0.5 * dt
-    k1, _ = body_derivative(pl, s, a[0], a[1], a[2], a[3], dist)
-    k2, _ = body_derivative(pl, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist)
-    k3, _ = body_derivative(pl, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist)
-    k4, _ = body_derivative(pl, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist)
+    k1, _ = body_derivative(pl, s, a[0], a[1], a[2], a[3], dist, full)
+    k2, _ = body_derivative(pl, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist, full)
+    k3, _ = body_derivative(pl, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist, full)
+    k4, _ = body_derivative(pl, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist, full)
     n = _rk4_sum(s, dt / 6.0, k1, k2, k3, k4)
     inq = 1.0 / math.sqrt(n[6] * n[6] + n[7] * n[7] + n[8] * n[8] + n[9] * n[9])
     r0, r1, r2, v0, v1, v2 = n[13], n[14], n[15], n[16], n[17], n[18]
-    if pl.pend_m > 0.0:  # back on the sphere, as sim.plant.project_pendulum
+    if full and pl.pend_m > 0.0:  # back on the sphere, as sim.plant.project_pendulum
         L = max(math.sqrt(r0**2 + r1**2 + r2**2), 1e-9)
         n0, n1, n2 = r0 / L, r1 / L, r2 / L
         vr = v0 * n0 + v1 * n1 + v2 * n2
@@ -512,7 +530,7 @@ def rk4_step(pp, x, f_cmd, dist, dt):
         a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, 4)
     else:
         a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, pp.n_rotors)
-    _set_body(x, body_rk4(lane_of(pp), _body_of(x), a, b, c, d, dist, dt))
+    _set_body(x, body_rk4(lane_of(pp), _body_of(x), a, b, c, d, dist, dt, True))
 
 
 @kernel(inline="always")

@@ -327,29 +327,30 @@ def run_closed_loop(
     controllers, plants, disturbances, sensors, labels, seeds, duration, plant_rate = _checked_inputs(
         plant, controllers, trajectory, duration, disturbances, sensors, plant_rate, seed, labels, window, backend
     )
-    with _collector_paused():  # thousands of vehicles' small objects (generators, records) in a batch
+    # one pause for the whole run: a batch's thousands of small objects (generators, records, result rows),
+    # whose allocation would otherwise set off full collections over them (4,000 vehicles: 0.2 s of a 2.6 s run)
+    with _collector_paused():
         setup, lift = _prepare(
             controllers, plants, trajectory, duration, disturbances, sensors, plant_rate, seeds, start_W, backend,
             _parse_log(log), window, limits,
         )  # fmt: skip
-    rows, metrics, failures = _fly(setup, backend, plants, progress)
-    cfg = dict(config or {})
-    cfg.update({"seed": seeds[0] if len(set(seeds)) == 1 else seeds, "backend": backend, "log": log,
-                "duration": duration, "plant_rate": plant_rate, "control_period": setup.Ts,
-                "labels": labels})  # fmt: skip
-    with _collector_paused():
+        rows, metrics, failures = _fly(setup, backend, plants, progress)
+        cfg = dict(config or {})
+        cfg.update({"seed": seeds[0] if len(set(seeds)) == 1 else seeds, "backend": backend, "log": log,
+                    "duration": duration, "plant_rate": plant_rate, "control_period": setup.Ts,
+                    "labels": labels})  # fmt: skip
         cfg.update(_run_config(controllers, plants, disturbances, sensors))
-    cfg.setdefault("window", list(setup.window[:2]))
-    if np.any(lift > 0):
-        cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
-    moved = rounded_latencies(sensors, setup.dt)
-    if moved:
-        cfg["sensor_delays_flown_s"] = moved  # documented: latencies flown at the nearest plant step
-    t_grid = np.arange(setup.N) * setup.Ts
-    t_log = t_grid[:: setup.dec] if setup.dec else t_grid[:0]
-    data = rows_to_data(rows, setup.PA.spins.shape[-1]) if setup.dec else {}
-    for i, m in enumerate(metrics):
-        m["controller"] = labels[i]
+        cfg.setdefault("window", list(setup.window[:2]))
+        if np.any(lift > 0):
+            cfg["start_lifted_m"] = lift.tolist()  # documented: a contact point started under the ground
+        moved = rounded_latencies(sensors, setup.dt)
+        if moved:
+            cfg["sensor_delays_flown_s"] = moved  # documented: latencies flown at the nearest plant step
+        t_grid = np.arange(setup.N) * setup.Ts
+        t_log = t_grid[:: setup.dec] if setup.dec else t_grid[:0]
+        data = rows_to_data(rows, setup.PA.spins.shape[-1]) if setup.dec else {}
+        for i, m in enumerate(metrics):
+            m["controller"] = labels[i]
     # a decimated run keeps the metrics taken at every tick: every K-th sample would give other numbers
     return Result(t_log, labels, data, cfg, failures, metrics if setup.dec != 1 else None)
 
