@@ -262,3 +262,33 @@ def test_a_lane_holds_a_state_and_a_plant_as_the_records_do():
     got, want = roundtrip(pp, x, back, W - 1)
     assert got == want
     np.testing.assert_array_equal(back.view(np.float64), x.view(np.float64))
+
+
+def test_the_code_generator_takes_512_bit_vectors_on_avx512_unless_told_not_to():
+    """Where the host has AVX-512, importing the package, then ``numba.typed`` (as the engine does before its
+    kernels), leaves numba's code generator without LLVM's 256-bit preference; ``VTOL_IMPEDANCE_NARROW_VECTORS=1``
+    and a user's own ``NUMBA_CPU_FEATURES`` keep theirs (each in a fresh process: one generator per process)."""
+    import os
+    import subprocess
+    import sys
+
+    if not re.search(r"\bavx512f\b", Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""):
+        pytest.skip("no AVX-512 on this machine")
+    code = (  # the package first, then what the engine imports before its kernels
+        "import vtol_impedance.compiled\n"
+        "import numba.typed\n"
+        "from numba.core.registry import cpu_target\n"
+        "print('prefer-256' in cpu_target.target_context.codegen()._tm_features)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", "NUMBA_CPU_NAME")}
+
+    def wide(**extra):
+        out = subprocess.run([sys.executable, "-c", code], env={**env, **extra}, capture_output=True, text=True,
+                             check=True, timeout=120)  # fmt: skip
+        return out.stdout.strip() == "True"
+
+    assert wide()
+    assert not wide(VTOL_IMPEDANCE_NARROW_VECTORS="1")
+    import llvmlite.binding as ll
+
+    assert not wide(NUMBA_CPU_FEATURES=ll.get_host_cpu_features().flatten())

@@ -12,7 +12,6 @@ vehicles' threads. Data layouts are those of :mod:`.layouts`; the log rows are :
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
@@ -57,6 +56,8 @@ from .lanes_controller import (
     get_law_state,
     get_output,
     law_lanes,
+    metric_terms_at,
+    metric_terms_lanes,
     new_law_buffer,
     put_law,
     put_law_state,
@@ -71,6 +72,7 @@ from .lanes_estimator import (
     put_measured_rows,
 )
 from .layouts import OUTPUT
+from .metrics import add_terms, tick_terms
 from .plant import (
     _body_of,
     clip_command,
@@ -145,22 +147,8 @@ def _log(row, pp, x, r, y, o, env, eta, f_l, t_l, p_o, v_o):
 @kernel(inline="always")
 def _accumulate(a, t, win, p_o, v_o, r, o, f_l, t_l):
     """Running sums of the window metrics (:data:`~.layouts.ACCUMULATORS`), as ``analysis.metrics``."""
-    e2 = ev2 = fe2 = te2 = 0.0
-    for i in range(3):
-        e2 += (p_o[i] - r[i]) ** 2
-        ev2 += (v_o[i] - r[3 + i]) ** 2
-        fe2 += (o.f_hat_W[i] - f_l[i]) ** 2
-        te2 += (o.tau_hat_eta[i] - t_l[i]) ** 2
-    a.n += 1.0
-    a.e2 += e2
-    a.e_max = max(a.e_max, math.sqrt(e2))
-    a.ev2 += ev2
-    a.f2 += fe2
-    a.t2 += te2
-    a.sat += 1.0 if (o.saturated or o.tilt_limited) else 0.0
-    if t >= win[2]:
-        a.n_tail += 1.0
-        a.e_tail += math.sqrt(e2)
+    e2, ev2, fe2, te2 = tick_terms(p_o, v_o, r, o.f_hat_W, o.tau_hat_eta, f_l, t_l)
+    add_terms(a, t, win, e2, ev2, fe2, te2, 1.0 if (o.saturated or o.tilt_limited) else 0.0)
 
 
 @kernel(inline="always")
@@ -421,6 +409,9 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                     if alive[b0 + i] and not allocation_held(cb, i):
                         fix_allocation(cb, i, p[b0 + i], o.f_rotor)
             finish_lanes(cb, eb, buf, d[0], ncr)
+        window_only = ready and truth and not logged  # the window's metrics alone: their terms in lanes
+        if window_only:
+            metric_terms_lanes(cb, buf, refs[k])
         for i in range(n):
             b = b0 + i
             if not alive[b]:
@@ -434,9 +425,12 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 put_command(buf, i, o.f_rotor, pp_b.n_rotors)
                 put_held(buf, i, s_b.thrust_prev, s_b.tau_B_prev)
                 put_command_held(eb, i, s_b.thrust_prev, s_b.tau_B_prev)
-            elif truth or up_now or down_now:  # the record the metrics, log and lagless rotors read
+            elif (truth and not window_only) or up_now or down_now:  # the record the log and lagless rotors read
                 get_output(cb, eb, i, rc, o)
-            if truth:
+            if window_only:  # as _record without a log row: the tick is in the window
+                e2, ev2, fe2, te2, sat = metric_terms_at(cb, i)
+                add_terms(acc[b], t, win, e2, ev2, fe2, te2, sat)
+            elif truth:
                 obs, env = observed_at(buf, i)
                 if logged:  # the log reads the rates and rotor forces of the record
                     get_state(buf, i, X[b])

@@ -27,10 +27,14 @@ def _wide_vectors() -> None:
     arithmetic of each lane does not change, only how many lanes one instruction holds).
 
     Numba has one code generator per process, so this holds for every kernel compiled after the import,
-    the user's too; it does nothing when ``NUMBA_CPU_FEATURES`` or ``NUMBA_CPU_NAME`` is set (the user's
-    choice stands) or when numba made its generator before this package's kernels were imported (any
-    numba function defined first, ``numba.typed`` imported first: the kernels then run with narrower
-    vectors). ``vtol_impedance.compiled`` imports this module before anything else of numba's."""
+    the user's too. On older AVX-512 cores (Skylake-SP) 512-bit code lowers the clock, which is why LLVM
+    prefers 256 bits there: ``VTOL_IMPEDANCE_NARROW_VECTORS=1`` keeps LLVM's choice. It also does nothing
+    when ``NUMBA_CPU_FEATURES`` or ``NUMBA_CPU_NAME`` is set (the user's choice stands) or when numba made
+    its generator before this package's kernels were imported (any numba function defined first,
+    ``numba.typed`` imported first: the kernels then run with narrower vectors). ``vtol_impedance.compiled``
+    imports this module before anything else of numba's."""
+    if os.environ.get("VTOL_IMPEDANCE_NARROW_VECTORS", "") not in ("", "0"):
+        return
     if os.environ.get("NUMBA_CPU_FEATURES") or os.environ.get("NUMBA_CPU_NAME") or numba.config.CPU_FEATURES:
         return
     import llvmlite.binding as ll

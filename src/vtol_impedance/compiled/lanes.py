@@ -338,12 +338,19 @@ def observe_lanes(buf, n_rotors):
 def observed_at(buf, i):
     """Lane ``i``'s ``(eta, f_l, t_l, p_o, v_o)`` and wrench ``[f_ext_W, tau_ext_B]`` of :func:`observe_lanes`."""
     k = _O * W + i
+    env = (buf[k + 15 * W], buf[k + 16 * W], buf[k + 17 * W], buf[k + 18 * W], buf[k + 19 * W], buf[k + 20 * W])
+    return observed_rows(buf, i), env
+
+
+@kernel(inline="always")
+def observed_rows(buf, i):
+    """Lane ``i``'s ``(eta, f_l, t_l, p_o, v_o)`` of :func:`observe_lanes` (3-tuples)."""
+    k = _O * W + i
 
     def three(j):
         return buf[k + j * W], buf[k + (j + 1) * W], buf[k + (j + 2) * W]
 
-    env = (buf[k + 15 * W], buf[k + 16 * W], buf[k + 17 * W], buf[k + 18 * W], buf[k + 19 * W], buf[k + 20 * W])
-    return (three(0), three(3), three(6), three(9), three(12)), env
+    return three(0), three(3), three(6), three(9), three(12)
 
 
 @kernel(inline="always")

@@ -37,8 +37,9 @@ from .controller import (
     yaw_room,
 )
 from .jit import kernel
-from .lanes import W, put_command_row, put_held
-from .lanes_estimator import _CC, _MM, _QQ, _RD, _WH, put_command_held, sample_at
+from .lanes import W, observed_rows, put_command_row, put_held
+from .lanes_estimator import _CC, _MM, _QQ, _RD, _WH, _six, _three, put_command_held, sample_at
+from .metrics import tick_terms
 
 _R = MAX_ROTORS
 _LP = 0  # LawLane: mass, I9 (9), tan_tilt, min_lift, compensate, comply, integral_limit, 11 gains (3 each)
@@ -54,7 +55,8 @@ _BASE = _AL + 4  # each rotor's force before yaw
 _F = _BASE + _R  # each rotor's command
 _U = _F + _R  # thrust and moments given (E f)
 _SM = _U + 4  # the estimator's sample: Q, M, C (9 each), the estimate and its rate (6 each)
-ROWS = _SM + 39
+_MT = _SM + 39  # the tick's window-metric terms: e2, ev2, fe2, te2, sat
+ROWS = _MT + 5
 
 
 @kernel()
@@ -67,16 +69,6 @@ def new_law_buffer():
 def _at(cb, row, i):
     return cb[row * W + i]
 
-
-@kernel(inline="always")
-def _three(cb, row, i):
-    k = row * W + i
-    return cb[k], cb[k + W], cb[k + 2 * W]
-
-
-@kernel(inline="always")
-def _six(cb, row, i):
-    return _three(cb, row, i) + _three(cb, row + 3, i)
 
 
 @kernel(inline="always")
@@ -293,3 +285,29 @@ def get_output(cb, eb, i, r, o):
     put_output(o, _at(cb, _U, i), _three(cb, _U + 1, i), _at(cb, _AL + 1, i) > 0.5, _at(cb, _RQ, i), tr, w,
                _three(cb, _RQ + 19, i), ed, r, _three(cb, _RQ + 5, i), _at(cb, _RQ + 4, i) > 0.5,
                _at(cb, _AL + 2, i), _at(cb, _AL + 3, i))  # fmt: skip
+
+
+@kernel(inline="always")
+def metric_terms_lanes(cb, buf, r):
+    """The window metrics' terms of the tick for every lane (:func:`~.metrics.tick_terms` and the
+    saturation flag, as one vehicle's ``_accumulate`` takes them from its record) into rows read by
+    :func:`metric_terms_at`: after :func:`finish_lanes` (the estimate, the flags) and
+    :func:`~.lanes.observe_lanes` (the body origin's motion, the lumped wrench of ``buf``); ``r`` is the
+    reference row the law was given."""
+    rr = (r[0], r[1], r[2], r[3], r[4], r[5])  # read before the loop: it might alias the rows written
+    for i in range(W):  # vectorised: one lane per vehicle
+        _, f_l, t_l, p_o, v_o = observed_rows(buf, i)
+        e2, ev2, fe2, te2 = tick_terms(p_o, v_o, rr, _three(cb, _SM + 27, i), _three(cb, _SM + 30, i), f_l, t_l)
+        k = _MT * W + i
+        cb[k] = e2
+        cb[k + W] = ev2
+        cb[k + 2 * W] = fe2
+        cb[k + 3 * W] = te2
+        cb[k + 4 * W] = 1.0 if (_at(cb, _AL + 1, i) > 0.5 or _at(cb, _RQ + 4, i) > 0.5) else 0.0
+
+
+@kernel(inline="always")
+def metric_terms_at(cb, i):
+    """Lane ``i``'s ``(e2, ev2, fe2, te2, sat)`` of :func:`metric_terms_lanes`."""
+    k = _MT * W + i
+    return cb[k], cb[k + W], cb[k + 2 * W], cb[k + 3 * W], cb[k + 4 * W]

@@ -146,7 +146,7 @@ class ControllerParams:
             "variant": self.variant,
             "vehicle": self.vehicle.to_dict(memo),
             "gains": self.gains.to_dict(),
-            "estimator": self.estimator.to_dict(),
+            "estimator": self._estimator_dict(memo),
             "Ts": self.Ts,
             "tilt_max": self.tilt_max,
             "min_lift_accel": self.min_lift_accel,
@@ -156,6 +156,15 @@ class ControllerParams:
             "thrust_shift_max": self.thrust_shift_max,
             "impedance": self.apparent_impedance().to_dict(),
         }
+
+    def _estimator_dict(self, memo: dict[int, dict] | None) -> dict:
+        """The estimator's plain data, one dictionary for the controllers of a batch that share it."""
+        if memo is None:
+            return self.estimator.to_dict()
+        key = id(self.estimator)
+        if key not in memo:
+            memo[key] = self.estimator.to_dict()
+        return memo[key]
 
     def apparent_impedance(self) -> Impedance:
         """The impedance ``comply`` yields with: the set one, or by default the vehicle's own mass with
@@ -216,12 +225,13 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
     if not plist:
         raise InputError("no controller given")
     p0 = plist[0]
+    est0 = p0.estimator.to_dict()
     for p in plist[1:]:
         if (p.Ts, p.attitude_filter_wn, p.attitude_filter_zeta) != (
             p0.Ts,
             p0.attitude_filter_wn,
             p0.attitude_filter_zeta,
-        ) or p.estimator.to_dict() != p0.estimator.to_dict():
+        ) or (p.estimator is not p0.estimator and p.estimator.to_dict() != est0):
             raise InputError("controllers in one batch must share Ts, the estimator and the attitude filter")
         if p.vehicle.n_rotors != p0.vehicle.n_rotors:
             raise InputError(

@@ -407,11 +407,15 @@ def _checked_inputs(
     labels = list(labels) if labels is not None else [c.variant for c in controllers]
     if len(labels) != B or not all(isinstance(x, str) for x in labels):
         raise InputError(f"labels must be {B} strings, one per controller, got {labels!r}")
-    counts = {c.vehicle.n_rotors for c in controllers} | {p.vehicle.n_rotors for p in plants}
+    vehicles = {id(x.vehicle): x.vehicle for x in (*controllers, *plants)}  # each distinct vehicle once
+    counts = {v.n_rotors for v in vehicles.values()}
     if len(counts) > 1:
         raise InputError(f"controllers and plants must have the same number of rotors, got {sorted(counts)}")
     seed_list = [seed] * B if np.ndim(seed) == 0 else list(seed)  # type: ignore[arg-type]
-    seeds = [scalar("seed", s, lo=0, hi=2**63 - 1, integer=True) for s in seed_list]
+    if all(type(s) is int and 0 <= s <= 2**63 - 1 for s in seed_list):  # plain ints in range: as scalar() passes them
+        seeds = seed_list
+    else:
+        seeds = [scalar("seed", s, lo=0, hi=2**63 - 1, integer=True) for s in seed_list]
     if len(seeds) != B:
         raise InputError(f"{len(seeds)} seeds given for {B} vehicles")
     if window is not None:
