@@ -61,8 +61,8 @@ _refresh_cache()
 
 
 def kernels_cached() -> bool:
-    """Whether the closed-loop kernel is in the on-disk cache (else the first run compiles: about a minute and a
-    half on two cores, the README says how it was measured)."""
+    """Whether the closed-loop kernel is in the on-disk cache (else the first run compiles: about two minutes
+    on two cores, the README says how it was measured)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return True  # unknown layout: assume the user manages it
     return any((_HERE / "__pycache__").glob("engine.run_block-*.nbi"))

@@ -70,7 +70,6 @@ def _at(cb, row, i):
     return cb[row * W + i]
 
 
-
 @kernel(inline="always")
 def _nine(cb, row, i):
     return _three(cb, row, i) + _three(cb, row + 3, i) + _three(cb, row + 6, i)
@@ -293,7 +292,7 @@ def metric_terms_lanes(cb, buf, r):
     saturation flag, as one vehicle's ``_accumulate`` takes them from its record) into rows read by
     :func:`metric_terms_at`: after :func:`finish_lanes` (the estimate, the flags) and
     :func:`~.lanes.observe_lanes` (the body origin's motion, the lumped wrench of ``buf``); ``r`` is the
-    reference row the law was given."""
+    tick's reference row (its first six, ``p_ref`` and ``v_ref`` at the tick, are what the metrics read)."""
     rr = (r[0], r[1], r[2], r[3], r[4], r[5])  # read before the loop: it might alias the rows written
     for i in range(W):  # vectorised: one lane per vehicle
         _, f_l, t_l, p_o, v_o = observed_rows(buf, i)
