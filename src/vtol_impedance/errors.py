@@ -94,15 +94,6 @@ def scalar(
     Refuses booleans, strings, arrays of more than one value and NaN/inf with an :class:`InputError`
     that names the value and the allowed range.
     """
-    if integer and isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_):
-        # whole numbers stay exact: through a float a 63-bit seed would lose its last bits (2**60 + 1 became
-        # 2**60) and 2**63 - 1 would round above the bound and be refused
-        v = int(value)
-        if (lo is not None and (v < lo or (lo_open and v == lo))) or (hi is not None and v > hi):
-            left = "(" if lo_open else "["
-            rng = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
-            raise InputError(f"{name} must be in {rng}, got {_short(value)}")
-        return v
     if type(value) is float and math.isfinite(value):  # the common case, without an array
         v = value
     else:

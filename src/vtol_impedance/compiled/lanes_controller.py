@@ -17,7 +17,8 @@ carries (the attitude filter (5), the integral (3)); the measurement (12); the l
 whether a limit acted, ``mu_bar``, the position error, the filter's next state, the attitude command, the
 estimated moment in body axes: 22); the allocation's first step (whether it held, saturation and scales: 4),
 each rotor's force before yaw and its command; the thrust and moments given (4); a copy of the estimator's
-sample (``Q``, ``M``, ``C``, the estimate and its rate: 39), so that the law's loop reads one buffer.
+sample (``Q``, ``M``, ``C``, the estimate and its rate: 39), so that the law's loop reads one buffer; the
+tick's window-metric terms (5, :func:`metric_terms_lanes`).
 """
 
 from __future__ import annotations

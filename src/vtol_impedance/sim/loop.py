@@ -412,7 +412,7 @@ def _checked_inputs(
     if len(counts) > 1:
         raise InputError(f"controllers and plants must have the same number of rotors, got {sorted(counts)}")
     seed_list = [seed] * B if np.ndim(seed) == 0 else list(seed)  # type: ignore[arg-type]
-    if all(type(s) is int and 0 <= s <= 2**63 - 1 for s in seed_list):  # plain ints in range: as scalar() passes them
+    if all(type(s) is int and 0 <= s < 2**53 for s in seed_list):  # plain ints a float holds: as scalar() passes them
         seeds = seed_list
     else:
         seeds = [scalar("seed", s, lo=0, hi=2**63 - 1, integer=True) for s in seed_list]
