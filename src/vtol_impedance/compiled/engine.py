@@ -302,8 +302,9 @@ def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_im
     """:func:`run_block` with the plants, sensors, estimators and control laws in SIMD lanes (:mod:`.lanes`,
     :mod:`.lanes_estimator`, :mod:`.lanes_controller`): one ``prange`` iteration per block of :data:`~.lanes.W`
     vehicles. Per control tick the block's truth is taken in lanes, each vehicle draws its sensor noise from its
-    own generator, the block's sensors, estimators and control laws run in lanes, each vehicle's metrics and
-    log as in :func:`run_block` (the same functions), then the block's plants take their ``n_sub`` RK4 steps
+    own generator (once per chunk), the block's sensors, estimators and control laws run in lanes, the window
+    metrics' terms too (:mod:`.metrics`, the functions :func:`run_block` calls), each vehicle's log as in
+    :func:`run_block`, then the block's plants take their ``n_sub`` RK4 steps
     together. Same arguments; the same results to 1e-11 (the lanes take their sines from :mod:`.vmath`,
     ``tests/test_lanes.py``)."""
     B = X.shape[0]
