@@ -3,6 +3,8 @@
 import json
 from pathlib import Path
 
+import pytest
+
 from vtol_impedance.bench import table
 from vtol_impedance.cli import main
 
@@ -111,6 +113,12 @@ def test_the_realistic_limit_says_why_it_was_skipped(tmp_path, monkeypatch):
         assert isinstance(r, dict), r
         assert r["limit_veh_s_per_s"] > 0 and r["project_veh_s_per_s"] > 0
         assert r["ratio"] == r["project_veh_s_per_s"] / r["limit_veh_s_per_s"]
+        (one,) = r["rounds"]  # one round: its pair is the bests, and the median its ratio
+        assert one == {"limit_veh_s_per_s": r["limit_veh_s_per_s"], "project_veh_s_per_s": r["project_veh_s_per_s"]}
+        assert r["ratio_median"] == pytest.approx(r["ratio"], rel=1e-12)
+        slow = {**one, "limit_veh_s_per_s": 2 * one["limit_veh_s_per_s"]}  # a second round: half the ratio
+        text = bench.table({**_minimal_report(), "realistic_limit": {**r, "rounds": [one, slow]}})
+        assert f"median {r['ratio_median']:.2f}): {r['ratio']:.2f}, {r['ratio'] / 2:.2f}" in text
         assert "batch 64 x 0.2 s, 2 threads / C plant alone" in bench.table({**_minimal_report(), "realistic_limit": r})
 
 

@@ -143,11 +143,14 @@ def test_a_block_with_quadratic_drag_steps_it_and_a_block_without_leaves_it_out(
     assert apart > 1e-3, apart
 
 
-def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metrics_alone(monkeypatch):
+@pytest.mark.parametrize("lagless", [True, False])
+def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metrics_alone(monkeypatch, lagless):
     """The lanes hold the states between ticks and write the records only at a chunk's end, on a failure and
     before a logged tick: with chunks of 50 ticks, a log every third tick, the metrics alone, disturbances that
     read the state (a wall, a push, a sinusoid), two blocks and a vehicle that falls with a payload it cannot
-    lift, the lanes give the vehicle engine's log, metrics and failures (to :data:`ENGINES_APART`)."""
+    lift inside the metrics' window, the lanes give the vehicle engine's log, metrics and failures (to
+    :data:`ENGINES_APART`). ``lagless``: half the rotors follow their command at once (the tick then visits
+    each vehicle); otherwise none does, and without a log the window's sums stay in lanes over a chunk."""
     from vtol_impedance.control.reference import MinJerk
     from vtol_impedance.model.vehicle import HoverWarning
     from vtol_impedance.sim import SensorParams
@@ -156,8 +159,9 @@ def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metric
     monkeypatch.setattr(loop, "BLOCK_BYTES", 1)  # chunks of 50 ticks
     veh = load_preset("pelican")
     n = W + 3
-    plants = [PlantParams(veh, payload_mass=3.0 if i == 7 else 0.03 * (i % 4), rotor_tau_up=0.02 * (i % 2),
-                          rotor_drag=0.1) for i in range(n)]  # fmt: skip
+    plants = [PlantParams(veh, payload_mass=3.0 if i == 7 else 0.03 * (i % 4),
+                          rotor_tau_up=0.02 * (i % 2) if lagless else 0.02 + 0.01 * (i % 2), rotor_drag=0.1)
+              for i in range(n)]  # fmt: skip
     ctrls = [ControllerParams.paper("pdc")] * n
     start = np.array([0.0, 0.0, -1.0])
     traj = Trajectory((Hold(start, 0.3), MinJerk(start, (0.45, 0.0, -1.0), 1.0), Hold((0.45, 0.0, -1.0), 0.7)))
@@ -169,7 +173,7 @@ def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metric
         with pytest.warns(HoverWarning, match="3 kg of payload"):
             lanes = _fly(monkeypatch, True, plants, ctrls, traj, 2.0, dists, SensorParams(), **kw)
             vehicles = _fly(monkeypatch, False, plants, ctrls, traj, 2.0, dists, SensorParams(), **kw)
-        assert lanes.failures[7] is not None
+        assert lanes.failures[7] is not None and 0.5 < lanes.failures[7]["time"] < 1.8
         assert sum(f is not None for f in lanes.failures) == 1
         _same_flight(lanes, vehicles, f"(log={log})")
 
@@ -218,13 +222,17 @@ def test_the_truth_and_the_failure_checks_at_a_tick_are_vector_code():
 
     @njit(**{**FLAGS, "cache": False})
     def observe(buf):
-        observe_lanes(buf, 4)
+        observe_lanes(buf, 4, True)
+
+    @njit(**{**FLAGS, "cache": False})
+    def observe_plain(buf):
+        observe_lanes(buf, 4, False)
 
     @njit(**{**FLAGS, "cache": False})
     def fail(buf):
         failure_lanes(buf, 4)
 
-    for fn, least in ((observe, 100), (fail, 10)):
+    for fn, least in ((observe, 100), (observe_plain, 100), (fail, 10)):
         fn(new_buffer())
         asm = fn.inspect_asm(fn.signatures[0])
         packed = len(re.findall(r"vfn?m(?:add|sub)\w*pd\s+%[yz]mm", asm))

@@ -3,26 +3,24 @@
 Per control period it does exactly what :func:`vtol_impedance.sim.loop.run_closed_loop` does with the
 NumPy backend (read delayed noisy sensors, controller step, log, hold the rotor command for ``n_sub``
 RK4 plant steps, check for divergence), using the kernels of :mod:`.controller` and :mod:`.plant`.
-Sensor noise comes from each vehicle's own NumPy generator (:class:`vtol_impedance.sim.sensors.NoiseSource`),
-drawn inside the kernel, twelve standard normals per tick, in the order the NumPy backend draws them:
-numba's ``Generator.standard_normal`` advances the same generator state with the same algorithm, so
-both backends see the same numbers (``tests/test_compiled.py`` checks it) and the draws run in the
-vehicles' threads. Data layouts are those of :mod:`.layouts`; the log rows are :data:`vtol_impedance.records.LOG_ROW`.
+Sensor noise is each vehicle's stream of :class:`vtol_impedance.sim.sensors.NoiseSource` (NumPy's default
+generator seeded by the vehicle's seed), drawn inside the kernel from the generators' states ``rng (4, B)``
+(:mod:`.noise`: the same numbers bit for bit), twelve standard normals per tick, in the order the NumPy
+backend draws them, so both backends see the same numbers (``tests/test_noise.py``,
+``tests/test_compiled.py``) and the draws run in the vehicles' threads (a block's in SIMD lanes). Data layouts
+are those of :mod:`.layouts`; the log rows are :data:`vtol_impedance.records.LOG_ROW`.
 """
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 from numba import prange
-from numba.core.errors import NumbaPendingDeprecationWarning
-from numba.typed import List
 
 from .algebra import _Q9, _v3
 from .controller import controller_step, law_lane_of, nominal_inertia
 from .jit import kernel
 from .lanes import (
+    NOISE_ROW,
     SENSED,
     W,
     block_is_plain,
@@ -41,7 +39,6 @@ from .lanes import (
     put_command,
     put_disturbance,
     put_held,
-    put_noise,
     put_nominal,
     put_plant,
     put_sensors,
@@ -50,11 +47,14 @@ from .lanes import (
     step_lanes,
 )
 from .lanes_controller import (
+    N_SUMS,
+    add_terms_lanes,
     allocation_held,
     finish_lanes,
     fix_allocation,
     get_law_state,
     get_output,
+    get_sums,
     law_lanes,
     metric_terms_at,
     metric_terms_lanes,
@@ -62,6 +62,7 @@ from .lanes_controller import (
     put_law,
     put_law_state,
     put_measurement_rows,
+    put_sums,
 )
 from .lanes_estimator import (
     estimate_lanes,
@@ -73,6 +74,7 @@ from .lanes_estimator import (
 )
 from .layouts import OUTPUT
 from .metrics import add_terms, tick_terms
+from .noise import normals_lanes, standard_normal
 from .plant import (
     _body_of,
     clip_command,
@@ -170,22 +172,23 @@ def _observed(pp_b, p_b, s_b, x, a_o, w_dot):
 
 
 @kernel(inline="always")
-def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, gen, r, logs_b, dec, acc_b, win, o, y,
-                  noise, rc):  # fmt: skip
+def _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, rng, b, r, logs_b, dec, acc_b, win, o,
+                  y, noise, rc):  # fmt: skip
     """Control tick ``k`` (time ``t``) of one vehicle, whichever plant flies it: its sensors (:func:`_sense`), the
     controller step (the rotor command in ``o``) given the reference of :func:`_reference`, and the window metrics
     and log row of :func:`_record`. ``y``, ``noise``, ``rc`` (18) are scratch."""
-    _sense(pp_b, xm, xi, sigma, gen, noise, y)
+    _sense(pp_b, xm, xi, sigma, rng, b, noise, y)
     controller_step(p_b, des, s_b, h_b, y, _reference(r, rc), o)
     _record(k, t, pp_b, x, obs, env, r, y, o, logs_b, dec, acc_b, win)
 
 
 @kernel(inline="always")
-def _sense(pp_b, xm, xi, sigma, gen, noise, y):
+def _sense(pp_b, xm, xi, sigma, rng, b, noise, y):
     """The measurement ``y`` of the sensors reading the states ``xm`` (motion capture), ``xi`` (IMU), with twelve
-    normals from ``gen`` in the order of ``NoiseSource.block`` (``noise``: scratch)."""
+    normals from vehicle ``b``'s generator (column ``b`` of ``rng``) in the order of ``NoiseSource.block``
+    (``noise``: scratch)."""
     for i in range(12):  # [position, velocity, attitude, gyro]
-        noise[i] = gen.standard_normal()
+        noise[i] = standard_normal(rng, b)
     _measure(pp_b, xm, xi, sigma, noise, y)
 
 
@@ -225,25 +228,25 @@ def _truth_needed(k, t, dec, win):
 
 
 @kernel(parallel=True)
-def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
+def run_block(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, rng, S, EH, p, d, pp, dists,
               series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Advance every live vehicle from control tick ``k0`` to ``k1``.
 
     ``X (B,)``: plant states; ``hist (B, H)``, ``hcount``, ``hhead``: each vehicle's ring of past states for
     the sensor delays; ``S (B,)``, ``EH (B, H_est)``: controller states and timing histories; ``p (B,)``,
     ``d (1,)``, ``pp (B,)``: controllers, shared design, plants; ``dists (D,)``, ``series``: disturbances;
-    ``refs (N, 24)``: reference samples (:func:`_control_tick`); ``gens``: each vehicle's noise generator (a typed list,
-    :func:`noise_generators`). ``logs (B, n_log)`` gets row ``k // dec`` when ``dec > 0`` and
-    ``k % dec == 0``; ``acc (B,)`` collects the window metrics (``win = [t0, t1, tail_start]``).
+    ``refs (N, 24)``: reference samples (:func:`_control_tick`); ``rng (4, B)``: the vehicles' noise generators'
+    states (:func:`.noise.generator_states`; drawing advances them). ``logs (B, n_log)`` gets row ``k // dec``
+    when ``dec > 0`` and ``k % dec == 0``; ``acc (B,)`` collects the window metrics (``win = [t0, t1, tail_start]``).
     """
     for b in prange(X.shape[0]):
         if alive[b]:  # records are handled in a function of their own: numba's parallel body mishandles them
-            _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp,
+            _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, rng, S, EH, p, d, pp,
                  dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win)  # fmt: skip
 
 
 @kernel()
-def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
+def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, rng, S, EH, p, d, pp, dists,
          series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicle ``b`` of :func:`run_block` from tick ``k0`` to ``k1`` (or until it fails)."""
     x, pp_b, p_b, s_b, h_b, des = X[b], pp[b], p[b], S[b], EH[b], d[0]
@@ -251,7 +254,6 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
     o = o_[0]
     y = np.empty(12)
     noise = np.empty(12)
-    gen = gens[np.int64(b)]  # prange gives an unsigned index; the typed list takes a signed one
     dist = np.empty(6)  # explicit disturbances, held over each plant step
     rc = np.empty(18)
     has_dists = dists.shape[0] > 0
@@ -273,8 +275,8 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
             a_o, w_dot, env = truth_at(pp_b, x, dist)
             obs = _observed(pp_b, p_b, s_b, x, a_o, w_dot)
         xm, xi = _ago(hist[b], count, head, k_mocap), _ago(hist[b], count, head, k_imu)
-        _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, gen, refs[k], logs[b], dec, acc[b],
-                      win, o, y, noise, rc)  # fmt: skip
+        _control_tick(k, t, pp_b, p_b, des, s_b, h_b, xm, xi, x, obs, env, sigma, rng, b, refs[k], logs[b], dec,
+                      acc[b], win, o, y, noise, rc)  # fmt: skip
         f_cmd = o.f_rotor
         _instant_rotors(pp_b, x, f_cmd)  # then hold the command over the period
         for js in range(n_sub):
@@ -297,12 +299,12 @@ def _fly(b, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma
 
 
 @kernel(parallel=True)
-def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp, dists,
+def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, rng, S, EH, p, d, pp, dists,
                     series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """:func:`run_block` with the plants, sensors, estimators and control laws in SIMD lanes (:mod:`.lanes`,
     :mod:`.lanes_estimator`, :mod:`.lanes_controller`): one ``prange`` iteration per block of :data:`~.lanes.W`
-    vehicles. Per control tick the block's truth is taken in lanes, each vehicle draws its sensor noise from its
-    own generator (once per chunk), the block's sensors, estimators and control laws run in lanes, the window
+    vehicles. Per control tick the block's truth is taken in lanes, each lane draws its vehicle's sensor noise
+    (:func:`.noise.normals_lanes`), the block's sensors, estimators and control laws run in lanes, the window
     metrics' terms too (:mod:`.metrics`, the functions :func:`run_block` calls), each vehicle's log as in
     :func:`run_block`, then the block's plants take their ``n_sub`` RK4 steps
     together. Same arguments; the same results to 1e-11 (the lanes take their sines from :mod:`.vmath`,
@@ -310,12 +312,12 @@ def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_im
     B = X.shape[0]
     for blk in prange((B + W - 1) // W):
         _fly_lanes(blk * W, min(W, B - blk * W), k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu,
-                   sigma, gens, S, EH, p, d, pp, dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec,
+                   sigma, rng, S, EH, p, d, pp, dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec,
                    acc, win)  # fmt: skip
 
 
 @kernel()
-def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, gens, S, EH, p, d, pp,
+def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_imu, sigma, rng, S, EH, p, d, pp,
                dists, series, refs, alive, fail_time, fail_code, x_park, logs, dec, acc, win):  # fmt: skip
     """Vehicles ``b0 .. b0 + n - 1`` of :func:`run_block_lanes` from tick ``k0`` to ``k1``; lanes past ``n``
     repeat the block's first vehicle and are never read back. The lanes hold the states between ticks: the
@@ -363,18 +365,20 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         ahead = n_sub - 1 - js
         keep[js] = (k_mocap - ahead) % n_sub == 0 or (k_imu - ahead) % n_sub == 0
     live = 0
+    instant = False  # a lane whose rotors follow a command at once in some direction: handled lane by lane
+    flying = np.zeros(W, dtype=np.bool_)
     for i in range(n):
         live += 1 if alive[b0 + i] else 0
-    # each flying vehicle's noise of the chunk's ticks, drawn in the order the ticks would draw it: its generator
-    # is taken from the typed list once a chunk, not once a tick (a vehicle that stops leaves draws unused, as
-    # the NumPy backend's blocks do)
-    nz = np.empty((n, k1 - k0, 12))
-    for i in range(n):
-        if alive[b0 + i]:
-            g = gens[np.int64(b0 + i)]
-            for kk in range(k1 - k0):
-                for j in range(12):
-                    nz[i, kk, j] = g.standard_normal()
+        flying[i] = alive[b0 + i]
+        instant = instant or pp[b0 + i].tau_up <= 0 or pp[b0 + i].tau_down <= 0
+    # without a log, the window metrics' sums stay in lanes from the first tick the laws run in lanes to the
+    # chunk's end (the same additions in the same order as each vehicle's record would take)
+    sums = np.zeros(N_SUMS * W)
+    in_lanes = False
+    st = np.empty((4, W), dtype=np.uint64)  # the lanes' noise generators (past n: a copy of the first's)
+    for i in range(W):
+        for j in range(4):
+            st[j, i] = rng[j, b0 + (i if i < n else 0)]
     for k in range(k0, k1):
         if live == 0:
             break
@@ -386,13 +390,13 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                     if alive[b0 + i]:
                         disturbance_at(pp[b0 + i], state_view(buf, i), t, dists, series, dist)
                         put_disturbance(buf, i, dist)
-            if nr == 4:  # a literal count lets the compiler unroll the quadrotor's rotors
-                observe_lanes(buf, 4)
+            if nr == 4 and plain:  # literals, as step_lanes below
+                observe_lanes(buf, 4, False)
+            elif nr == 4:
+                observe_lanes(buf, 4, True)
             else:
-                observe_lanes(buf, nr)
-        for i in range(n):  # the sensors: each vehicle's noise (drawn above), then in lanes
-            if alive[b0 + i]:
-                put_noise(sb, i, nz[i, k - k0])
+                observe_lanes(buf, nr, True)
+        normals_lanes(st, sb, NOISE_ROW, 12)  # the sensors: each lane's noise of the tick, then the measurement
         ago_m, ago_i = min(k_mocap, count_s - 1), min(k_imu, count_s - 1)  # as _ago
         measure_lanes(sb, (head_s - ago_m) % H, (head_s - ago_i) % H, sigma)
         put_measured_rows(eb, sb, SENSED)
@@ -413,7 +417,15 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         window_only = ready and truth and not logged  # the window's metrics alone: their terms in lanes
         if window_only:
             metric_terms_lanes(cb, buf, refs[k])
-        for i in range(n):
+            if dec == 0:
+                if not in_lanes:
+                    for i in range(n):
+                        put_sums(sums, i, acc[b0 + i])
+                    in_lanes = True
+                add_terms_lanes(cb, sums, t, win, flying)
+        # nothing of the tick is left to do vehicle by vehicle (the common tick of a flight without a log)
+        lanes_only = ready and not logged and not instant and (not truth or in_lanes)
+        for i in range(0 if lanes_only else n):
             b = b0 + i
             if not alive[b]:
                 continue
@@ -428,7 +440,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 put_command_held(eb, i, s_b.thrust_prev, s_b.tau_B_prev)
             elif (truth and not window_only) or up_now or down_now:  # the record the log and lagless rotors read
                 get_output(cb, eb, i, rc, o)
-            if window_only:  # as _record without a log row: the tick is in the window
+            if window_only and not in_lanes:  # as _record without a log row: the tick is in the window
                 e2, ev2, fe2, te2, sat = metric_terms_at(cb, i)
                 add_terms(acc[b], t, win, e2, ev2, fe2, te2, sat)
             elif truth:
@@ -465,12 +477,17 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
             code = failure_at(buf, i)
             if alive[b] and code != 0:
                 alive[b] = False
+                flying[i] = False
                 fail_code[b] = code
                 fail_time[b] = t + Ts
                 X[b] = x_park[b]
                 live -= 1
     for i in range(n):
         b = b0 + i
+        for j in range(4):
+            rng[j, b] = st[j, i]
+        if in_lanes:
+            get_sums(sums, i, acc[b])
         if alive[b]:
             get_state(buf, i, X[b])
             get_sensors(sb, i, hist[b])
@@ -506,7 +523,7 @@ def _instant_rotors(pp_b, x, f_cmd):
 
 
 @kernel()
-def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, gens, S, EH, p, d, pp, refs, alive, logs, dec, acc, win, F):
+def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, rng, S, EH, p, d, pp, refs, alive, logs, dec, acc, win, F):
     """Control tick ``k`` of every live vehicle flown by another plant (MuJoCo, :mod:`vtol_impedance.sim.mjplant`),
     which gives the states ``X (B,)``, those the sensors read ``XM``, ``XI`` and the truth at the tick:
     ``A_O (B, 3)`` the body origin's acceleration (world), ``W_DOT (B, 3)`` (body), ``ENV (B, 6)`` the external
@@ -525,7 +542,7 @@ def control_ticks(k, Ts, XM, XI, X, A_O, W_DOT, ENV, sigma, gens, S, EH, p, d, p
                 obs = _observed(pp[b], p[b], S[b], X[b], a_o, w_dot)
                 e = ENV[b]
                 env = (e[0], e[1], e[2], e[3], e[4], e[5])
-            _control_tick(k, k * Ts, pp[b], p[b], d[0], S[b], EH[b], XM[b], XI[b], X[b], obs, env, sigma, gens[b],
+            _control_tick(k, k * Ts, pp[b], p[b], d[0], S[b], EH[b], XM[b], XI[b], X[b], obs, env, sigma, rng, b,
                           refs[k], logs[b], dec, acc[b], win, o, y, noise, rc)  # fmt: skip
             for i in range(F.shape[1]):
                 F[b, i] = o.f_rotor[i]
@@ -537,24 +554,6 @@ def failure_codes(pp, X, alive, code):
     engine makes after every period, for a plant stepped elsewhere (MuJoCo)."""
     for b in range(X.shape[0]):
         code[b] = _failure(pp[b], X[b]) if alive[b] else 0
-
-
-def noise_generators(gens: list) -> object:
-    """The vehicles' NumPy generators as the typed list :func:`run_block` takes (the same objects: what
-    the kernel draws advances them)."""
-    if not gens:
-        raise ValueError("noise_generators needs at least one generator")
-    with warnings.catch_warnings():  # one call converts the whole list (numba's reflected list)
-        warnings.simplefilter("ignore", NumbaPendingDeprecationWarning)
-        return _typed_list(gens)
-
-
-@kernel()
-def _typed_list(gens):
-    out = List()
-    for g in gens:
-        out.append(g)
-    return out
 
 
 @kernel()

@@ -309,16 +309,16 @@ def _sum_rotors(buf, n_rotors):
 
 
 @kernel(inline="always")
-def observe_lanes(buf, n_rotors):
+def observe_lanes(buf, n_rotors, full):
     """The truth at a control tick for every lane, as one vehicle's :func:`~.plant.truth_at` and
     :func:`~.plant.observed` give it, into the rows read by :func:`observed_at`: the state, rotor forces and
-    disturbance the lanes hold, the command held over the last period."""
+    disturbance the lanes hold, the command held over the last period. ``full``: as :func:`step_lanes`."""
     _sum_rotors(buf, n_rotors)
     for i in range(W):  # vectorised: one lane per vehicle
         u, dd, nn = _U * W + i, _D * W + i, _N * W + i
         pl, s = _plant_at(buf, i), _body_at(buf, i)
         dist = (buf[dd], buf[dd + W], buf[dd + 2 * W], buf[dd + 3 * W], buf[dd + 4 * W], buf[dd + 5 * W])
-        a_o, w_dot, env = truth_of(pl, s, buf[u], buf[u + W], buf[u + 2 * W], buf[u + 3 * W], dist)
+        a_o, w_dot, env = truth_of(pl, s, buf[u], buf[u + W], buf[u + 2 * W], buf[u + 3 * W], dist, full)
         I9 = (buf[nn + W], buf[nn + 2 * W], buf[nn + 3 * W], buf[nn + 4 * W], buf[nn + 5 * W], buf[nn + 6 * W],
               buf[nn + 7 * W], buf[nn + 8 * W], buf[nn + 9 * W])  # fmt: skip
         tau = (buf[nn + 11 * W], buf[nn + 12 * W], buf[nn + 13 * W])
@@ -381,6 +381,7 @@ def instant_rotors_lane(buf, i, up_now, down_now, f_cmd, f_min, f_max, n):
 
 # The sensors of a block (:func:`measure_lanes`): rows of W in the buffer ``sb`` (:func:`new_sensor_buffer`).
 _SN = 0  # the tick's noise draws (12, in the order of y)
+NOISE_ROW = _SN  #: the sensor buffer's first noise row (:func:`.noise.normals_lanes` draws into it)
 _SC = _SN + 12  # the CoM in the body, c_B (3)
 _SX = _SC + 3  # the states read: motion capture p, v, q, w (13), IMU q, w (7)
 _SY = _SX + 20  # the measurement y (12)
@@ -432,13 +433,6 @@ def keep_state(sb, buf, slot):
     for j in range(13):
         for i in range(W):
             sb[(_SR + 13 * slot + j) * W + i] = buf[(_S + j) * W + i]
-
-
-@kernel(inline="always")
-def put_noise(sb, i, z):
-    """Lane ``i``'s twelve standard normals ``z`` of the tick, in the order of ``y``."""
-    for j in range(12):
-        sb[(_SN + j) * W + i] = z[j]
 
 
 @kernel()

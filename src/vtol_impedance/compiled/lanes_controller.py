@@ -40,7 +40,7 @@ from .controller import (
 from .jit import kernel
 from .lanes import W, observed_rows, put_command_row, put_held
 from .lanes_estimator import _CC, _MM, _QQ, _RD, _WH, _six, _three, put_command_held, sample_at
-from .metrics import tick_terms
+from .metrics import summed, tick_terms
 
 _R = MAX_ROTORS
 _LP = 0  # LawLane: mass, I9 (9), tan_tilt, min_lift, compensate, comply, integral_limit, 11 gains (3 each)
@@ -311,3 +311,34 @@ def metric_terms_at(cb, i):
     """Lane ``i``'s ``(e2, ev2, fe2, te2, sat)`` of :func:`metric_terms_lanes`."""
     k = _MT * W + i
     return cb[k], cb[k + W], cb[k + 2 * W], cb[k + 3 * W], cb[k + 4 * W]
+
+
+N_SUMS = 9  #: rows of the window metrics' running sums in lanes (the fields of ``ACCUMULATORS``, in order)
+
+
+@kernel()
+def add_terms_lanes(cb, A, t, win, flying):  # noqa: N803
+    """The running sums ``A`` (:data:`N_SUMS` rows of :data:`~.lanes.W`: :func:`put_sums`) of the lanes
+    ``flying`` take the tick's terms of :func:`metric_terms_lanes` (:func:`~.metrics.summed`, as one
+    vehicle's record takes them); the other lanes keep theirs."""
+    for i in range(W):  # vectorised: one lane per vehicle
+        e2, ev2, fe2, te2, sat = metric_terms_at(cb, i)
+        s = (A[i], A[W + i], A[2 * W + i], A[3 * W + i], A[4 * W + i], A[5 * W + i], A[6 * W + i], A[7 * W + i],
+             A[8 * W + i])  # fmt: skip
+        v = summed(s, t, win, e2, ev2, fe2, te2, sat) if flying[i] else s
+        A[i], A[W + i], A[2 * W + i], A[3 * W + i], A[4 * W + i] = v[0], v[1], v[2], v[3], v[4]
+        A[5 * W + i], A[6 * W + i], A[7 * W + i], A[8 * W + i] = v[5], v[6], v[7], v[8]
+
+
+@kernel(inline="always")
+def put_sums(A, i, a):  # noqa: N803
+    """Lane ``i`` of the sums ``A`` takes the record ``a`` (:data:`~.layouts.ACCUMULATORS`)."""
+    A[i], A[W + i], A[2 * W + i], A[3 * W + i], A[4 * W + i] = a.n, a.e2, a.e_max, a.ev2, a.f2
+    A[5 * W + i], A[6 * W + i], A[7 * W + i], A[8 * W + i] = a.t2, a.sat, a.n_tail, a.e_tail
+
+
+@kernel(inline="always")
+def get_sums(A, i, a):  # noqa: N803
+    """The record ``a`` takes lane ``i`` of the sums ``A``."""
+    a.n, a.e2, a.e_max, a.ev2, a.f2, a.t2 = A[i], A[W + i], A[2 * W + i], A[3 * W + i], A[4 * W + i], A[5 * W + i]
+    a.sat, a.n_tail, a.e_tail = A[6 * W + i], A[7 * W + i], A[8 * W + i]

@@ -1,8 +1,8 @@
 """The window metrics of a control tick, as pure pieces: the squared errors of one tick
-(:func:`tick_terms`) and their running sums (:func:`add_terms`), the definitions of
-:func:`vtol_impedance.analysis.metrics`. The vehicle-by-vehicle engine calls both with its records; the
-lanes take the terms of a whole block at once (:func:`~.lanes_controller.metric_terms_lanes`) and add
-each vehicle's to its sums."""
+(:func:`tick_terms`) and their running sums (:func:`summed`, :func:`add_terms` on a record), the
+definitions of :func:`vtol_impedance.analysis.metrics`. The vehicle-by-vehicle engine calls them with its
+records; the lanes take the terms of a whole block at once (:func:`~.lanes_controller.metric_terms_lanes`)
+and, in a flight without a log, keep the sums in lanes too (:func:`~.lanes_controller.add_terms_lanes`)."""
 
 from __future__ import annotations
 
@@ -26,16 +26,18 @@ def tick_terms(p_o, v_o, r, f_hat, tau_hat, f_l, t_l):
 
 
 @kernel(inline="always")
+def summed(s, t, win, e2, ev2, fe2, te2, sat):
+    """The running sums ``s`` (the fields of :data:`~.layouts.ACCUMULATORS` in order: ``n, e2, e_max, ev2,
+    f2, t2, sat, n_tail, e_tail``) after a tick at ``t`` with its terms and ``sat`` (1 where the command
+    saturated or the tilt was limited), ``win = [t0, t1, tail_start]``."""
+    e = math.sqrt(e2)
+    tail = t >= win[2]
+    return (s[0] + 1.0, s[1] + e2, max(s[2], e), s[3] + ev2, s[4] + fe2, s[5] + te2, s[6] + sat,
+            s[7] + 1.0 if tail else s[7], s[8] + e if tail else s[8])  # fmt: skip
+
+
+@kernel(inline="always")
 def add_terms(a, t, win, e2, ev2, fe2, te2, sat):
-    """The running sums :data:`~.layouts.ACCUMULATORS` ``a`` take a tick at ``t`` with its terms and
-    ``sat`` (1 where the command saturated or the tilt was limited), ``win = [t0, t1, tail_start]``."""
-    a.n += 1.0
-    a.e2 += e2
-    a.e_max = max(a.e_max, math.sqrt(e2))
-    a.ev2 += ev2
-    a.f2 += fe2
-    a.t2 += te2
-    a.sat += sat
-    if t >= win[2]:
-        a.n_tail += 1.0
-        a.e_tail += math.sqrt(e2)
+    """The record ``a`` (:data:`~.layouts.ACCUMULATORS`) takes a tick: :func:`summed`."""
+    s = summed((a.n, a.e2, a.e_max, a.ev2, a.f2, a.t2, a.sat, a.n_tail, a.e_tail), t, win, e2, ev2, fe2, te2, sat)
+    a.n, a.e2, a.e_max, a.ev2, a.f2, a.t2, a.sat, a.n_tail, a.e_tail = s

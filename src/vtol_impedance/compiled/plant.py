@@ -408,14 +408,15 @@ def truth_at(pp, x, dist):
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, 4)
     else:
         u, tm0, tm1, tm2 = _rotor_sums(pp, x.f_rotor, pp.n_rotors)
-    return truth_of(lane_of(pp), _body_of(x), u, tm0, tm1, tm2, dist)
+    return truth_of(lane_of(pp), _body_of(x), u, tm0, tm1, tm2, dist, True)
 
 
 @kernel(inline="always")
-def truth_of(pl, s, u, tm0, tm1, tm2, dist):
+def truth_of(pl, s, u, tm0, tm1, tm2, dist, full):
     """:func:`truth_at` of the plant ``pl`` (a :data:`PlantLane`) in the body states ``s`` with the rotors'
-    thrust ``u`` and moments ``tm`` (the true ``E f``): pure, for one vehicle or a lane."""
-    s_dot, env = body_derivative(pl, s, u, tm0, tm1, tm2, dist, True)
+    thrust ``u`` and moments ``tm`` (the true ``E f``): pure, for one vehicle or a lane. ``full``: as
+    :func:`body_derivative`."""
+    s_dot, env = body_derivative(pl, s, u, tm0, tm1, tm2, dist, full)
     w_dot = (s_dot[10], s_dot[11], s_dot[12])
     R = _R_of((s[6], s[7], s[8], s[9]))
     return origin_acceleration(pl.c_B, s, (s_dot[3], s_dot[4], s_dot[5]), w_dot, R), w_dot, env

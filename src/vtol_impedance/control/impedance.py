@@ -42,7 +42,7 @@ from ..estimator.momentum import initial_state as estimator_initial_state
 from ..model.dynamics import coriolis_matrix_C, inertia_matrix_M, matvec, transpose
 from ..model.kinematics import euler_rate_matrix_Q, wrap_angle
 from ..model.mixer import THRUST_SHIFT_MAX, allocate
-from ..model.vehicle import VehicleParams, load_preset
+from ..model.vehicle import VehicleParams, distinct_vehicles, load_preset
 from .attitude_filter import FilterDesign, FilterState, design_filter, filter_step
 from .gains import Impedance, ImpedanceGains
 from .signals import ControlOutput, Measurement, Reference, comply6
@@ -233,7 +233,7 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
             p0.attitude_filter_zeta,
         ) or (p.estimator is not p0.estimator and p.estimator.to_dict() != est0):
             raise InputError("controllers in one batch must share Ts, the estimator and the attitude filter")
-        if p.vehicle.n_rotors != p0.vehicle.n_rotors:
+        if p.vehicle is not p0.vehicle and p.vehicle.n_rotors != p0.vehicle.n_rotors:
             raise InputError(
                 f"controllers in one batch must have the same number of rotors, got {p0.vehicle.n_rotors} and "
                 f"{p.vehicle.n_rotors}"
@@ -243,15 +243,22 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         arr = np.array([fn(p) for p in plist], dtype=float)
         return arr[0] if single else arr
 
+    # the vehicle's columns once per distinct vehicle (a batch's controllers mostly share one)
+    vehicles, rows = distinct_vehicles([p.vehicle for p in plist])
+
+    def vcol(fn) -> np.ndarray:
+        arr = np.array([fn(v) for v in vehicles], dtype=float)[rows]
+        return arr[0] if single else arr
+
     imp = {id(p): p.apparent_impedance() for p in plist}
 
     return ControllerArrays(
-        mass=col(lambda p: p.vehicle.mass),
-        I_B=col(lambda p: p.vehicle.inertia),
-        E=col(lambda p: p.vehicle.geometry.E),
-        E_pinv=col(lambda p: p.vehicle.geometry.E_pinv),
-        f_max=col(lambda p: p.vehicle.geometry.f_max),
-        f_min=col(lambda p: p.vehicle.geometry.f_min),
+        mass=vcol(lambda v: v.mass),
+        I_B=vcol(lambda v: v.inertia),
+        E=vcol(lambda v: v.geometry.E),
+        E_pinv=vcol(lambda v: v.geometry.E_pinv),
+        f_max=vcol(lambda v: v.geometry.f_max),
+        f_min=vcol(lambda v: v.geometry.f_min),
         Kp=col(lambda p: p.gains.Kp),
         Dp=col(lambda p: p.gains.Dp),
         Ki=col(lambda p: p.gains.Ki if p.variant == "pid" else np.zeros(3)),
@@ -265,7 +272,7 @@ def compile_controllers(params: ControllerParams | Sequence[ControllerParams]) -
         Md=col(lambda p: imp[id(p)].M),
         Dd=col(lambda p: imp[id(p)].D),
         Kd=col(lambda p: imp[id(p)].K),
-        Mo_d=col(lambda p: _or(imp[id(p)].M_o, np.diag(p.vehicle.inertia))),
+        Mo_d=col(lambda p: np.diag(p.vehicle.inertia) if imp[id(p)].M_o is None else imp[id(p)].M_o),
         Do_d=col(lambda p: _or(imp[id(p)].D_o, p.gains.Do)),
         Ko_d=col(lambda p: _or(imp[id(p)].K_o, p.gains.Ko)),
         comply_enable=col(lambda p: 1.0 if p.variant == "comply" else 0.0),

@@ -103,6 +103,14 @@ def _inertia(value: Any) -> np.ndarray:
     return arr
 
 
+def distinct_vehicles(vehicles: list[VehicleParams]) -> tuple[list[VehicleParams], np.ndarray]:
+    """The distinct objects of ``vehicles`` (by identity, in order of first use) and each entry's row among
+    them: a batch's arrays read a vehicle shared by thousands of entries once."""
+    first: dict[int, int] = {}
+    rows = np.array([first.setdefault(id(v), len(first)) for v in vehicles], dtype=np.int64)
+    return list({id(v): v for v in vehicles}.values()), rows
+
+
 def f_max_from_motor(thrust_constant: float, max_speed: float) -> float:
     """Largest rotor force ``k_f * omega_max^2`` (N) from the thrust constant ``k_f`` (N s^2/rad^2) and the
     maximum rotor speed ``omega_max`` (rad/s), the way flight stacks and RotorPy describe a motor."""

@@ -360,10 +360,10 @@ def _warn_if_grounded(controllers: list[ControllerParams], plants: list[PlantPar
     for the plants their payload and pendulum keep down (the heaviest named, with the count)."""
     for vehicle in {id(c.vehicle): c.vehicle for c in controllers}.values():
         warn_if_cannot_hover(vehicle, stacklevel=4)
+    lift = {id(v): float(v.geometry.f_max.sum()) for v in {id(p.vehicle): p.vehicle for p in plants}.values()}
     grounded = [
         p for p in {id(p): p for p in plants}.values()
-        if (p.payload_mass > 0 or p.pendulum_mass > 0)
-        and p.vehicle.geometry.f_max.sum() < (p.total_mass + p.pendulum_mass) * G
+        if (p.payload_mass > 0 or p.pendulum_mass > 0) and lift[id(p.vehicle)] < (p.total_mass + p.pendulum_mass) * G
     ]  # fmt: skip
     if grounded:
         p = max(grounded, key=lambda q: q.total_mass + q.pendulum_mass)
@@ -598,7 +598,7 @@ class _Engine(NamedTuple):
     logs: np.ndarray
     acc: np.ndarray
     win: np.ndarray
-    gens: Any
+    rng: np.ndarray
     alive: np.ndarray
     fail_code: np.ndarray
     fail_time: np.ndarray
@@ -607,8 +607,8 @@ class _Engine(NamedTuple):
 def _engine(s: _Setup) -> _Engine:
     from ..compiled.controller import initial_state as ctrl_initial_state
     from ..compiled.controller import pack_controller
-    from ..compiled.engine import noise_generators
     from ..compiled.layouts import ACCUMULATORS
+    from ..compiled.noise import generator_states
     from .plant import pack_plant
 
     B = s.x0.shape[0]
@@ -617,11 +617,9 @@ def _engine(s: _Setup) -> _Engine:
     p, d = pack_controller(s.CA)
     S, EH = ctrl_initial_state(p, d)
     n_log = (s.N + s.dec - 1) // s.dec if s.dec else 0
-    with _collector_paused():  # numba types each generator: a collection among them doubled the time
-        gens = noise_generators(s.noise.gens)
     return _Engine(
         p, d, pack_plant(s.PA), S, EH, empty_log(B, n_log), np.zeros(B, dtype=ACCUMULATORS), np.array(s.window),
-        gens, np.ones(B, dtype=np.bool_), np.zeros(B, dtype=np.int64), np.zeros(B),
+        generator_states(s.noise.seeds), np.ones(B, dtype=np.bool_), np.zeros(B, dtype=np.int64), np.zeros(B),
     )  # fmt: skip
 
 
@@ -661,7 +659,7 @@ def _run_compiled(s: _Setup, progress: ProgressFn | None):
         for k0 in range(0, s.N, block):
             k1 = min(k0 + block, s.N)
             fly(k0, k1, s.Ts, s.dt, s.n_sub, X, hist, hcount, hhead, suite.k_mocap, suite.k_imu, suite.sigma,
-                      e.gens, e.S, e.EH, e.p, e.d, e.pp, dists, series, s.refs, e.alive, e.fail_time, e.fail_code,
+                      e.rng, e.S, e.EH, e.p, e.d, e.pp, dists, series, s.refs, e.alive, e.fail_time, e.fail_code,
                       x_park, e.logs, s.dec, e.acc, e.win)  # fmt: skip
             if progress is not None:
                 progress(k1 / s.N)
@@ -705,7 +703,7 @@ def _run_mujoco(s: _Setup, progress: ProgressFn | None, plant: Any):
         a_o, w_dot, f_env, tau_env = plant.truth(t, F)
         env = np.concatenate([f_env, tau_env], -1)
         xm, xi = sens.delayed()
-        control_ticks(k, s.Ts, pack_state(xm), pack_state(xi), X, a_o, w_dot, env, sens.sigma, e.gens, e.S, e.EH,
+        control_ticks(k, s.Ts, pack_state(xm), pack_state(xi), X, a_o, w_dot, env, sens.sigma, e.rng, e.S, e.EH,
                       e.p, e.d, e.pp, s.refs, e.alive, e.logs, s.dec, e.acc, e.win, F)  # fmt: skip
         plant.advance(t, F, s.n_sub, s.dt, sens.push)
         X = pack_state(plant.x)

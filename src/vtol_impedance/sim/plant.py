@@ -39,7 +39,7 @@ from ..errors import InputError, as_finite, batched, instance, positive, scalar
 from ..model.aero import aero_force_B
 from ..model.dynamics import matvec, transpose
 from ..model.kinematics import cross, quat_derivative, quat_from_euler, quat_to_rotation
-from ..model.vehicle import MAX_ROTORS, VehicleParams, effectiveness
+from ..model.vehicle import MAX_ROTORS, VehicleParams, distinct_vehicles, effectiveness
 
 #: State length without the rotors and the pendulum; the state is ``N_BODY + n_rotors + N_PEND`` long:
 #: ``[p_com, v_com, q, omega_B, rotor forces (n), pendulum bob from the joint r_W (3), its rate (3)]``.
@@ -142,7 +142,7 @@ class PlantParams:
             "vehicle": self.vehicle.to_dict(memo),
             "payload_mass": float(self.payload_mass),
             "payload_offset_B": list(map(float, self.payload_offset_B)),
-            "inertia_scale": list(np.broadcast_to(np.asarray(self.inertia_scale, float), (3,))),
+            "inertia_scale": list(self.inertia_scale),  # three floats (__post_init__)
             "arm_length_scale": self.arm_length_scale,
             "drag_factor_scale": self.drag_factor_scale,
             "rotor_tau_up": self.rotor_tau_up,
@@ -205,16 +205,10 @@ def compile_plants(params: PlantParams | list[PlantParams]) -> PlantArrays:
     plist = [params] if single else list(params) if hasattr(params, "__iter__") and not isinstance(params, str) else []
     if not plist or not all(isinstance(p, PlantParams) for p in plist):
         raise InputError(f"params must be one PlantParams or a non-empty list of them, got {params!r:.80}")
-    nr = {p.vehicle.n_rotors for p in plist}
+    vehicles, iv = distinct_vehicles([p.vehicle for p in plist])
+    nr = {v.n_rotors for v in vehicles}
     if len(nr) > 1:
         raise InputError(f"plants in one batch must have the same number of rotors, got {sorted(nr)}")
-    first: dict[int, int] = {}  # id(vehicle) -> its row among the distinct vehicles
-    vehicles = []
-    for p in plist:
-        if id(p.vehicle) not in first:
-            first[id(p.vehicle)] = len(vehicles)
-            vehicles.append(p.vehicle)
-    iv = np.array([first[id(p.vehicle)] for p in plist])
     geo = [v.geometry for v in vehicles]
 
     def col(name: str) -> np.ndarray:

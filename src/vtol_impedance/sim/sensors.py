@@ -112,11 +112,21 @@ class SensorSuite:
 class NoiseSource:
     """Standard-normal sensor noise, one seeded stream per vehicle, drawn in blocks of control ticks.
 
-    A vehicle's numbers depend only on its own seed, so a batch sees exactly what single runs see.
+    A vehicle's numbers depend only on its own seed, so a batch sees exactly what single runs see. The
+    generators are made on the first draw: the compiled engines draw the same streams from the seeds
+    (:func:`vtol_impedance.compiled.noise.generator_states`).
     """
 
     def __init__(self, seeds: list[int]) -> None:
-        self.gens = [np.random.default_rng(np.random.SeedSequence([int(s), 0])) for s in seeds]
+        self.seeds = [int(s) for s in seeds]
+        self._gens: list[np.random.Generator] | None = None
+
+    @property
+    def gens(self) -> list[np.random.Generator]:
+        """One ``default_rng(SeedSequence([seed, 0]))`` per vehicle."""
+        if self._gens is None:
+            self._gens = [np.random.default_rng(np.random.SeedSequence([s, 0])) for s in self.seeds]
+        return self._gens
 
     def block(self, n: int) -> np.ndarray:
         """``(B, n, 12)`` standard normals."""
