@@ -15,11 +15,19 @@ indirect call into NumPy (about 13 ns on the project's machine, against about 3 
 
 from __future__ import annotations
 
+import numba
 import numpy as np
-from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
 from .jit import kernel
 from .lanes import W
+
+try:  # numba's copy of NumPy's ziggurat tables (what its own Generator.standard_normal reads)
+    from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
+except ImportError as exc:  # pragma: no cover - a numba that moved them
+    raise ImportError(
+        f"vtol_impedance.compiled.noise reads NumPy's ziggurat tables from numba.np.random._constants, which "
+        f"numba {numba.__version__} does not have ({exc}); install a numba between 0.60 and 0.68, where they are"
+    ) from exc
 
 # the ziggurat's layers (NumPy's tables as numba carries them; the acceptance bounds as int64: they are < 2**52)
 _WI = np.ascontiguousarray(wi_double, dtype=np.float64)
@@ -195,7 +203,9 @@ def generator_states(seeds: list[int]) -> np.ndarray:
     numbers). Seeds of 2**64 and more (Python integers) are seeded through NumPy itself."""
     rng = np.empty((4, len(seeds)), dtype=np.uint64)
     small = [i for i, s in enumerate(seeds) if 0 <= s < 2**64]
-    if small:
+    if len(small) == len(seeds):
+        _seed_columns(np.array(seeds, dtype=np.uint64), rng)
+    elif small:
         sub = np.empty((4, len(small)), dtype=np.uint64)
         _seed_columns(np.array([seeds[i] for i in small], dtype=np.uint64), sub)
         rng[:, small] = sub
