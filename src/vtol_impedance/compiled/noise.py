@@ -36,8 +36,8 @@ _FI = np.ascontiguousarray(fi_double, dtype=np.float64)
 _R = float(ziggurat_nor_r)
 _INV_R = float(ziggurat_nor_inv_r)
 
-# PCG64's 128-bit multiplier (high and low word); every operand below is uint64 (numba turns uint64 mixed
-# with int64 into float64)
+# PCG64's 128-bit multiplier (high and low word; O'Neill's PCG default for 128-bit state, as NumPy's PCG64
+# uses it); every operand below is uint64 (numba turns uint64 mixed with int64 into float64)
 _M_HI = np.uint64(0x2360ED051FC65DA4)
 _M_LO = np.uint64(0x4385DF649FCCF645)
 _LO32 = np.uint64(0xFFFFFFFF)
@@ -46,7 +46,7 @@ _U0, _U1, _U8, _U11 = np.uint64(0), np.uint64(1), np.uint64(8), np.uint64(11)
 _U16, _U32, _U58, _U63, _UFF = np.uint64(16), np.uint64(32), np.uint64(58), np.uint64(63), np.uint64(0xFF)
 _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53: NumPy's next_double
 
-# SeedSequence's hash constants (pool of four 32-bit words)
+# SeedSequence's hash constants (NumPy's SeedSequence, after O'Neill's seed_seq_fe; a pool of four 32-bit words)
 _INIT_A, _MULT_A = np.uint64(0x43B0D7E5), np.uint64(0x931E8875)
 _INIT_B, _MULT_B = np.uint64(0x8B51F9DD), np.uint64(0x58F38DED)
 _MIX_L, _MIX_R = np.uint64(0xCA01F9DD), np.uint64(0x4973F715)
