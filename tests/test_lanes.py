@@ -156,7 +156,7 @@ def test_the_lanes_keep_their_states_across_chunks_decimated_logs_and_the_metric
     from vtol_impedance.sim import SensorParams
     from vtol_impedance.sim.disturbances import Push, SinusoidWrench, Wall
 
-    monkeypatch.setattr(loop, "BLOCK_BYTES", 1)  # chunks of 50 ticks
+    monkeypatch.setattr(loop, "CHUNK_VEHICLE_TICKS", 1)  # chunks of 50 ticks
     veh = load_preset("pelican")
     n = W + 3
     plants = [PlantParams(veh, payload_mass=3.0 if i == 7 else 0.03 * (i % 4),

@@ -33,12 +33,15 @@ from .vmath import arcsin, arctan2, sin_cos
 #: What :func:`control_law` reads of one controller (:data:`~.layouts.CONTROLLER`): built from a record by
 #: :func:`law_lane_of`, or from one lane of a block in lanes (:mod:`.lanes_controller`), so that both run the
 #: same :func:`law_request`. ``I9`` is the nominal inertia (row-major), ``tan_tilt`` the tangent of the tilt
-#: limit; the gains are 3-tuples. The rotor layout and limits are not here: the allocation reads them where
-#: they are.
+#: limit; the gains are 3-tuples. ``inv_mass``, ``inv_Md``, ``inv_Mo_d`` are the reciprocals of the nominal mass
+#: and of the impedances' apparent masses and inertias, taken once per controller: the law multiplies by them
+#: (in lanes a packed division costs as much as a dozen products, and the law had 28 of them a tick; the
+#: result parts from the NumPy definition's divisions by rounding only). The rotor layout and limits are not
+#: here: the allocation reads them where they are.
 LawLane = namedtuple(
     "LawLane",
     ("mass", "I9", "tan_tilt", "min_lift_accel", "compensate", "comply_enable", "integral_limit", "Kp", "Dp", "Ki",
-     "Do", "Ko", "Md", "Dd", "Kd", "Mo_d", "Do_d", "Ko_d"),
+     "Do", "Ko", "Md", "Dd", "Kd", "Mo_d", "Do_d", "Ko_d", "inv_mass", "inv_Md", "inv_Mo_d"),
 )  # fmt: skip
 
 #: What :func:`law_request` reads of the shared design (:data:`~.layouts.DESIGN`), by :func:`law_design`: values
@@ -202,13 +205,14 @@ def _impedance_axis(p, integral, r, i, m, e, ev, fh, fl, fdot, lead):
     lam = 0.0
     if len(r) >= 15:
         lam = min(max(r[12 + i], 0.0), 1.0) if p.comply_enable > 0.5 else 0.0
-    md, dd, kd = p.Md[i], p.Dd[i], p.Kd[i]
-    kp = (1.0 - lam) * p.Kp[i] + lam * m * kd / md
-    dp = (1.0 - lam) * p.Dp[i] + lam * m * dd / md
-    ff = (1.0 - lam) * p.compensate * fh + lam * (1.0 - m / md) * fl  # f_hat of eq. (16)
-    mu = r[6 + i] - (dp * ev + kp * e + (1.0 - lam) * p.Ki[i] * integral) / m - ff / m  # eqs. (18a), (16)
-    acc = (fl - dd * ev - kd * e) / md
-    rate = -dd * acc / md + (1.0 / md - 1.0 / m) * fdot
+    dd, kd = p.Dd[i], p.Kd[i]
+    im, imd = p.inv_mass, p.inv_Md[i]  # 1 / m, 1 / M_d: products, not divisions (LawLane)
+    kp = (1.0 - lam) * p.Kp[i] + lam * m * kd * imd
+    dp = (1.0 - lam) * p.Dp[i] + lam * m * dd * imd
+    ff = (1.0 - lam) * p.compensate * fh + lam * (1.0 - m * imd) * fl  # f_hat of eq. (16)
+    mu = r[6 + i] - (dp * ev + kp * e + (1.0 - lam) * p.Ki[i] * integral) * im - ff * im  # eqs. (18a), (16)
+    acc = (fl - dd * ev - kd * e) * imd
+    rate = -dd * acc * imd + (imd - im) * fdot
     return mu + lam * lead * rate
 
 
@@ -219,7 +223,7 @@ def _attitude_axis(p, d, r, i, tb, eta_d_ddot, de, ee, th, la, th_dot):
     attitude latency ``la``, as :func:`vtol_impedance.control.impedance.controller_step`."""
     lam = min(max(r[15 + i], 0.0), 1.0)
     lead = th + (d.lag[3 + i] + la) * th_dot
-    comply = eta_d_ddot - (p.Do_d[i] * de + p.Ko_d[i] * ee - lead) / p.Mo_d[i]
+    comply = eta_d_ddot - (p.Do_d[i] * de + p.Ko_d[i] * ee - lead) * p.inv_Mo_d[i]
     return (1.0 - lam) * tb + lam * comply, th + lam * (lead - th)
 
 
@@ -246,7 +250,8 @@ def law_lane_of(p):
     return LawLane(
         p.mass, nominal_inertia(p), math.tan(p.tilt_max), p.min_lift_accel, p.compensate, p.comply_enable,
         p.integral_limit, _v3(p.Kp), _v3(p.Dp), _v3(p.Ki), _v3(p.Do), _v3(p.Ko), _v3(p.Md), _v3(p.Dd), _v3(p.Kd),
-        _v3(p.Mo_d), _v3(p.Do_d), _v3(p.Ko_d),
+        _v3(p.Mo_d), _v3(p.Do_d), _v3(p.Ko_d), 1.0 / p.mass, (1.0 / p.Md[0], 1.0 / p.Md[1], 1.0 / p.Md[2]),
+        (1.0 / p.Mo_d[0], 1.0 / p.Mo_d[1], 1.0 / p.Mo_d[2]),
     )  # fmt: skip
 
 

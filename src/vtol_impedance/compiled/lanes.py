@@ -46,6 +46,7 @@ from .plant import (
 #: Vehicles per block. 16 doubles are two AVX-512 or four AVX2 registers per row; a block's buffer
 #: (:data:`ROWS` x 16 x 8 bytes, 23 kB) stays in a core's L1 cache through its plant steps.
 W = 16
+assert W == 16  # load_row and store_row are written out for 16 lanes
 
 _R = MAX_ROTORS
 N_LANE = 39  # rows of a PlantLane: 1 + 9 + 9 + 3 + 3 + 1 + 1 + 3 + 3 + 6
@@ -71,6 +72,36 @@ StateView = namedtuple("StateView", ("p_com_W", "v_com_W", "q_WB", "omega_B"))
 def new_buffer():
     """A zeroed block buffer (``ROWS * W`` doubles)."""
     return np.zeros(ROWS * W)
+
+
+@kernel(inline="always")
+def load_row(a, k):
+    """The :data:`W` values of ``a`` from index ``k``, all loaded before anything is stored.
+
+    For rows at a place known only at run time (a ring's slot): there a lane loop stays scalar, as the
+    compiler cannot tell the row from the ones the loop writes, and a signed index also takes a wrap-around
+    select per lane. An unsigned ``k`` and loads ahead of the stores (:func:`store_row`) are packed moves."""
+    u = np.uint64
+    k = u(k)
+    return (a[k], a[k + u(1)], a[k + u(2)], a[k + u(3)], a[k + u(4)], a[k + u(5)], a[k + u(6)], a[k + u(7)],
+            a[k + u(8)], a[k + u(9)], a[k + u(10)], a[k + u(11)], a[k + u(12)], a[k + u(13)], a[k + u(14)],
+            a[k + u(15)])  # fmt: skip
+
+
+@kernel(inline="always")
+def store_row(a, k, t):
+    """``a`` from index ``k`` takes the :data:`W` values ``t`` (:func:`load_row`)."""
+    u = np.uint64
+    k = u(k)
+    a[k], a[k + u(1)], a[k + u(2)], a[k + u(3)], a[k + u(4)], a[k + u(5)], a[k + u(6)], a[k + u(7)] = t[:8]
+    a[k + u(8)], a[k + u(9)], a[k + u(10)], a[k + u(11)], a[k + u(12)], a[k + u(13)], a[k + u(14)] = t[8:15]
+    a[k + u(15)] = t[15]
+
+
+@kernel(inline="always")
+def copy_row(dst, at, src, k):
+    """Row ``at`` (an index) of ``dst`` takes the :data:`W` values of ``src`` from index ``k``."""
+    store_row(dst, at, load_row(src, k))
 
 
 @kernel(inline="always")
@@ -431,8 +462,7 @@ def get_sensors(sb, i, hist_b):
 def keep_state(sb, buf, slot):
     """Every lane's position, velocity, attitude and rate (13 rows) into the ring's ``slot``."""
     for j in range(13):
-        for i in range(W):
-            sb[(_SR + 13 * slot + j) * W + i] = buf[(_S + j) * W + i]
+        copy_row(sb, (_SR + 13 * slot + j) * W, buf, (_S + j) * W)
 
 
 @kernel()
@@ -440,11 +470,9 @@ def measure_lanes(sb, slot_mocap, slot_imu, sigma):
     """Every lane's measurement (:func:`~.plant.measured`, with the sines of :mod:`.vmath`) from the ring's
     slots the motion capture and the IMU read and the tick's noise; ``sigma = [pos, vel, att, gyro]``."""
     for j in range(13):  # the states read into fixed rows: the lane loop then reads at fixed distances only
-        for i in range(W):
-            sb[(_SX + j) * W + i] = sb[(_SR + 13 * slot_mocap + j) * W + i]
+        copy_row(sb, (_SX + j) * W, sb, (_SR + 13 * slot_mocap + j) * W)
     for j in range(7):
-        for i in range(W):
-            sb[(_SX + 13 + j) * W + i] = sb[(_SR + 13 * slot_imu + 6 + j) * W + i]
+        copy_row(sb, (_SX + 13 + j) * W, sb, (_SR + 13 * slot_imu + 6 + j) * W)
     sg = (sigma[0], sigma[1], sigma[2], sigma[3])
     for i in range(W):  # vectorised: one lane per vehicle
         c, p, v, q, w, qi, wi, noise = _sensed_at(sb, i)

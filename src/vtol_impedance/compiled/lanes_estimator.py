@@ -16,8 +16,9 @@ Rows (:data:`~.lanes.W` doubles each) of the buffer ``eb`` (:func:`new_estimator
 (10), the rotor model's output (4), the previous sample's momentum (6), ``Q`` and ``C`` (9 each: the previous
 sample's until a sample, this one's after it), the previous Euler rates (3), ``M`` (9), the estimate and its
 rate (6 each), the residual (6), the history values a sample reads (10), the newest history row (7), the filter
-states (6 x :data:`~.layouts.MAX_ORDER`) and their update (:data:`~.layouts.MAX_ORDER`); then the history as a
-ring of ``H`` slots of 7 rows (the command through the rotor model (4), the attitude (3)), ``head`` the newest.
+states (6 x :data:`~.layouts.MAX_ORDER`) and their update (:data:`~.layouts.MAX_ORDER`), the two history slots a
+gather reads (2); then the history as a ring of ``H`` slots of 7 rows (the command through the rotor model (4),
+the attitude (3)), ``head`` the newest.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from .algebra import _QMC, _mv9
 from .estimator import history_split, lerp, lerp_angle, residual, rotor_model
 from .jit import kernel
-from .lanes import W, put_command_rows
+from .lanes import W, copy_row, put_command_rows
 from .layouts import MAX_ORDER
 
 _Y = 0  # v_W (3), eta (3), eta_dot (3)
@@ -46,7 +47,8 @@ _GA = 81  # u_w, tau (3), the attitude at d_att + 1 (3) and at d_att (3)
 _H0 = 91  # the newest history row: act (4), eta (3)
 _XF = 98  # filter state of channel ch, index j: row _XF + MAX_ORDER ch + j
 _XN = _XF + 6 * MAX_ORDER  # the filter's update
-_RING = _XN + MAX_ORDER
+_GS = _XN + MAX_ORDER  # the two history slots a gather reads, at fixed rows
+_RING = _GS + 2
 
 
 @kernel()
@@ -180,13 +182,14 @@ def sample_at(eb, i):
 def _gather(eb, dst, head, H, d, col, angle):
     """Row ``dst`` takes history column ``col`` (0-3: the command, 4-6: the attitude) ``d`` periods back."""
     j, g = history_split(d)
-    a = (_RING + 7 * ((head - j) % H) + col) * W
-    b = (_RING + 7 * ((head - j - 1) % H) + col) * W
+    # the two slots' rows into fixed rows first (copy_row): the lane loop then reads at fixed distances
+    copy_row(eb, _GS * W, eb, (_RING + 7 * ((head - j) % H) + col) * W)
+    copy_row(eb, (_GS + 1) * W, eb, (_RING + 7 * ((head - j - 1) % H) + col) * W)
     for i in range(W):  # vectorised: one lane per vehicle
         if angle:
-            eb[dst * W + i] = lerp_angle(eb[a + i], eb[b + i], g, True)
+            eb[dst * W + i] = lerp_angle(eb[_GS * W + i], eb[(_GS + 1) * W + i], g, True)
         else:
-            eb[dst * W + i] = lerp(eb[a + i], eb[b + i], g)
+            eb[dst * W + i] = lerp(eb[_GS * W + i], eb[(_GS + 1) * W + i], g)
 
 
 @kernel()
@@ -203,9 +206,8 @@ def estimate_lanes(eb, d, head):
     for j in range(3 * W):
         eb[(_H0 + 4) * W + j] = eb[(_Y + 3) * W + j]
     head = head + 1 if head + 1 < H else 0
-    slot = (_RING + 7 * head) * W
-    for j in range(7 * W):  # the newest history row into the ring
-        eb[slot + j] = eb[_H0 * W + j]
+    for j in range(7):  # the newest history row into the ring
+        copy_row(eb, (_RING + 7 * head + j) * W, eb, (_H0 + j) * W)
     # the history a sample reads: the thrust on the velocity's window, the moments on the attitude's
     _gather(eb, _GA, head, H, d.dv, 0, False)
     for c in range(3):
