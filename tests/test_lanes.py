@@ -272,6 +272,93 @@ def test_a_lane_holds_a_state_and_a_plant_as_the_records_do():
     np.testing.assert_array_equal(back.view(np.float64), x.view(np.float64))
 
 
+def test_the_newton_steps_give_the_inverse_norm_to_its_last_bit_near_one():
+    """``plant.inv_norm_near`` (two Newton steps from the tangent, no square root) against ``1 / sqrt(x)`` in
+    40-digit decimal arithmetic, over the whole range it is used in (``|x - 1| <= QUAT_NEAR``) and at its
+    ends: within two units in the last place (the last step's own roundings; ``1 / sqrt(x)``, rounded twice,
+    is within one), so the quaternion's norm is 1 to rounding either way."""
+    from decimal import Decimal, getcontext
+
+    from vtol_impedance.compiled.plant import QUAT_NEAR, inv_norm, inv_norm_near
+
+    getcontext().prec = 40
+    rng = np.random.default_rng(3)
+    xs = np.concatenate([1.0 + QUAT_NEAR * rng.uniform(-1.0, 1.0, 2000), 1.0 + rng.normal(0.0, 1e-12, 200),
+                         [1.0 - QUAT_NEAR, 1.0 + QUAT_NEAR, 1.0, np.nextafter(1.0, 2.0)]])  # fmt: skip
+    for x in xs:
+        exact = 1 / Decimal(float(x)).sqrt()
+        got = inv_norm_near(float(x))
+        assert abs(Decimal(got) - exact) <= 2 * Decimal(np.spacing(got)), (x, got)
+        assert inv_norm(float(x)) == (got if abs(x - 1.0) <= QUAT_NEAR else 1.0 / np.sqrt(x))
+    # beyond the range: the square root (Newton's two steps from the tangent would miss by 1e-7 at x = 1.21)
+    assert inv_norm(1.21) == 1.0 / np.sqrt(1.21)
+    assert abs(inv_norm_near(1.21) * 1.1 - 1.0) > 1e-8
+    assert np.isnan(inv_norm(np.nan))
+
+
+def test_a_block_renormalises_each_quaternion_as_its_own_vehicle_would():
+    """A block's RK4 step brings each quaternion back to unit norm as the vehicle engine's ``rk4_step`` does,
+    bit for bit: with the Newton steps where the whole block is near unit norm (flight), and lane by lane
+    where one lane is far from it (here a lane whose quaternion starts at norm 1.1: its step takes the square
+    root, the other lanes still the Newton steps)."""
+    from numba import njit
+
+    from vtol_impedance.compiled.jit import FLAGS
+    from vtol_impedance.compiled.lanes import (
+        block_is_plain,
+        get_state,
+        new_buffer,
+        put_command,
+        put_plant,
+        put_state,
+        step_lanes,
+    )
+    from vtol_impedance.compiled.plant import lane_of, rk4_step
+    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_plant, pack_state
+
+    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * k, rotor_tau_up=0.01) for k in range(W)]
+    pp = pack_plant(compile_plants(plants))
+    rng = np.random.default_rng(4)
+    x0 = pack_state(initial_state(compile_plants(plants), rng.normal(0.0, 1.0, (W, 3)) - [0, 0, 2.0]))
+    q = rng.normal(size=(W, 4))
+    x0["q_WB"] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x0["omega_B"] = rng.normal(0.0, 3.0, (W, 3))
+    f_cmd = rng.uniform(1.0, 6.0, (W, 4))
+
+    @njit(**{**FLAGS, "cache": False})
+    def in_lanes(pp, X, f_cmd, out, steps):
+        buf = new_buffer()
+        for i in range(W):
+            put_plant(buf, i, pp[i], lane_of(pp[i]))
+            put_state(buf, i, X[i])
+            put_command(buf, i, f_cmd[i], 4)
+        plain = block_is_plain(buf)
+        for _ in range(steps):
+            if plain:  # literals, as the engine's block
+                step_lanes(buf, 4, 1e-3, False)
+            else:
+                step_lanes(buf, 4, 1e-3, True)
+        for i in range(W):
+            get_state(buf, i, out[i])
+
+    @njit(**{**FLAGS, "cache": False})
+    def one_by_one(pp, X, f_cmd, steps):
+        dist = np.zeros(6)
+        for i in range(W):
+            for _ in range(steps):
+                rk4_step(pp[i], X[i], f_cmd[i], dist, 1e-3)
+
+    for far in (False, True):
+        x = x0.copy()
+        if far:
+            x["q_WB"][5] *= 1.1
+        lanes, alone = x.copy(), x.copy()
+        in_lanes(pp, x, f_cmd, lanes, 3)
+        one_by_one(pp, alone, f_cmd, 3)
+        np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
+        np.testing.assert_allclose(np.linalg.norm(lanes["q_WB"], axis=1), 1.0, rtol=0, atol=1e-15)
+
+
 def test_the_code_generator_takes_512_bit_vectors_on_avx512_unless_told_not_to():
     """Where the host has AVX-512, importing the package, then ``numba.typed`` (as the engine does before its
     kernels), leaves numba's code generator without LLVM's 256-bit preference; ``VTOL_IMPEDANCE_NARROW_VECTORS=1``

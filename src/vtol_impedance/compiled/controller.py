@@ -36,12 +36,13 @@ from .vmath import arcsin, arctan2, sin_cos
 #: limit; the gains are 3-tuples. ``inv_mass``, ``inv_Md``, ``inv_Mo_d`` are the reciprocals of the nominal mass
 #: and of the impedances' apparent masses and inertias, taken once per controller: the law multiplies by them
 #: (in lanes a packed division costs as much as a dozen products, and the law had 28 of them a tick; the
-#: result parts from the NumPy definition's divisions by rounding only). The rotor layout and limits are not
-#: here: the allocation reads them where they are.
+#: result parts from the NumPy definition's divisions by rounding only); ``integral_bound`` is the PID
+#: integral's bound per axis (:func:`law_integral`), the same division taken once. The rotor layout and
+#: limits are not here: the allocation reads them where they are.
 LawLane = namedtuple(
     "LawLane",
     ("mass", "I9", "tan_tilt", "min_lift_accel", "compensate", "comply_enable", "integral_limit", "Kp", "Dp", "Ki",
-     "Do", "Ko", "Md", "Dd", "Kd", "Mo_d", "Do_d", "Ko_d", "inv_mass", "inv_Md", "inv_Mo_d"),
+     "Do", "Ko", "Md", "Dd", "Kd", "Mo_d", "Do_d", "Ko_d", "inv_mass", "inv_Md", "inv_Mo_d", "integral_bound"),
 )  # fmt: skip
 
 #: What :func:`law_request` reads of the shared design (:data:`~.layouts.DESIGN`), by :func:`law_design`: values
@@ -251,8 +252,14 @@ def law_lane_of(p):
         p.mass, nominal_inertia(p), math.tan(p.tilt_max), p.min_lift_accel, p.compensate, p.comply_enable,
         p.integral_limit, _v3(p.Kp), _v3(p.Dp), _v3(p.Ki), _v3(p.Do), _v3(p.Ko), _v3(p.Md), _v3(p.Dd), _v3(p.Kd),
         _v3(p.Mo_d), _v3(p.Do_d), _v3(p.Ko_d), 1.0 / p.mass, (1.0 / p.Md[0], 1.0 / p.Md[1], 1.0 / p.Md[2]),
-        (1.0 / p.Mo_d[0], 1.0 / p.Mo_d[1], 1.0 / p.Mo_d[2]),
+        (1.0 / p.Mo_d[0], 1.0 / p.Mo_d[1], 1.0 / p.Mo_d[2]), (_bound(p, 0), _bound(p, 1), _bound(p, 2)),
     )  # fmt: skip
+
+
+@kernel(inline="always")
+def _bound(p, i):
+    """The PID integral's bound on axis ``i`` (m s) of the controller record ``p``: ``limit / Ki``."""
+    return p.integral_limit / max(p.Ki[i], 1e-12)
 
 
 @kernel(inline="always")
@@ -366,10 +373,10 @@ def law_request(c, d, y, r, Q, M, C, w, rd, integral, filt, vector):
 
 
 @kernel(inline="always")
-def _integral_axis(ki, limit, x, e, Ts, freeze):
-    """One axis of the PID integral: ``x + Ts e`` unless ``freeze`` (anti-windup), within ``limit / ki``."""
+def _integral_axis(bound, x, e, Ts, freeze):
+    """One axis of the PID integral: ``x + Ts e`` unless ``freeze`` (anti-windup), within ``bound``
+    (:data:`LawLane`'s ``integral_bound``: the integral limit over ``Ki``)."""
     x = x if freeze else x + Ts * e
-    bound = limit / max(ki, 1e-12)
     return min(max(x, -bound), bound)
 
 
@@ -378,9 +385,9 @@ def law_integral(c, Ts, integral, ep, freeze):
     """The PID integral after a period with position error ``ep``, frozen while the allocation saturated or a
     tilt or lift limit acted (anti-windup)."""
     return (
-        _integral_axis(c.Ki[0], c.integral_limit, integral[0], ep[0], Ts, freeze),
-        _integral_axis(c.Ki[1], c.integral_limit, integral[1], ep[1], Ts, freeze),
-        _integral_axis(c.Ki[2], c.integral_limit, integral[2], ep[2], Ts, freeze),
+        _integral_axis(c.integral_bound[0], integral[0], ep[0], Ts, freeze),
+        _integral_axis(c.integral_bound[1], integral[1], ep[1], Ts, freeze),
+        _integral_axis(c.integral_bound[2], integral[2], ep[2], Ts, freeze),
     )
 
 

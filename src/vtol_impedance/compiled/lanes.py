@@ -31,14 +31,18 @@ import numpy as np
 from ..model.vehicle import MAX_ROTORS
 from .jit import kernel
 from .plant import (
+    QUAT_NEAR,
     PlantLane,
     body_rk4,
     clip_command,
     failure_of,
     instant_force,
+    inv_norm,
+    inv_norm_near,
     measured,
     observed,
     plant_is_plain,
+    quat_norm2,
     rotor_rk4,
     truth_of,
 )
@@ -259,8 +263,9 @@ def put_disturbance(buf, i, dist):
 def step_lanes(buf, n_rotors, dt, full):
     """One RK4 step of every lane of ``buf`` with its command and disturbance held (as
     :func:`~.plant.rk4_step` of each): the rotors one at a time across the lanes, their stages' ``E f``
-    summed in rotor order, then the body. ``full`` false (a literal) where no lane has a pendulum or
-    quadratic drag (:func:`~.plant.plant_is_plain`): the same states, without their arithmetic."""
+    summed in rotor order, then the body, then the quaternions' norms (:func:`~.plant.inv_norm`). ``full``
+    false (a literal) where no lane has a pendulum or quadratic drag (:func:`~.plant.plant_is_plain`): the
+    same states, without their arithmetic."""
     for j in range(16):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
@@ -285,6 +290,24 @@ def step_lanes(buf, n_rotors, dt, full):
             buf[dd + 5 * W]), dt, full,
         )  # fmt: skip
         _put_body(buf, i, s)
+    # the quaternions back to unit norm (plant.inv_norm, lane by lane the same numbers): products only where
+    # every lane of the block is near 1, as in flight; else each lane as its own vehicle would
+    far = 0
+    for i in range(W):  # vectorised: one lane per vehicle
+        far += 0 if abs(quat_norm2(_body_at(buf, i)) - 1.0) <= QUAT_NEAR else 1
+    if far == 0:
+        for i in range(W):  # vectorised: one lane per vehicle
+            _scale_quaternion(buf, i, inv_norm_near(quat_norm2(_body_at(buf, i))))
+    else:
+        for i in range(W):
+            _scale_quaternion(buf, i, inv_norm(quat_norm2(_body_at(buf, i))))
+
+
+@kernel(inline="always")
+def _scale_quaternion(buf, i, inq):
+    """Lane ``i``'s quaternion times ``inq``."""
+    for j in range(6, 10):
+        buf[(_S + j) * W + i] *= inq
 
 
 @kernel(inline="always")

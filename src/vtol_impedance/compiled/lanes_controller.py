@@ -11,7 +11,7 @@ commands and the held thrust and moments to the plant's and the estimators' rows
 from the vehicle-by-vehicle one by their last bits (``tests/test_lanes_controller.py``). A vehicle's record
 (:data:`~.layouts.OUTPUT`, for its metrics and log) is read back by :func:`get_output`.
 
-Rows (:data:`~.lanes.W` doubles each) of the buffer ``cb`` (:func:`new_law_buffer`): the :data:`LawLane` (55),
+Rows (:data:`~.lanes.W` doubles each) of the buffer ``cb`` (:func:`new_law_buffer`): the :data:`LawLane` (58),
 the allocation's ``E_pinv`` (four per rotor), ``E`` (four per rotor), the rotor limits; the state the law
 carries (the attitude filter (5), the integral (3)); the measurement (12); the law's request (thrust, moments,
 whether a limit acted, ``mu_bar``, the position error, the filter's next state, the attitude command, the
@@ -44,8 +44,8 @@ from .metrics import summed, tick_terms
 
 _R = MAX_ROTORS
 _LP = 0  # LawLane: mass, I9 (9), tan_tilt, min_lift, compensate, comply, integral_limit, 11 gains (3 each),
-#  1 / mass, 1 / Md (3), 1 / Mo_d (3)
-_EP = _LP + 55  # E_pinv[r, c] at row _EP + 4 r + c
+#  1 / mass, 1 / Md (3), 1 / Mo_d (3), the integral's bound (3)
+_EP = _LP + 58  # E_pinv[r, c] at row _EP + 4 r + c
 _EE = _EP + 4 * _R  # E[c, r] at row _EE + 4 r + c
 _FMIN = _EE + 4 * _R
 _FMAX = _FMIN + _R
@@ -105,6 +105,7 @@ def _law_at(cb, i):
     return LawLane(
         at(0), (at(1), at(2), at(3), at(4), at(5), at(6), at(7), at(8), at(9)), at(10), at(11), at(12), at(13),
         at(14), g(15), g(18), g(21), g(24), g(27), g(30), g(33), g(36), g(39), g(42), g(45), at(48), g(49), g(52),
+        g(55),
     )  # fmt: skip
 
 
@@ -126,6 +127,7 @@ def put_law(cb, i, c, p):
     for j in range(3):
         cb[k + (49 + j) * W] = c.inv_Md[j]
         cb[k + (52 + j) * W] = c.inv_Mo_d[j]
+        cb[k + (55 + j) * W] = c.integral_bound[j]
     for r in range(p.n_rotors):
         for c4 in range(4):
             cb[(_EP + 4 * r + c4) * W + i] = p.E_pinv[r, c4]
