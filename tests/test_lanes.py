@@ -183,7 +183,8 @@ def test_the_plant_loop_is_vector_code(full):
     """The lanes' RK4 step compiles to packed double-precision FMAs (a call, a gather or a memory-dependent
     branch in the loop would leave it scalar): counted in the machine code of a block's step, with and
     without the pendulum and the quadratic drag (``full``); without them, no square root or division
-    is left but the quaternion's norm (one of each per lane)."""
+    is left but the quaternion's norm on the path of a block with a lane far from unit norm (one of each
+    per lane; the common path takes Newton steps, ``plant.inv_norm_near``)."""
     flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
     if not re.search(r"\bavx2\b", flags):
         pytest.skip("no AVX2 on this machine")
@@ -204,7 +205,7 @@ def test_the_plant_loop_is_vector_code(full):
     slow = len(re.findall(r"v(?:sqrt|div)pd\s", asm))  # one vector's square roots and divisions
     if full:  # the drag's speed at four stages, the pendulum's length and tension, its projection
         assert slow >= 20, slow
-    else:  # the quaternion's norm alone (its loop over the lanes perhaps unrolled once)
+    else:  # the far path's quaternion norm alone (its loop over the lanes perhaps unrolled once)
         assert 0 < slow <= 4, slow
 
 

@@ -293,7 +293,7 @@ def step_lanes(buf, n_rotors, dt, full):
     # the quaternions back to unit norm (plant.inv_norm, lane by lane the same numbers): products only where
     # every lane of the block is near 1, as in flight; else each lane as its own vehicle would
     far = 0
-    for i in range(W):  # vectorised: one lane per vehicle
+    for i in range(W):  # a count over the lanes (a reduction: the compiler leaves it scalar)
         far += 0 if abs(quat_norm2(_body_at(buf, i)) - 1.0) <= QUAT_NEAR else 1
     if far == 0:
         for i in range(W):  # vectorised: one lane per vehicle

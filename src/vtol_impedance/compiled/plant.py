@@ -497,8 +497,9 @@ def _rotor_stages(pp, f, f_cmd, dt, n):
 
 
 #: How far from 1 the squared norm of an RK4 step's quaternion may be for :func:`inv_norm_near` (exact to
-#: rounding there). A step leaves it within ~1e-12 of 1 at any rate a vehicle survives (RK4 keeps the norm to
-#: the method's order), so beyond this only a tumbling or diverging state takes the square root.
+#: rounding there). A step of ``dt`` at the body rate ``w`` from a unit quaternion leaves it ``h^6 / 72`` below
+#: 1, ``h = |w| dt / 2`` (RK4's amplification on a rotation): 1.6e-13 at 30 rad/s and 2.1e-4 at 1,000 rad/s
+#: with ``dt = 1 ms``; past about 1,300 rad/s (or a NaN) a step takes the square root.
 QUAT_NEAR = 1e-3
 
 

@@ -80,7 +80,7 @@ BLOCK_BYTES = 50_000_000
 #: Vehicle-ticks the compiled engine flies between two returns to Python (progress, interruption; 50 to
 #: 5,000 ticks): about half a second of a batch on two cores. Each return writes the lanes' states back to
 #: the records and reads them again: 4,000 case-A vehicles in chunks of 130 ticks spent 2.5 % of the
-#: kernel's time there, in chunks of 375 under 1 %.
+#: kernel's time there, in chunks of 375 about 1 %.
 CHUNK_VEHICLE_TICKS = 1_500_000
 #: Control ticks per block of random numbers in the NumPy backend.
 BLOCK_TICKS = 200
