@@ -360,6 +360,89 @@ def test_a_block_renormalises_each_quaternion_as_its_own_vehicle_would():
         np.testing.assert_allclose(np.linalg.norm(lanes["q_WB"], axis=1), 1.0, rtol=0, atol=1e-15)
 
 
+@pytest.mark.parametrize("full", [False, True])
+def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lifts(full):
+    """A block steps without the ground's arithmetic while no contact point is below the ground, takes it
+    again (the same step over) where one would be at any of the step's stages, keeps it while the ground
+    acts, and leaves it once every lane is clear: each lane's states bit for bit its own vehicle's
+    ``rk4_step``'s at every step. Lanes that touch down during a step, rest on the ground, fly high, and fall
+    with the ground off; 90 ms at 0.6 of the hover thrust, then 60 ms at twice it. Independently, the ground
+    holds the lanes that have it and not the others, and the block's contact flag (row ``_C``) is up while
+    they rest and down once all have lifted off. ``full``: with a pendulum on one lane (the whole step)."""
+    from numba import njit
+
+    from vtol_impedance.compiled.jit import FLAGS
+    from vtol_impedance.compiled.lanes import (
+        _C,
+        block_is_plain,
+        get_state,
+        new_buffer,
+        put_command,
+        put_plant,
+        put_state,
+        step_lanes,
+    )
+    from vtol_impedance.compiled.plant import lane_of, rk4_step
+    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_plant, pack_state
+
+    kind = np.arange(W) % 4  # 0 touches down within a step or two, 1 rests, 2 flies high, 3 falls (no ground)
+    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * (k % 5), rotor_tau_up=0.01,
+                          ground=bool(kind[k] != 3), pendulum_mass=0.1 if full and k == 2 else 0.0,
+                          pendulum_length=0.3) for k in range(W)]  # fmt: skip
+    cp = compile_plants(plants)
+    pp = pack_plant(cp)
+    rng = np.random.default_rng(5)
+    z0 = np.choose(kind, [-0.002, 0.001, -1.0, -0.002])
+    eta = rng.uniform(-0.15, 0.15, (W, 3))
+    x0 = np.zeros(W, dtype=pack_state(initial_state(cp, np.zeros((W, 3)))).dtype)
+    for i in range(W):
+        x0[i] = pack_state(initial_state(compile_plants([plants[i]]), [0.3 * i, 0.0, z0[i]], eta[i]))[0]
+    x0["v_com_W"][:, 2] = np.where(kind == 1, 0.0, 0.5)  # falling at 0.5 m/s: the ground within 4 ms
+    x0["omega_B"] = rng.normal(0.0, 1.0, (W, 3))
+    hover = np.array([(p.vehicle.mass + p.payload_mass + p.pendulum_mass) * 9.81 / 4 for p in plants])
+    steps = 150
+    f_cmd = np.repeat(hover[None, :, None], 4, axis=2) * np.where(np.arange(steps) < 90, 0.6, 2.0)[:, None, None]
+
+    @njit(**{**FLAGS, "cache": False})
+    def in_lanes(pp, X, f_cmd, out, flag):
+        buf = new_buffer()
+        for i in range(W):
+            put_plant(buf, i, pp[i], lane_of(pp[i]))
+            put_state(buf, i, X[i])
+        plain = block_is_plain(buf)
+        for k in range(f_cmd.shape[0]):
+            for i in range(W):
+                put_command(buf, i, f_cmd[k, i], 4)
+            if plain:  # literals, as the engine's block
+                step_lanes(buf, 4, 1e-3, False)
+            else:
+                step_lanes(buf, 4, 1e-3, True)
+            flag[k] = buf[_C * W]
+            for i in range(W):
+                get_state(buf, i, out[k, i])
+
+    @njit(**{**FLAGS, "cache": False})
+    def one_by_one(pp, X, f_cmd, out):
+        dist = np.zeros(6)
+        for i in range(W):
+            for k in range(f_cmd.shape[0]):
+                rk4_step(pp[i], X[i], f_cmd[k, i], dist, 1e-3)
+                out[k, i] = X[i]
+
+    lanes, alone = np.zeros((steps, W), dtype=x0.dtype), np.zeros((steps, W), dtype=x0.dtype)
+    flag = np.zeros(steps)
+    in_lanes(pp, x0, f_cmd, lanes, flag)
+    one_by_one(pp, x0.copy(), f_cmd, alone)
+    np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
+    z = lanes["p_com_W"][:, :, 2] - x0["p_com_W"][:, 2]  # how far each lane's CoM went down
+    assert np.all(z[89, kind == 3] > 0.04)  # with the ground off: falling (0.5 m/s, about 0.4 g net down)
+    down = (kind == 0) | (kind == 1)
+    assert np.all(z[89, down] < 0.02)  # held by the ground
+    assert np.all(z[-1, down] < z[89, down] - 0.005)  # and off it again at twice the hover thrust
+    assert flag[:90].max() == 1.0 and flag[0] == 1.0  # the ground acts within the first step
+    assert flag[-1] == 0.0  # every lane clear of it: the block steps without it again
+
+
 def test_the_code_generator_takes_512_bit_vectors_on_avx512_unless_told_not_to():
     """Where the host has AVX-512, importing the package, then ``numba.typed`` (as the engine does before its
     kernels), leaves numba's code generator without LLVM's 256-bit preference; ``VTOL_IMPEDANCE_NARROW_VECTORS=1``

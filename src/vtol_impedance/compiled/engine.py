@@ -23,6 +23,7 @@ from .lanes import (
     NOISE_ROW,
     SENSED,
     W,
+    aligned_zeros,
     block_is_plain,
     failure_at,
     failure_lanes,
@@ -373,9 +374,9 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
         instant = instant or pp[b0 + i].tau_up <= 0 or pp[b0 + i].tau_down <= 0
     # without a log, the window metrics' sums stay in lanes from the first tick the laws run in lanes to the
     # chunk's end (the same additions in the same order as each vehicle's record would take)
-    sums = np.zeros(N_SUMS * W)
+    sums = aligned_zeros(N_SUMS * W)
     in_lanes = False
-    st = np.empty((4, W), dtype=np.uint64)  # the lanes' noise generators (past n: a copy of the first's)
+    st = aligned_zeros(4 * W).view(np.uint64).reshape(4, W)  # the lanes' noise generators (past n: the first's)
     for i in range(W):
         for j in range(4):
             st[j, i] = rng[j, b0 + (i if i < n else 0)]

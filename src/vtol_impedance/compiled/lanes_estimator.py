@@ -23,12 +23,10 @@ the attitude (3)), ``head`` the newest.
 
 from __future__ import annotations
 
-import numpy as np
-
 from .algebra import _QMC, _mv9
 from .estimator import history_split, lerp, lerp_angle, residual, rotor_model
 from .jit import kernel
-from .lanes import W, copy_row, put_command_rows
+from .lanes import W, aligned_zeros, copy_row, put_command_rows
 from .layouts import MAX_ORDER
 
 _Y = 0  # v_W (3), eta (3), eta_dot (3)
@@ -53,8 +51,8 @@ _RING = _GS + 2
 
 @kernel()
 def new_estimator_buffer(H):
-    """A zeroed estimator buffer for a history of ``H`` rows."""
-    return np.zeros((_RING + 7 * H) * W)
+    """A zeroed estimator buffer for a history of ``H`` rows (64-byte aligned: :func:`~.lanes.aligned_zeros`)."""
+    return aligned_zeros((_RING + 7 * H) * W)
 
 
 @kernel(inline="always")

@@ -306,7 +306,7 @@ def _aero_W(pp, R, v0, v1, v2, full):
 
 
 @kernel(inline="always")
-def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full):
+def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full, contact):
     """``x_dot`` of the true plant's body and pendulum (the tuple of :func:`_body_of`) for the plant ``pp`` (a
     :data:`PlantLane`), as :func:`vtol_impedance.sim.plant.plant_derivative`, with the rotors' thrust ``u`` and
     body moments ``tm`` (eq. (4), the true ``E``); and the external wrench ``[f_ext_W (at the body origin),
@@ -321,6 +321,12 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full):
     (``pend_m = 0``, ``quad_drag_B = 0``: their terms are exact zeros, so the result is the same). A block of
     lanes passes it as a literal where none of its plants has them (:func:`plant_is_plain`), and the compiler
     drops their square roots and divisions, which SIMD lanes would otherwise compute and discard.
+
+    ``contact`` false (a literal) leaves out the ground at both points, a quarter of the arithmetic, which
+    lanes otherwise compute in every lane and discard in flight: the result is the same wherever the third
+    value returned, ``touch``, is 0 (1 where the ground acts at a point of ``s``, or would: ``ground`` on and
+    a point below it). :func:`~.lanes.step_lanes` takes a block's step without it and takes it over with it
+    where a lane's ``touch`` was not 0 at every stage.
     """
     p2, v0, v1, v2 = s[2], s[3], s[4], s[5]
     qw, qx, qy, qz = s[6], s[7], s[8], s[9]
@@ -335,7 +341,9 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full):
     zo = p2 - (R[6] * c[0] + R[7] * c[1] + R[8] * c[2])
     # environment: disturbances, aerodynamic force (sim.plant.aero_force_W), ground under the origin
     ae0, ae1, ae2 = _aero_W(pp, R, vo0, vo1, vo2, full)
-    g0, g1, g2 = _ground(pp, zo, vo0, vo1, vo2)
+    g0 = g1 = g2 = 0.0  # an exact zero where the ground does not act, added as such (bit for bit)
+    if contact:
+        g0, g1, g2 = _ground(pp, zo, vo0, vo1, vo2)
     fe0 = dist[0] + ae0 + g0
     fe1 = dist[1] + ae1 + g1
     fe2 = dist[2] + ae2 + g2
@@ -344,7 +352,7 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full):
     r = pp.r_contact_B
     d0, d1, d2 = r[0] - c[0], r[1] - c[1], r[2] - c[2]
     zc = p2 + R[6] * d0 + R[7] * d1 + R[8] * d2
-    if zc > 0.0 and pp.ground > 0.0:
+    if contact and zc > 0.0 and pp.ground > 0.0:
         e0, e1, e2 = w1 * d2 - w2 * d1, w2 * d0 - w0 * d2, w0 * d1 - w1 * d0
         h0, h1, h2 = _ground(
             pp, zc, v0 + R[0] * e0 + R[1] * e1 + R[2] * e2, v1 + R[3] * e0 + R[4] * e1 + R[5] * e2,
@@ -396,7 +404,8 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full):
         Ii[6] * m0 + Ii[7] * m1 + Ii[8] * m2,
         s[16], s[17], s[18], rdd0, rdd1, rdd2,
     )  # fmt: skip
-    return x_dot, (fe0, fe1, fe2, te0, te1, te2)
+    touch = 1.0 if (pp.ground > 0.0) & ((zo > 0.0) | (zc > 0.0)) else 0.0  # the ground acts, or would
+    return x_dot, (fe0, fe1, fe2, te0, te1, te2), touch
 
 
 @kernel(inline="always")
@@ -416,7 +425,7 @@ def truth_of(pl, s, u, tm0, tm1, tm2, dist, full):
     """:func:`truth_at` of the plant ``pl`` (a :data:`PlantLane`) in the body states ``s`` with the rotors'
     thrust ``u`` and moments ``tm`` (the true ``E f``): pure, for one vehicle or a lane. ``full``: as
     :func:`body_derivative`."""
-    s_dot, env = body_derivative(pl, s, u, tm0, tm1, tm2, dist, full)
+    s_dot, env, _ = body_derivative(pl, s, u, tm0, tm1, tm2, dist, full, True)
     w_dot = (s_dot[10], s_dot[11], s_dot[12])
     R = _R_of((s[6], s[7], s[8], s[9]))
     return origin_acceleration(pl.c_B, s, (s_dot[3], s_dot[4], s_dot[5]), w_dot, R), w_dot, env
@@ -533,19 +542,20 @@ def unit_quaternion(s, inq):
 
 
 @kernel(inline="always")
-def body_rk4(pl, s, a, b, c, d, dist, dt, full):
+def body_rk4(pl, s, a, b, c, d, dist, dt, full, contact):
     """One RK4 step of the body's 19 states ``s`` (the tuple of :func:`_body_of`) of the plant ``pl``
     (:data:`PlantLane`), with the rotors' ``E f`` at the four stages ``a``, ``b``, ``c``, ``d``
     (:func:`_rotor_stages`) and the disturbances ``dist`` held: the new states with the pendulum put back on
     its sphere, as :func:`vtol_impedance.sim.plant.rk4_step`, and the quaternion as RK4 leaves it, which the
     caller renormalises (RK4 keeps its norm to the method's order only: :func:`unit_quaternion` with
-    :func:`inv_norm`; a block in lanes checks the whole block's norms first, :func:`~.lanes.step_lanes`).
-    Pure: one vehicle's step or one lane's, alike. ``full``: as :func:`body_derivative`."""
+    :func:`inv_norm`; a block in lanes checks the whole block's norms first, :func:`~.lanes.step_lanes`);
+    and at how many of the four stages the ground acted, or would have (``touch``, 0 to 4). Pure: one
+    vehicle's step or one lane's, alike. ``full`` and ``contact``: as :func:`body_derivative`."""
     h2 = 0.5 * dt
-    k1, _ = body_derivative(pl, s, a[0], a[1], a[2], a[3], dist, full)
-    k2, _ = body_derivative(pl, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist, full)
-    k3, _ = body_derivative(pl, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist, full)
-    k4, _ = body_derivative(pl, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist, full)
+    k1, _, t1 = body_derivative(pl, s, a[0], a[1], a[2], a[3], dist, full, contact)
+    k2, _, t2 = body_derivative(pl, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist, full, contact)
+    k3, _, t3 = body_derivative(pl, _axpy(s, h2, k2), c[0], c[1], c[2], c[3], dist, full, contact)
+    k4, _, t4 = body_derivative(pl, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist, full, contact)
     n = _rk4_sum(s, dt / 6.0, k1, k2, k3, k4)
     r0, r1, r2, v0, v1, v2 = n[13], n[14], n[15], n[16], n[17], n[18]
     if full and pl.pend_m > 0.0:  # back on the sphere, as sim.plant.project_pendulum
@@ -555,7 +565,7 @@ def body_rk4(pl, s, a, b, c, d, dist, dt, full):
         r0, r1, r2 = pl.pend_L * n0, pl.pend_L * n1, pl.pend_L * n2
         v0, v1, v2 = v0 - vr * n0, v1 - vr * n1, v2 - vr * n2
     return (n[0], n[1], n[2], n[3], n[4], n[5], n[6], n[7], n[8], n[9], n[10], n[11], n[12], r0, r1, r2, v0, v1,
-            v2)  # fmt: skip
+            v2), t1 + t2 + t3 + t4  # fmt: skip
 
 
 @kernel()
@@ -567,7 +577,7 @@ def rk4_step(pp, x, f_cmd, dist, dt):
         a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, 4)
     else:
         a, b, c, d = _rotor_stages(pp, x.f_rotor, f_cmd, dt, pp.n_rotors)
-    s = body_rk4(lane_of(pp), _body_of(x), a, b, c, d, dist, dt, True)
+    s, _ = body_rk4(lane_of(pp), _body_of(x), a, b, c, d, dist, dt, True, True)
     _set_body(x, unit_quaternion(s, inv_norm(quat_norm2(s))))
 
 
