@@ -6,6 +6,7 @@ vector code."""
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -297,78 +298,11 @@ def test_the_newton_steps_give_the_inverse_norm_to_its_last_bit_near_one():
     assert np.isnan(inv_norm(np.nan))
 
 
-def test_a_block_renormalises_each_quaternion_as_its_own_vehicle_would():
-    """A block's RK4 step brings each quaternion back to unit norm as the vehicle engine's ``rk4_step`` does,
-    bit for bit: with the Newton steps where the whole block is near unit norm (flight), and lane by lane
-    where one lane is far from it (here a lane whose quaternion starts at norm 1.1: its step takes the square
-    root, the other lanes still the Newton steps)."""
-    from numba import njit
-
-    from vtol_impedance.compiled.jit import FLAGS
-    from vtol_impedance.compiled.lanes import (
-        block_is_plain,
-        get_state,
-        new_buffer,
-        put_command,
-        put_plant,
-        put_state,
-        step_lanes,
-    )
-    from vtol_impedance.compiled.plant import lane_of, rk4_step
-    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_plant, pack_state
-
-    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * k, rotor_tau_up=0.01) for k in range(W)]
-    pp = pack_plant(compile_plants(plants))
-    rng = np.random.default_rng(4)
-    x0 = pack_state(initial_state(compile_plants(plants), rng.normal(0.0, 1.0, (W, 3)) - [0, 0, 2.0]))
-    q = rng.normal(size=(W, 4))
-    x0["q_WB"] = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x0["omega_B"] = rng.normal(0.0, 3.0, (W, 3))
-    f_cmd = rng.uniform(1.0, 6.0, (W, 4))
-
-    @njit(**{**FLAGS, "cache": False})
-    def in_lanes(pp, X, f_cmd, out, steps):
-        buf = new_buffer()
-        for i in range(W):
-            put_plant(buf, i, pp[i], lane_of(pp[i]))
-            put_state(buf, i, X[i])
-            put_command(buf, i, f_cmd[i], 4)
-        plain = block_is_plain(buf)
-        for _ in range(steps):
-            if plain:  # literals, as the engine's block
-                step_lanes(buf, 4, 1e-3, False)
-            else:
-                step_lanes(buf, 4, 1e-3, True)
-        for i in range(W):
-            get_state(buf, i, out[i])
-
-    @njit(**{**FLAGS, "cache": False})
-    def one_by_one(pp, X, f_cmd, steps):
-        dist = np.zeros(6)
-        for i in range(W):
-            for _ in range(steps):
-                rk4_step(pp[i], X[i], f_cmd[i], dist, 1e-3)
-
-    for far in (False, True):
-        x = x0.copy()
-        if far:
-            x["q_WB"][5] *= 1.1
-        lanes, alone = x.copy(), x.copy()
-        in_lanes(pp, x, f_cmd, lanes, 3)
-        one_by_one(pp, alone, f_cmd, 3)
-        np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
-        np.testing.assert_allclose(np.linalg.norm(lanes["q_WB"], axis=1), 1.0, rtol=0, atol=1e-15)
-
-
-@pytest.mark.parametrize("full", [False, True])
-def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lifts(full):
-    """A block steps without the ground's arithmetic while no contact point is below the ground, takes it
-    again (the same step over) where one would be at any of the step's stages, keeps it while the ground
-    acts, and leaves it once every lane is clear: each lane's states bit for bit its own vehicle's
-    ``rk4_step``'s at every step. Lanes that touch down during a step, rest on the ground, fly high, and fall
-    with the ground off; 90 ms at 0.6 of the hover thrust, then 60 ms at twice it. Independently, the ground
-    holds the lanes that have it and not the others, and the block's contact flag (row ``_C``) is up while
-    they rest and down once all have lifted off. ``full``: with a pendulum on one lane (the whole step)."""
+@functools.cache
+def _block_and_vehicles():
+    """A block of :data:`W` plants stepped in lanes (``step_lanes``, with or without the whole step as the
+    engine picks) and each vehicle alone (``rk4_step``), a command per step held over it: each records the
+    states after every step, the block also its contact flag (row ``_C``). Compiled once for the tests."""
     from numba import njit
 
     from vtol_impedance.compiled.jit import FLAGS
@@ -383,25 +317,6 @@ def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lif
         step_lanes,
     )
     from vtol_impedance.compiled.plant import lane_of, rk4_step
-    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_plant, pack_state
-
-    kind = np.arange(W) % 4  # 0 touches down within a step or two, 1 rests, 2 flies high, 3 falls (no ground)
-    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * (k % 5), rotor_tau_up=0.01,
-                          ground=bool(kind[k] != 3), pendulum_mass=0.1 if full and k == 2 else 0.0,
-                          pendulum_length=0.3) for k in range(W)]  # fmt: skip
-    cp = compile_plants(plants)
-    pp = pack_plant(cp)
-    rng = np.random.default_rng(5)
-    z0 = np.choose(kind, [-0.002, 0.001, -1.0, -0.002])
-    eta = rng.uniform(-0.15, 0.15, (W, 3))
-    x0 = np.zeros(W, dtype=pack_state(initial_state(cp, np.zeros((W, 3)))).dtype)
-    for i in range(W):
-        x0[i] = pack_state(initial_state(compile_plants([plants[i]]), [0.3 * i, 0.0, z0[i]], eta[i]))[0]
-    x0["v_com_W"][:, 2] = np.where(kind == 1, 0.0, 0.5)  # falling at 0.5 m/s: the ground within 4 ms
-    x0["omega_B"] = rng.normal(0.0, 1.0, (W, 3))
-    hover = np.array([(p.vehicle.mass + p.payload_mass + p.pendulum_mass) * 9.81 / 4 for p in plants])
-    steps = 150
-    f_cmd = np.repeat(hover[None, :, None], 4, axis=2) * np.where(np.arange(steps) < 90, 0.6, 2.0)[:, None, None]
 
     @njit(**{**FLAGS, "cache": False})
     def in_lanes(pp, X, f_cmd, out, flag):
@@ -429,10 +344,72 @@ def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lif
                 rk4_step(pp[i], X[i], f_cmd[k, i], dist, 1e-3)
                 out[k, i] = X[i]
 
-    lanes, alone = np.zeros((steps, W), dtype=x0.dtype), np.zeros((steps, W), dtype=x0.dtype)
-    flag = np.zeros(steps)
+    return in_lanes, one_by_one
+
+
+def _in_lanes_and_alone(plants, x0, f_cmd):
+    """The states after each step of a block of the ``plants`` from ``x0`` with the commands ``f_cmd`` (steps,
+    :data:`W`, 4), in lanes and vehicle by vehicle, and the block's contact flag after each step."""
+    from vtol_impedance.sim.plant import compile_plants, pack_plant
+
+    in_lanes, one_by_one = _block_and_vehicles()
+    pp = pack_plant(compile_plants(plants))
+    lanes, alone = np.zeros((len(f_cmd), W), dtype=x0.dtype), np.zeros((len(f_cmd), W), dtype=x0.dtype)
+    flag = np.zeros(len(f_cmd))
     in_lanes(pp, x0, f_cmd, lanes, flag)
     one_by_one(pp, x0.copy(), f_cmd, alone)
+    return lanes, alone, flag
+
+
+def test_a_block_renormalises_each_quaternion_as_its_own_vehicle_would():
+    """A block's RK4 step brings each quaternion back to unit norm as the vehicle engine's ``rk4_step`` does,
+    bit for bit at every step: with the Newton steps where the whole block is near unit norm (flight), and
+    lane by lane where one lane is far from it (here a lane whose quaternion starts at norm 1.1: its step
+    takes the square root, the other lanes still the Newton steps)."""
+    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_state
+
+    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * k, rotor_tau_up=0.01) for k in range(W)]
+    rng = np.random.default_rng(4)
+    x0 = pack_state(initial_state(compile_plants(plants), rng.normal(0.0, 1.0, (W, 3)) - [0, 0, 2.0]))
+    q = rng.normal(size=(W, 4))
+    x0["q_WB"] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x0["omega_B"] = rng.normal(0.0, 3.0, (W, 3))
+    f_cmd = np.repeat(rng.uniform(1.0, 6.0, (1, W, 4)), 3, axis=0)
+    for far in (False, True):
+        x = x0.copy()
+        if far:
+            x["q_WB"][5] *= 1.1
+        lanes, alone, _ = _in_lanes_and_alone(plants, x, f_cmd)
+        np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
+        np.testing.assert_allclose(np.linalg.norm(lanes["q_WB"], axis=-1), 1.0, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lifts(full):
+    """A block steps without the ground's arithmetic while no contact point is below the ground, takes it
+    again (the same step over) where one would be at any of the step's stages, keeps it while the ground
+    acts, and leaves it once every lane is clear: each lane's states bit for bit its own vehicle's
+    ``rk4_step``'s at every step. Lanes that touch down during a step, rest on the ground, fly high, and fall
+    with the ground off; 90 ms at 0.6 of the hover thrust, then 60 ms at twice it. Independently, the ground
+    holds the lanes that have it and not the others, and the block's contact flag (row ``_C``) is up while
+    they rest and down once all have lifted off. ``full``: with a pendulum on one lane (the whole step)."""
+    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_state
+
+    kind = np.arange(W) % 4  # 0 touches down within a step or two, 1 rests, 2 flies high, 3 falls (no ground)
+    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * (k % 5), rotor_tau_up=0.01,
+                          ground=bool(kind[k] != 3), pendulum_mass=0.1 if full and k == 2 else 0.0,
+                          pendulum_length=0.3) for k in range(W)]  # fmt: skip
+    rng = np.random.default_rng(5)
+    z0 = np.choose(kind, [-0.002, 0.001, -1.0, -0.002])
+    eta = rng.uniform(-0.15, 0.15, (W, 3))
+    x0 = np.concatenate([pack_state(initial_state(compile_plants([plants[i]]), [0.3 * i, 0.0, z0[i]], eta[i]))
+                         for i in range(W)])  # fmt: skip
+    x0["v_com_W"][:, 2] = np.where(kind == 1, 0.0, 0.5)  # falling at 0.5 m/s: the ground within 4 ms
+    x0["omega_B"] = rng.normal(0.0, 1.0, (W, 3))
+    hover = np.array([(p.vehicle.mass + p.payload_mass + p.pendulum_mass) * 9.81 / 4 for p in plants])
+    steps = 150
+    f_cmd = np.repeat(hover[None, :, None], 4, axis=2) * np.where(np.arange(steps) < 90, 0.6, 2.0)[:, None, None]
+    lanes, alone, flag = _in_lanes_and_alone(plants, x0, f_cmd)
     np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
     z = lanes["p_com_W"][:, :, 2] - x0["p_com_W"][:, 2]  # how far each lane's CoM went down
     assert np.all(z[89, kind == 3] > 0.04)  # with the ground off: falling (0.5 m/s, about 0.4 g net down)
