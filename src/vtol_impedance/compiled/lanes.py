@@ -286,16 +286,13 @@ def put_disturbance(buf, i, dist):
 def step_lanes(buf, n_rotors, dt, full):
     """One RK4 step of every lane of ``buf`` with its command and disturbance held (as
     :func:`~.plant.rk4_step` of each): the rotors one at a time across the lanes, their stages' ``E f``
-    summed in rotor order, then the body, then the quaternions' norms (:func:`~.plant.inv_norm`). ``full``
-    false (a literal) where no lane has a pendulum or quadratic drag (:func:`~.plant.plant_is_plain`): the
-    same states, without their arithmetic.
+    summed in rotor order, then the body (:func:`_bodies_plain` or :func:`_bodies_full`), then the
+    quaternions' norms (:func:`~.plant.inv_norm`). ``full`` false (a literal) where no lane has a pendulum
+    or quadratic drag (:func:`~.plant.plant_is_plain`): the same states, without their arithmetic.
 
-    The body's step leaves out the ground (``contact`` false in :func:`~.plant.body_derivative`) unless it
-    acted on a lane in the block's last step; a step in which it would have acted on a lane at one of its
-    stages is taken again with it, from the same states. In flight no lane is near the ground and the
-    step is 13 % faster; a touchdown costs one step twice, a block resting on the ground takes the step
-    with the ground at once. Whether to take either path comes from rows of flags the lane loop writes,
-    summed over the lanes (:func:`row_sum`)."""
+    The bodies' step is a function of its own in each form, called rather than inlined: inlined at the
+    engine's three call sites (a quadrotor's rotors unrolled or not), with the plain body's step in two forms,
+    the engine's cold compile took 16 GB of memory and 14 minutes on two cores (eighteenth stop)."""
     for j in range(16):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
@@ -312,16 +309,10 @@ def step_lanes(buf, n_rotors, dt, full):
                 buf[(_U + 4 + c) * W + i] += e * f2
                 buf[(_U + 8 + c) * W + i] += e * f3
                 buf[(_U + 12 + c) * W + i] += e * f4
-    # the body without the ground's arithmetic, unless the ground acted on a lane in the block's last step;
-    # where it would have acted in this one, the step again with it (its forces are exact zeros where no
-    # contact point is below the ground: either way each lane's numbers are its own vehicle's rk4_step's)
-    contact = buf[_C * W] > 0.0
-    if not contact:
-        _body_lanes(buf, dt, full, False)
-        contact = row_sum(buf, _T) > 0.0
-    if contact:
-        _body_lanes(buf, dt, full, True)
-        buf[_C * W] = 1.0 if row_sum(buf, _T) > 0.0 else 0.0
+    if full:
+        _bodies_full(buf, dt)
+    else:
+        _bodies_plain(buf, dt)
     # the new states kept, the quaternions back to unit norm (plant.inv_norm, lane by lane the same numbers):
     # products only where every lane of the block is near 1, as in flight; else each lane as its own vehicle
     if row_sum(buf, _Q) == 0.0:
@@ -332,6 +323,32 @@ def step_lanes(buf, n_rotors, dt, full):
         for i in range(W):
             s = _body_rows(buf, _K, i)
             _put_body(buf, _S, i, unit_quaternion(s, inv_norm(quat_norm2(s))))
+
+
+@kernel()
+def _bodies_plain(buf, dt):
+    """The body's step of a block whose lanes have no pendulum or quadratic drag, into the rows from
+    :data:`_K`. It leaves out the ground (``contact`` false in :func:`~.plant.body_derivative`) unless it
+    acted on a lane in the block's last step; a step in which it would have acted on a lane at one of its
+    stages is taken again with it, from the same states. The ground's forces are exact zeros where no
+    contact point is below it, so either way each lane's numbers are its own vehicle's ``rk4_step``'s. In
+    flight no lane is near the ground and the step is 13 % faster; a touchdown costs one step twice, a block
+    resting on the ground takes the step with the ground at once (flag :data:`_C`). Whether to take either
+    path comes from the rows of flags the lane loop writes, summed over the lanes (:func:`row_sum`)."""
+    contact = buf[_C * W] > 0.0
+    if not contact:
+        _body_lanes(buf, dt, False, False)
+        contact = row_sum(buf, _T) > 0.0
+    if contact:
+        _body_lanes(buf, dt, False, True)
+        buf[_C * W] = 1.0 if row_sum(buf, _T) > 0.0 else 0.0
+
+
+@kernel()
+def _bodies_full(buf, dt):
+    """The body's step of a block with a pendulum or quadratic drag in a lane, with the ground (one form
+    for every rotor count: a compiled copy fewer)."""
+    _body_lanes(buf, dt, True, True)
 
 
 @kernel(inline="always")
