@@ -290,9 +290,12 @@ def step_lanes(buf, n_rotors, dt, full):
     quaternions' norms (:func:`~.plant.inv_norm`). ``full`` false (a literal) where no lane has a pendulum
     or quadratic drag (:func:`~.plant.plant_is_plain`): the same states, without their arithmetic.
 
-    The bodies' step is a function of its own in each form, called rather than inlined: inlined at the
-    engine's three call sites (a quadrotor's rotors unrolled or not), with the plain body's step in two forms,
-    the engine's cold compile took 16 GB of memory and 14 minutes on two cores (eighteenth stop)."""
+    The bodies' step is a function of its own in each form, called rather than inlined (one compiled copy
+    of the whole step's for every rotor count): inlined at the engine's three call sites, the plain
+    step's in two forms, the engine's cold compile took 16.1 GB of memory and 14 minutes on two cores;
+    called, 7.9 GB and 7 minutes, for a block's step 2 % slower (the plain one's alone inlined: 11.9 GB;
+    with the truth's loop called too, :func:`observe_lanes`, 5.4 GB and 4 minutes; nineteenth stop, the
+    performance guide)."""
     for j in range(16):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
@@ -433,8 +436,32 @@ def _sum_rotors(buf, n_rotors):
 def observe_lanes(buf, n_rotors, full):
     """The truth at a control tick for every lane, as one vehicle's :func:`~.plant.truth_at` and
     :func:`~.plant.observed` give it, into the rows read by :func:`observed_at`: the state, rotor forces and
-    disturbance the lanes hold, the command held over the last period. ``full``: as :func:`step_lanes`."""
+    disturbance the lanes hold, the command held over the last period. ``full``: as :func:`step_lanes`. The
+    lanes' loop is a called function in either form, as the bodies' step (:func:`_truths_plain`,
+    :func:`_truths_full`): once a tick, the call costs nothing to speak of, and the engine's compile a form
+    fewer."""
     _sum_rotors(buf, n_rotors)
+    if full:
+        _truths_full(buf)
+    else:
+        _truths_plain(buf)
+
+
+@kernel()
+def _truths_plain(buf):
+    """:func:`observe_lanes`'s loop over the lanes, for a block without a pendulum or quadratic drag."""
+    _truth_lanes(buf, False)
+
+
+@kernel()
+def _truths_full(buf):
+    """:func:`observe_lanes`'s loop over the lanes, with the whole plant (every rotor count)."""
+    _truth_lanes(buf, True)
+
+
+@kernel(inline="always")
+def _truth_lanes(buf, full):
+    """Every lane's truth (:func:`~.plant.truth_of`, ``full`` a literal) and what its tick observes of it."""
     for i in range(W):  # vectorised: one lane per vehicle
         u, dd, nn = _U * W + i, _D * W + i, _N * W + i
         pl, s = _plant_at(buf, i), _body_at(buf, i)
