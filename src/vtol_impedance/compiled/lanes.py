@@ -290,12 +290,11 @@ def step_lanes(buf, n_rotors, dt, full):
     quaternions' norms (:func:`~.plant.inv_norm`). ``full`` false (a literal) where no lane has a pendulum
     or quadratic drag (:func:`~.plant.plant_is_plain`): the same states, without their arithmetic.
 
-    The bodies' step is a function of its own in each form, called rather than inlined (one compiled copy
-    of the whole step's for every rotor count): inlined at the engine's three call sites, the plain
-    step's in two forms, the engine's cold compile took 16.1 GB of memory and 14 minutes on two cores;
-    called, 7.9 GB and 7 minutes, for a block's step 2 % slower (the plain one's alone inlined: 11.9 GB;
-    with the truth's loop called too, :func:`observe_lanes`, 5.4 GB and 4 minutes; nineteenth stop, the
-    performance guide)."""
+    Each form of the bodies' step is a function of its own, called rather than inlined (the whole step's
+    one compiled copy for every rotor count). Inlined at the engine's three call sites, the plain one in
+    two forms, they made the engine's cold compile take 16.1 GB of memory and 14 minutes on two cores;
+    called (and :func:`observe_lanes`'s loop too), 5.4 GB and 4 minutes, for a block's step 2 % slower
+    (nineteenth stop, the performance guide)."""
     for j in range(16):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
