@@ -325,8 +325,9 @@ def body_derivative(pp, s, u, tm0, tm1, tm2, dist, full, contact):
     ``contact`` false (a literal) leaves out the ground at both points, a quarter of the arithmetic, which
     lanes otherwise compute in every lane and discard in flight: the result is the same wherever the third
     value returned, ``touch``, is 0 (1 where the ground acts at a point of ``s``, or would: ``ground`` on and
-    a point below it). :func:`~.lanes.step_lanes` takes a block's step without it and takes it over with it
-    where a lane's ``touch`` was 1 at one of the step's stages.
+    a point below it). A plain block in lanes (:func:`~.lanes._bodies_plain`) takes its step without it and
+    takes it over with it where a lane's ``touch`` was 1 at one of the step's stages; a block with the whole
+    step (``full``) always takes it.
     """
     p2, v0, v1, v2 = s[2], s[3], s[4], s[5]
     qw, qx, qy, qz = s[6], s[7], s[8], s[9]
