@@ -335,6 +335,7 @@ def _block_and_vehicles():
             flag[k] = buf[_C * W]
             for i in range(W):
                 get_state(buf, i, out[k, i])
+        return plain
 
     @njit(**{**FLAGS, "cache": False})
     def one_by_one(pp, X, f_cmd, out):
@@ -349,16 +350,17 @@ def _block_and_vehicles():
 
 def _in_lanes_and_alone(plants, x0, f_cmd):
     """The states after each step of a block of the ``plants`` from ``x0`` with the commands ``f_cmd`` (steps,
-    :data:`W`, 4), in lanes and vehicle by vehicle, and the block's contact flag after each step."""
+    :data:`W`, 4), in lanes and vehicle by vehicle, the block's contact flag after each step, and whether the
+    block took the plain step (``block_is_plain``)."""
     from vtol_impedance.sim.plant import compile_plants, pack_plant
 
     in_lanes, one_by_one = _block_and_vehicles()
     pp = pack_plant(compile_plants(plants))
     lanes, alone = np.zeros((len(f_cmd), W), dtype=x0.dtype), np.zeros((len(f_cmd), W), dtype=x0.dtype)
     flag = np.zeros(len(f_cmd))
-    in_lanes(pp, x0, f_cmd, lanes, flag)
+    plain = in_lanes(pp, x0, f_cmd, lanes, flag)
     one_by_one(pp, x0.copy(), f_cmd, alone)
-    return lanes, alone, flag
+    return lanes, alone, flag, plain
 
 
 def test_a_block_renormalises_each_quaternion_as_its_own_vehicle_would():
@@ -379,7 +381,8 @@ def test_a_block_renormalises_each_quaternion_as_its_own_vehicle_would():
         x = x0.copy()
         if far:
             x["q_WB"][5] *= 1.1
-        lanes, alone, _ = _in_lanes_and_alone(plants, x, f_cmd)
+        lanes, alone, _, plain = _in_lanes_and_alone(plants, x, f_cmd)
+        assert plain
         np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
         np.testing.assert_allclose(np.linalg.norm(lanes["q_WB"], axis=-1), 1.0, rtol=0, atol=1e-15)
 
@@ -410,7 +413,8 @@ def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lif
     hover = np.array([(p.vehicle.mass + p.payload_mass + p.pendulum_mass) * 9.81 / 4 for p in plants])
     steps = 150
     f_cmd = np.repeat(hover[None, :, None], 4, axis=2) * np.where(np.arange(steps) < 90, 0.6, 2.0)[:, None, None]
-    lanes, alone, flag = _in_lanes_and_alone(plants, x0, f_cmd)
+    lanes, alone, flag, plain = _in_lanes_and_alone(plants, x0, f_cmd)
+    assert plain is not full
     np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
     z = lanes["p_com_W"][:, :, 2] - x0["p_com_W"][:, 2]  # how far each lane's CoM went down
     assert np.all(z[89, kind == 3] > 0.04)  # with the ground off: falling (0.5 m/s, about 0.4 g net down)
@@ -422,6 +426,33 @@ def test_a_block_takes_the_ground_as_each_vehicle_does_as_it_lands_rests_and_lif
     else:
         assert flag[:90].max() == 1.0 and flag[0] == 1.0  # the ground acts within the first step
         assert flag[-1] == 0.0  # every lane clear of it: the block steps without it again
+
+
+def test_a_plain_block_leaves_the_pendulum_states_and_a_moving_massless_link_takes_the_whole_step():
+    """Without a pendulum (``pend_m = 0``) the link's states have a zero derivative when it does not move, so
+    a plain block's step leaves them as they are (``plant.body_rk4``, ``full`` false), bit for bit what each
+    vehicle's ``rk4_step`` gives. A lane whose massless link moves (``v_pend_W`` not zero: its end drifts, as
+    RK4 integrates it) makes the block take the whole step (``block_is_plain`` false), which moves it as the
+    vehicle alone does."""
+    from vtol_impedance.sim.plant import compile_plants, initial_state, pack_state
+
+    plants = [PlantParams(load_preset("pelican"), payload_mass=0.05 * (k % 3), rotor_tau_up=0.01) for k in range(W)]
+    rng = np.random.default_rng(6)
+    x0 = pack_state(initial_state(compile_plants(plants), rng.normal(0.0, 1.0, (W, 3)) - [0, 0, 2.0]))
+    x0["r_pend_W"] = rng.normal(0.0, 0.3, (W, 3))
+    f_cmd = np.repeat(rng.uniform(1.0, 6.0, (1, W, 4)), 20, axis=0)
+    lanes, alone, _, plain = _in_lanes_and_alone(plants, x0, f_cmd)
+    assert plain
+    np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
+    np.testing.assert_array_equal(lanes["r_pend_W"][-1], x0["r_pend_W"])  # none moved
+    x1 = x0.copy()
+    x1["v_pend_W"][3] = (0.2, -0.1, 0.05)
+    lanes, alone, _, plain = _in_lanes_and_alone(plants, x1, f_cmd)
+    assert not plain
+    np.testing.assert_array_equal(lanes.view(np.float64), alone.view(np.float64))
+    drift = lanes["r_pend_W"][-1, 3] - x1["r_pend_W"][3]  # 20 steps of 1 ms at a constant rate
+    np.testing.assert_allclose(drift, 0.02 * x1["v_pend_W"][3], rtol=1e-12)
+    np.testing.assert_array_equal(np.delete(lanes["r_pend_W"][-1], 3, 0), np.delete(x1["r_pend_W"], 3, 0))
 
 
 def test_the_code_generator_takes_512_bit_vectors_on_avx512_unless_told_not_to():

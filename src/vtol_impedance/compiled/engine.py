@@ -75,7 +75,7 @@ from .lanes_estimator import (
 )
 from .layouts import OUTPUT
 from .metrics import add_terms, tick_terms
-from .noise import normals_lanes, standard_normal
+from .noise import draw_lanes, new_draw_scratch, standard_normal
 from .plant import (
     _body_of,
     clip_command,
@@ -305,7 +305,7 @@ def run_block_lanes(k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_im
     """:func:`run_block` with the plants, sensors, estimators and control laws in SIMD lanes (:mod:`.lanes`,
     :mod:`.lanes_estimator`, :mod:`.lanes_controller`): one ``prange`` iteration per block of :data:`~.lanes.W`
     vehicles. Per control tick the block's truth is taken in lanes, each lane draws its vehicle's sensor noise
-    (:func:`.noise.normals_lanes`), the block's sensors, estimators and control laws run in lanes, the window
+    (:func:`.noise.draw_lanes`), the block's sensors, estimators and control laws run in lanes, the window
     metrics' terms too (:mod:`.metrics`, the functions :func:`run_block` calls), each vehicle's log as in
     :func:`run_block`, then the block's plants take their ``n_sub`` RK4 steps
     together. Same arguments; the same results to 1e-11 (the lanes take their sines from :mod:`.vmath`,
@@ -377,6 +377,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
     sums = aligned_zeros(N_SUMS * W)
     in_lanes = False
     st = aligned_zeros(4 * W).view(np.uint64).reshape(4, W)  # the lanes' noise generators (past n: the first's)
+    drawn = new_draw_scratch()  # the noise draws' scratch
     for i in range(W):
         for j in range(4):
             st[j, i] = rng[j, b0 + (i if i < n else 0)]
@@ -397,7 +398,7 @@ def _fly_lanes(b0, n, k0, k1, Ts, dt, n_sub, X, hist, hcount, hhead, k_mocap, k_
                 observe_lanes(buf, 4, True)
             else:
                 observe_lanes(buf, nr, True)
-        normals_lanes(st, sb, NOISE_ROW, 12)  # the sensors: each lane's noise of the tick, then the measurement
+        draw_lanes(st, sb, NOISE_ROW, 12, drawn)  # the sensors: each lane's noise of the tick, then the measurement
         ago_m, ago_i = min(k_mocap, count_s - 1), min(k_imu, count_s - 1)  # as _ago
         measure_lanes(sb, (head_s - ago_m) % H, (head_s - ago_i) % H, sigma)
         put_measured_rows(eb, sb, SENSED)

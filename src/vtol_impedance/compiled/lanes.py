@@ -194,6 +194,13 @@ def _body_rows(buf, row, i):
 @kernel(inline="always")
 def _put_body(buf, row, i, s):
     """Lane ``i``'s 19 values ``s`` into the rows from ``row`` (:func:`_body_rows`)."""
+    _put_states(buf, row, i, s, True)
+
+
+@kernel(inline="always")
+def _put_states(buf, row, i, s, full):
+    """:func:`_put_body`, or with ``full`` false (a literal) the first 13 values only: the rigid body's, not
+    the pendulum's, which a plain block's step leaves as they are (:func:`~.plant.body_rk4`)."""
     k = row * W + i
     buf[k] = s[0]
     buf[k + W] = s[1]
@@ -208,12 +215,13 @@ def _put_body(buf, row, i, s):
     buf[k + 10 * W] = s[10]
     buf[k + 11 * W] = s[11]
     buf[k + 12 * W] = s[12]
-    buf[k + 13 * W] = s[13]
-    buf[k + 14 * W] = s[14]
-    buf[k + 15 * W] = s[15]
-    buf[k + 16 * W] = s[16]
-    buf[k + 17 * W] = s[17]
-    buf[k + 18 * W] = s[18]
+    if full:
+        buf[k + 13 * W] = s[13]
+        buf[k + 14 * W] = s[14]
+        buf[k + 15 * W] = s[15]
+        buf[k + 16 * W] = s[16]
+        buf[k + 17 * W] = s[17]
+        buf[k + 18 * W] = s[18]
 
 
 @kernel(inline="always")
@@ -295,6 +303,59 @@ def step_lanes(buf, n_rotors, dt, full):
     two forms, they made the engine's cold compile take 16.1 GB of memory and 14 minutes on two cores;
     called (and :func:`observe_lanes`'s loop too), 5.4 GB and 4 minutes, for a block's step 2 % slower
     (nineteenth stop, the performance guide)."""
+    if n_rotors == 4:  # a literal: the quadrotor's rotors inside the lanes' loop, their sums in registers
+        _rotors_in_lanes(buf, 4, dt)
+    else:
+        _rotors_across_lanes(buf, n_rotors, dt)
+    if full:
+        _bodies_full(buf, dt)
+    else:
+        _bodies_plain(buf, dt)
+    # the new states kept, the quaternions back to unit norm (plant.inv_norm, lane by lane the same numbers):
+    # products only where every lane of the block is near 1, as in flight; else each lane as its own vehicle
+    if row_sum(buf, _Q) == 0.0:
+        for i in range(W):  # vectorised: one lane per vehicle
+            s = _body_rows(buf, _K, i)
+            _put_states(buf, _S, i, unit_quaternion(s, inv_norm_near(quat_norm2(s))), full)
+    else:
+        for i in range(W):
+            s = _body_rows(buf, _K, i)
+            _put_states(buf, _S, i, unit_quaternion(s, inv_norm(quat_norm2(s))), full)
+
+
+@kernel(inline="always")
+def _rotors_in_lanes(buf, n_rotors, dt):
+    """Every lane's rotors' RK4 step (:func:`~.plant.rotor_rk4`, kept in their rows) and their ``E f`` at the
+    four stages, summed in rotor order (as :func:`~.plant._rotor_stages`) in registers and written once, into
+    the rows :func:`_body_lanes` reads. ``n_rotors`` a literal: LLVM unrolls the rotors and vectorises the
+    lanes' loop, with half the instructions of :func:`_rotors_across_lanes` (no row read and written again
+    per rotor; the same numbers). Written out in one function on purpose: a rotor's step as a called
+    helper taking its index kept the loop scalar (nineteenth stop, the performance guide)."""
+    for i in range(W):  # vectorised: one lane per vehicle
+        up, down = buf[(_PL + 25) * W + i], buf[(_PL + 26) * W + i]
+        a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = d0 = d1 = d2 = d3 = 0.0
+        for r in range(n_rotors):
+            g = clip_command(buf[(_FC + r) * W + i], buf[(_FMIN + r) * W + i], buf[(_FMAX + r) * W + i])
+            f1 = buf[(_F + r) * W + i]
+            f, f2, f3, f4 = rotor_rk4(up, down, g, f1, dt)
+            buf[(_F + r) * W + i] = f
+            k = (_E + 4 * r) * W + i
+            e0, e1, e2, e3 = buf[k], buf[k + W], buf[k + 2 * W], buf[k + 3 * W]
+            a0, a1, a2, a3 = a0 + e0 * f1, a1 + e1 * f1, a2 + e2 * f1, a3 + e3 * f1
+            b0, b1, b2, b3 = b0 + e0 * f2, b1 + e1 * f2, b2 + e2 * f2, b3 + e3 * f2
+            c0, c1, c2, c3 = c0 + e0 * f3, c1 + e1 * f3, c2 + e2 * f3, c3 + e3 * f3
+            d0, d1, d2, d3 = d0 + e0 * f4, d1 + e1 * f4, d2 + e2 * f4, d3 + e3 * f4
+        k = _U * W + i
+        buf[k], buf[k + W], buf[k + 2 * W], buf[k + 3 * W] = a0, a1, a2, a3
+        buf[k + 4 * W], buf[k + 5 * W], buf[k + 6 * W], buf[k + 7 * W] = b0, b1, b2, b3
+        buf[k + 8 * W], buf[k + 9 * W], buf[k + 10 * W], buf[k + 11 * W] = c0, c1, c2, c3
+        buf[k + 12 * W], buf[k + 13 * W], buf[k + 14 * W], buf[k + 15 * W] = d0, d1, d2, d3
+
+
+@kernel(inline="always")
+def _rotors_across_lanes(buf, n_rotors, dt):
+    """:func:`_rotors_in_lanes` for a count known only at run time: the rotors one at a time across the
+    lanes, their sums through the rows (a loop inside the lanes' loop would not vectorise)."""
     for j in range(16):
         for i in range(W):
             buf[(_U + j) * W + i] = 0.0
@@ -311,20 +372,6 @@ def step_lanes(buf, n_rotors, dt, full):
                 buf[(_U + 4 + c) * W + i] += e * f2
                 buf[(_U + 8 + c) * W + i] += e * f3
                 buf[(_U + 12 + c) * W + i] += e * f4
-    if full:
-        _bodies_full(buf, dt)
-    else:
-        _bodies_plain(buf, dt)
-    # the new states kept, the quaternions back to unit norm (plant.inv_norm, lane by lane the same numbers):
-    # products only where every lane of the block is near 1, as in flight; else each lane as its own vehicle
-    if row_sum(buf, _Q) == 0.0:
-        for i in range(W):  # vectorised: one lane per vehicle
-            s = _body_rows(buf, _K, i)
-            _put_body(buf, _S, i, unit_quaternion(s, inv_norm_near(quat_norm2(s))))
-    else:
-        for i in range(W):
-            s = _body_rows(buf, _K, i)
-            _put_body(buf, _S, i, unit_quaternion(s, inv_norm(quat_norm2(s))))
 
 
 @kernel()
@@ -364,7 +411,7 @@ def _body_lanes(buf, dt, full, contact):
             _four(buf, u + 12 * W), (buf[dd], buf[dd + W], buf[dd + 2 * W], buf[dd + 3 * W], buf[dd + 4 * W],
             buf[dd + 5 * W]), dt, full, contact,
         )  # fmt: skip
-        _put_body(buf, _K, i, s)
+        _put_states(buf, _K, i, s, full)
         buf[_T * W + i] = touch
         buf[_Q * W + i] = 0.0 if abs(quat_norm2(s) - 1.0) <= QUAT_NEAR else 1.0  # as plant.inv_norm
 
@@ -381,10 +428,12 @@ def row_sum(buf, row):
 
 @kernel(inline="always")
 def block_is_plain(buf):
-    """Whether no lane of ``buf`` has a pendulum or quadratic drag (:func:`~.plant.plant_is_plain`): then
-    :func:`step_lanes` may take ``full`` false."""
+    """Whether no lane of ``buf`` has a pendulum or quadratic drag (:func:`~.plant.plant_is_plain`), nor a
+    pendulum's link moving (``v_pend_W``, which then stays as it is): then :func:`step_lanes` may take
+    ``full`` false."""
     for i in range(W):
-        if not plant_is_plain(_plant_at(buf, i)):
+        k = (_S + 16) * W + i
+        if not plant_is_plain(_plant_at(buf, i)) or buf[k] != 0.0 or buf[k + W] != 0.0 or buf[k + 2 * W] != 0.0:
             return False
     return True
 

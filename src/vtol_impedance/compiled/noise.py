@@ -122,20 +122,32 @@ def standard_normal(rng, b):
 def normals_lanes(st, out, row0, m):
     """``m`` normals per lane of the block states ``st (4, W)``, into ``out[(row0 + j) * W + i]`` (lane ``i``,
     draw ``j``, the lanes' row layout of :mod:`.lanes`): each lane's stream in order, as :func:`standard_normal`
-    would draw it."""
-    rs = np.empty(W, dtype=np.uint64)
-    oks = np.empty(W, dtype=np.bool_)
+    would draw it (:func:`draw_lanes` with scratch of its own)."""
+    draw_lanes(st, out, row0, m, new_draw_scratch())
+
+
+@kernel()
+def new_draw_scratch():
+    """The scratch :func:`draw_lanes` keeps each lane's last word and whether it was accepted at once in
+    (``(2, W)`` uint64): a caller drawing every tick allocates it once."""
+    return np.empty((2, W), dtype=np.uint64)
+
+
+@kernel()
+def draw_lanes(st, out, row0, m, scratch):
+    """:func:`normals_lanes` with the ``scratch`` of :func:`new_draw_scratch` (an allocation a tick less: 12 %
+    of the draws' time, nineteenth stop)."""
     for j in range(m):
         k = (row0 + j) * W
         for i in range(W):  # vectorised: the accepted word (the common case)
             r = _next(st, i)
             x, ok, _, _ = _layer(r)
             out[k + i] = x
-            rs[i] = r
-            oks[i] = ok
+            scratch[0, i] = r
+            scratch[1, i] = _U1 if ok else _U0
         for i in range(W):  # lane by lane: a word that failed the quick test
-            if not oks[i]:
-                x, _, idx, rabs = _layer(rs[i])
+            if scratch[1, i] == _U0:
+                x, _, idx, rabs = _layer(scratch[0, i])
                 ok, x = _finish(st, i, x, idx, rabs)
                 out[k + i] = x if ok else standard_normal(st, i)
 

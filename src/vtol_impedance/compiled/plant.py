@@ -551,7 +551,10 @@ def body_rk4(pl, s, a, b, c, d, dist, dt, full, contact):
     caller renormalises (RK4 keeps its norm to the method's order only: :func:`unit_quaternion` with
     :func:`inv_norm`; a block in lanes checks the whole block's norms first, :func:`~.lanes.step_lanes`);
     and at how many of the four stages the ground acted, or would have (``touch``, 0 to 4). Pure: one
-    vehicle's step or one lane's, alike. ``full`` and ``contact``: as :func:`body_derivative`."""
+    vehicle's step or one lane's, alike. ``full`` and ``contact``: as :func:`body_derivative`; ``full`` false
+    also leaves the pendulum's six states as they are, for a plant without one whose link does not move
+    (``pend_m = 0``, ``v_pend_W = 0``, :func:`~.lanes.block_is_plain`): its derivative is then exactly zero,
+    so RK4 would leave them so (``r + h (0 + 2 0 + 2 0 + 0)``), and the lanes skip its arithmetic."""
     h2 = 0.5 * dt
     k1, _, t1 = body_derivative(pl, s, a[0], a[1], a[2], a[3], dist, full, contact)
     k2, _, t2 = body_derivative(pl, _axpy(s, h2, k1), b[0], b[1], b[2], b[3], dist, full, contact)
@@ -559,6 +562,8 @@ def body_rk4(pl, s, a, b, c, d, dist, dt, full, contact):
     k4, _, t4 = body_derivative(pl, _axpy(s, dt, k3), d[0], d[1], d[2], d[3], dist, full, contact)
     n = _rk4_sum(s, dt / 6.0, k1, k2, k3, k4)
     r0, r1, r2, v0, v1, v2 = n[13], n[14], n[15], n[16], n[17], n[18]
+    if not full:  # the pendulum's states as they were, without RK4's arithmetic (exact: see the docstring)
+        r0, r1, r2, v0, v1, v2 = s[13], s[14], s[15], s[16], s[17], s[18]
     if full and pl.pend_m > 0.0:  # back on the sphere, as sim.plant.project_pendulum
         L = max(math.sqrt(r0**2 + r1**2 + r2**2), 1e-9)
         n0, n1, n2 = r0 / L, r1 / L, r2 / L
