@@ -330,7 +330,7 @@ def _rotors_in_lanes(buf, n_rotors, dt):
     the rows :func:`_body_lanes` reads. ``n_rotors`` a literal: LLVM unrolls the rotors and vectorises the
     lanes' loop, with half the instructions of :func:`_rotors_across_lanes` (no row read and written again
     per rotor; the same numbers). Written out in one function on purpose: a rotor's step as a called
-    helper taking its index kept the loop scalar (nineteenth stop, the performance guide)."""
+    helper taking its index kept the loop scalar (twentieth stop, the performance guide)."""
     for i in range(W):  # vectorised: one lane per vehicle
         up, down = buf[(_PL + 25) * W + i], buf[(_PL + 26) * W + i]
         a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = d0 = d1 = d2 = d3 = 0.0

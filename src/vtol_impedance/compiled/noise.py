@@ -136,7 +136,7 @@ def new_draw_scratch():
 @kernel()
 def draw_lanes(st, out, row0, m, scratch):
     """:func:`normals_lanes` with the ``scratch`` of :func:`new_draw_scratch` (an allocation a tick less: 12 %
-    of the draws' time, nineteenth stop)."""
+    of the draws' time, twentieth stop)."""
     for j in range(m):
         k = (row0 + j) * W
         for i in range(W):  # vectorised: the accepted word (the common case)
