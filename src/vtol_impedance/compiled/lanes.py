@@ -293,10 +293,11 @@ def put_disturbance(buf, i, dist):
 @kernel(inline="always")
 def step_lanes(buf, n_rotors, dt, full):
     """One RK4 step of every lane of ``buf`` with its command and disturbance held (as
-    :func:`~.plant.rk4_step` of each): the rotors one at a time across the lanes, their stages' ``E f``
-    summed in rotor order, then the body (:func:`_bodies_plain` or :func:`_bodies_full`), then the
-    quaternions' norms (:func:`~.plant.inv_norm`). ``full`` false (a literal) where no lane has a pendulum
-    or quadratic drag (:func:`~.plant.plant_is_plain`): the same states, without their arithmetic.
+    :func:`~.plant.rk4_step` of each): the rotors, their stages' ``E f`` summed in rotor order
+    (:func:`_rotors_in_lanes` for a literal count of four, else :func:`_rotors_across_lanes`), then the
+    body (:func:`_bodies_plain` or :func:`_bodies_full`), then the quaternions' norms
+    (:func:`~.plant.inv_norm`). ``full`` false (a literal) where no lane has a pendulum or quadratic drag
+    and no massless link moves (:func:`block_is_plain`): the same states, without their arithmetic.
 
     Each form of the bodies' step is a function of its own, called rather than inlined (the whole step's
     one compiled copy for every rotor count). Inlined at the engine's three call sites, the plain one in
@@ -312,7 +313,8 @@ def step_lanes(buf, n_rotors, dt, full):
     else:
         _bodies_plain(buf, dt)
     # the new states kept, the quaternions back to unit norm (plant.inv_norm, lane by lane the same numbers):
-    # products only where every lane of the block is near 1, as in flight; else each lane as its own vehicle
+    # products only where every lane of the block is near 1, as in flight; else each lane as its own vehicle.
+    # full false: the step wrote no pendulum rows into _K, and none is read from them (_put_states)
     if row_sum(buf, _Q) == 0.0:
         for i in range(W):  # vectorised: one lane per vehicle
             s = _body_rows(buf, _K, i)
